@@ -1,0 +1,227 @@
+"""Plain scene description: what `renderer/usd/` produces and the render core consumes.
+
+This is the sync boundary (the way a Hydra delegate syncs): nothing here knows about USD.
+Every array is numpy with the batch axis first. Geometry and frames are already in world
+space, in scene units (the stage's own units; ``meters_per_unit`` is carried for reference).
+
+Conventions
+-----------
+* Matrices are 4x4 float64 acting on column vectors: ``p_world = M @ [x, y, z, 1]``.
+  (USD's Gf matrices are row-vector; the reader transposes.)
+* Colours are linear Rec.709 RGB.
+* A light's ``light_to_world`` is its full world transform; lights emit along local -Z
+  (rect, disk, distant), outward (sphere, cylinder), and a dome's frame already contains
+  the pole-axis correction, so local +Y is the dome's top pole.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------------------
+# Textures and materials
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TextureDesc:
+    """A UsdUVTexture feeding one material input.
+
+    file: absolute, resolved path of the image.
+    source_color_space: 'raw' | 'sRGB' | 'auto' ('auto' = sRGB for 8-bit files, raw otherwise).
+    wrap_s, wrap_t: 'black' | 'clamp' | 'repeat' | 'mirror' ('useMetadata' is resolved by the reader,
+        falling back to 'repeat' as hdStorm does when the file carries no wrap metadata).
+    scale, bias, fallback: (4,) float64 per UsdUVTexture (out = texel * scale + bias).
+    output: which output is connected: 'rgb' | 'r' | 'g' | 'b' | 'a'.
+    st_primvar: name of the primvar read by the UsdPrimvarReader_float2 ('st' by default).
+    """
+
+    file: str
+    source_color_space: str = "auto"
+    wrap_s: str = "repeat"
+    wrap_t: str = "repeat"
+    scale: tuple = (1.0, 1.0, 1.0, 1.0)
+    bias: tuple = (0.0, 0.0, 0.0, 0.0)
+    fallback: tuple = (0.0, 0.0, 0.0, 1.0)
+    output: str = "rgb"
+    st_primvar: str = "st"
+
+
+@dataclass(frozen=True)
+class MaterialInput:
+    """A constant value (float or RGB triple) optionally overridden by a texture."""
+
+    value: tuple | float
+    texture: Optional[TextureDesc] = None
+
+
+@dataclass(frozen=True)
+class MaterialDesc:
+    """A UsdPreviewSurface (or the displayColor / grey fallback), with Sdr defaults applied.
+
+    path: the Material prim path ('' for a fallback material made from displayColor).
+    """
+
+    path: str
+    diffuse_color: MaterialInput = MaterialInput((0.18, 0.18, 0.18))
+    emissive_color: MaterialInput = MaterialInput((0.0, 0.0, 0.0))
+    specular_color: MaterialInput = MaterialInput((0.0, 0.0, 0.0))
+    use_specular_workflow: bool = False
+    metallic: MaterialInput = MaterialInput(0.0)
+    roughness: MaterialInput = MaterialInput(0.5)
+    ior: float = 1.5
+    opacity: MaterialInput = MaterialInput(1.0)
+    opacity_threshold: float = 0.0
+    opacity_mode: str = "transparent"
+
+
+# --------------------------------------------------------------------------------------
+# Geometry
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MeshDesc:
+    """A triangulated, world-space mesh.
+
+    path: prim path of the source gprim (instance proxies keep their proxy path).
+    points: (V, 3) float64 world-space vertex positions.
+    triangles: (T, 3) int32 indices into ``points``, counter-clockwise seen from the front
+        (leftHanded orientation has already been flipped by the reader).
+    normals: (T, 3, 3) float32 world-space per-corner shading normals, or None (use face normals).
+    st: (T, 3, 2) float32 per-corner texture coordinates, or None.
+    material: index into ``SceneDescription.materials``.
+    double_sided: UsdGeom doubleSided (informational: illum shades both sides of every surface,
+        as hdEmbree and Cycles do).
+    """
+
+    path: str
+    points: np.ndarray
+    triangles: np.ndarray
+    normals: Optional[np.ndarray]
+    st: Optional[np.ndarray]
+    material: int
+    double_sided: bool = False
+
+
+# --------------------------------------------------------------------------------------
+# Camera and render settings
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CameraDesc:
+    """A UsdGeom.Camera resolved at the render time.
+
+    camera_to_world: (4, 4) float64; the camera looks down local -Z with +Y up, +X right.
+    Lengths below are in scene units (USD's tenths of a scene unit already multiplied by 0.1).
+    focus_distance is 0 and f_stop 0 when depth of field is off.
+    exposure_scale: the linear image scale (2^exposure, times the exposure:* terms of
+        UsdGeomCamera.ComputeLinearExposureScale where authored).
+    """
+
+    path: str
+    camera_to_world: np.ndarray
+    projection: str = "perspective"
+    focal_length: float = 5.0
+    horizontal_aperture: float = 2.0955
+    vertical_aperture: float = 1.52908
+    horizontal_aperture_offset: float = 0.0
+    vertical_aperture_offset: float = 0.0
+    clipping_range: tuple = (1.0, 1.0e6)
+    f_stop: float = 0.0
+    focus_distance: float = 0.0
+    exposure_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class RenderSettingsDesc:
+    """UsdRender settings merged with the first RenderProduct (product opinions win where authored).
+
+    resolution: (width, height) in pixels.
+    data_window_ndc: (xmin, ymin, xmax, ymax), (0,0) bottom-left.
+    product_name: default output path ('' when none).
+    light_sampler: from IllumRenderSettingsAPI ('' when unauthored: the renderer picks by light count).
+    """
+
+    path: str = ""
+    resolution: tuple = (640, 480)
+    pixel_aspect_ratio: float = 1.0
+    aspect_ratio_conform_policy: str = "expandAperture"
+    data_window_ndc: tuple = (0.0, 0.0, 1.0, 1.0)
+    camera: str = ""
+    included_purposes: tuple = ("default", "render")
+    material_binding_purposes: tuple = ("full", "")
+    product_name: str = ""
+    light_sampler: str = ""
+
+
+# --------------------------------------------------------------------------------------
+# Lights
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """IllumLightAPI opinions for one light (fallbacks equal the schema's fallbacks)."""
+
+    estimator: str = "mis"
+    cv_alpha: str = "averageVisibilityUnbiased"
+    samples: int = 1
+    mis_heuristic: str = "power"
+    dome_irradiance: str = ""
+
+
+@dataclass(frozen=True)
+class LightDesc:
+    """One UsdLux light, with its raw radiometric inputs (the render core applies the spec formula).
+
+    kind: 'rect' | 'disk' | 'sphere' | 'dome' | 'distant' | 'cylinder'.
+    light_to_world: (4, 4) float64; for domes it includes the poleAxis / up-axis correction.
+    texture_file: absolute path ('' when none); texture_format for domes.
+    """
+
+    path: str
+    kind: str
+    light_to_world: np.ndarray
+    intensity: float = 1.0
+    exposure: float = 0.0
+    color: tuple = (1.0, 1.0, 1.0)
+    enable_color_temperature: bool = False
+    color_temperature: float = 6500.0
+    normalize: bool = False
+    diffuse: float = 1.0
+    specular: float = 1.0
+    width: float = 1.0
+    height: float = 1.0
+    radius: float = 0.5
+    length: float = 1.0
+    angle: float = 0.53
+    treat_as_point: bool = False
+    treat_as_line: bool = False
+    texture_file: str = ""
+    texture_format: str = "automatic"
+    estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
+    # Light linking, resolved against the stage's gprims by the reader: None means "everything".
+    light_link_excludes: Optional[frozenset] = None  # mesh paths NOT illuminated
+    shadow_link_excludes: Optional[frozenset] = None  # mesh paths that cast NO shadow
+
+
+# --------------------------------------------------------------------------------------
+# The whole scene
+# --------------------------------------------------------------------------------------
+@dataclass
+class SceneDescription:
+    """Everything the render core needs, with no USD types inside.
+
+    stats: counters the reader fills (prims visited, pruned subtrees, points read, ...).
+    warnings: human-readable warnings, each said once per stage.
+    """
+
+    source: str
+    time_code: float
+    meshes: list[MeshDesc]
+    materials: list[MaterialDesc]
+    lights: list[LightDesc]
+    camera: CameraDesc
+    settings: RenderSettingsDesc
+    meters_per_unit: float = 0.01
+    up_axis: str = "Y"
+    warnings: list[str] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
