@@ -1,0 +1,39 @@
+# illum: two commands set up everything on a fresh machine.
+#   make demo   creates .venv, installs illum with its test extras, renders stages/cornell_box.usda
+#   make test   prepares .venv the same way and runs the test suite
+# Both are idempotent: the install step re-runs only when pyproject.toml changes.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+OUT    := out
+
+.PHONY: demo test stress bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	@mkdir -p $(OUT)
+	$(BIN)/illum render stages/cornell_box.usda -o $(OUT)/cornell_box.exr --preview $(OUT)/cornell_box.png \
+		--spp 64 --stats $(OUT)/cornell_box.json
+	@echo ""
+	@echo "Rendered:"
+	@echo "  $(abspath $(OUT)/cornell_box.exr)   (linear Rec.709, float32 EXR)"
+	@echo "  $(abspath $(OUT)/cornell_box.png)   (sRGB preview)"
+	@echo "  $(abspath $(OUT)/cornell_box.json)  (render statistics)"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+stress: $(STAMP)
+	ILLUM_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q -m slow
+
+clean:
+	rm -rf $(OUT) .pytest_cache .hypothesis

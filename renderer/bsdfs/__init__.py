@@ -1,0 +1,1 @@
+"""BSDFs: the contract (base.py), Lambert, and the UsdPreviewSurface BSDF."""

@@ -1,0 +1,399 @@
+"""Wavefront path tracer: next-event estimation with MIS, Russian roulette, progressive passes.
+
+One *pass* traces one path per pixel of the data window. The pass is cut into fixed-size chunks
+of pixels; each chunk owns a random generator seeded from (seed, pass, chunk), so the image is
+the same whatever the thread count, and chunks run on a thread pool (embree and most numpy
+kernels release the GIL).
+
+``max_depth`` counts scattering events, as pbrt's maxdepth does: 0 shows only emitters seen
+directly, 1 is direct lighting, and so on.
+
+Conventions: area lights are *transparent* to every ray (as in Cycles): a ray that crosses a
+light picks up its emission and continues to the geometry behind it. Shadow rays likewise ignore
+lights. Both choices keep next-event estimation and BSDF sampling estimating the same integral,
+which MIS needs.
+"""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import Camera
+from ..film import Film
+from ..geometry import coordinate_frame, dot, normalize, offset_origin, to_local, to_world
+from ..lights.base import ShadingContext
+from ..materials import make_bsdf
+from ..sampling import balance_heuristic, power_heuristic, safe_div
+
+PIXELS_PER_CHUNK = 16384
+
+
+@dataclass
+class IntegratorOptions:
+    max_depth: int = 8
+    rr_depth: int = 3
+    seed: int = 0
+    threads: int = 2
+
+
+@dataclass
+class RayCounters:
+    camera: int = 0
+    extension: int = 0
+    shadow: int = 0
+    light_probe: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def add(self, **kw) -> None:
+        with self.lock:
+            for k, v in kw.items():
+                setattr(self, k, getattr(self, k) + int(v))
+
+    def as_dict(self) -> dict:
+        return {"camera": self.camera, "extension": self.extension, "shadow": self.shadow,
+                "light_probe": self.light_probe}
+
+
+@dataclass
+class Interaction:
+    """Surface hits of the live rays. p: (n,3); ng, ns: (n,3) unit, flipped to face wo;
+    wo: (n,3) unit toward the previous vertex; st: (n,2); mat, mesh: (n,) int."""
+
+    p: np.ndarray
+    ng: np.ndarray
+    ns: np.ndarray
+    wo: np.ndarray
+    st: np.ndarray
+    mat: np.ndarray
+    mesh: np.ndarray
+
+
+class PathIntegrator:
+    """Unidirectional path tracing with NEE + MIS over a Scene, seen through a Camera."""
+
+    def __init__(self, scene, camera: Camera, options: IntegratorOptions):
+        self.scene = scene
+        self.camera = camera
+        self.opt = options
+        self.rays = RayCounters()
+        self.lights = scene.lights
+        self.has_lights = scene.lights.count > 0
+        self.infinite = np.nonzero(scene.lights.is_infinite)[0] if self.has_lights else np.zeros(0, np.int64)
+        self.finite = np.nonzero(~scene.lights.is_infinite)[0] if self.has_lights else np.zeros(0, np.int64)
+        self.pool = ThreadPoolExecutor(max(1, options.threads)) if options.threads > 1 else None
+        self.skipped: list[str] = []
+        if options.max_depth <= 1:
+            self.skipped.append("max depth <= 1: no extension rays beyond the first bounce")
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=False)
+            self.pool = None
+
+    # ---------------------------------------------------------------------- passes
+    def render_pass(self, film: Film, pass_index: int) -> None:
+        """Add one sample to every pixel of the film's data window."""
+        px, py = film.pixel_coords()
+        n = px.size
+        chunks = [(c, s, min(n, s + PIXELS_PER_CHUNK)) for c, s in enumerate(range(0, n, PIXELS_PER_CHUNK))]
+
+        def work(job):
+            c, a, b = job
+            rng = np.random.default_rng([self.opt.seed, pass_index, c])
+            L = self.trace_paths(px[a:b], py[a:b], rng)
+            # The camera's exposure scales the image (UsdGeomCamera exposure, 2^exposure).
+            return a, b, L * self.camera.desc.exposure_scale
+
+        results = self.pool.map(work, chunks) if self.pool is not None and len(chunks) > 1 else map(work, chunks)
+        for a, b, L in results:
+            film.add(np.arange(a, b), L)
+
+    # ---------------------------------------------------------------------- paths
+    def trace_paths(self, px: np.ndarray, py: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Radiance estimates (m, 3) for one path through each pixel (px, py)."""
+        m = px.size
+        rays = self.camera.generate(px, py, rng.random((m, 2)), rng.random((m, 2)))
+        self.rays.add(camera=m)
+        # Near clip: start the ray at the near plane.
+        return self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng)
+
+    def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Radiance (m, 3) arriving at the origins o (m, 3) along -d (unsampled primary rays)."""
+        scene = self.scene
+        opt = self.opt
+        m = o.shape[0]
+
+        # ---- loop state: one row per live ray ---------------------------------------------
+        L = np.zeros((m, 3))                 # accumulated radiance per path
+        path = np.arange(m)                  # which path each live row belongs to
+        beta = np.ones((m, 3))               # path throughput
+        depth = np.zeros(m, dtype=np.int64)  # scattering events so far
+        prev = ShadingContext(np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, 3)))  # last vertex
+        prev_pdf = np.zeros(m)               # BSDF pdf of the direction d at that vertex
+        specular = np.ones(m, dtype=bool)    # True: d was not sampled by a BSDF (no MIS)
+        budget = opt.max_depth + 64          # bound on loop trips (cutout pass-throughs included)
+
+        while path.size and budget > 0:
+            budget -= 1
+            # ---- intersect -------------------------------------------------------------
+            hits = scene.accel.intersect(o, d, tmax)
+            t_geo = np.minimum(hits.t, tmax)
+
+            # ---- emission from lights crossed before the surface, and from the environment
+            if self.finite.size:
+                self._add_light_hits(L, path, beta, o, d, t_geo, prev, prev_pdf, specular)
+            if self.infinite.size:
+                escaped = ~hits.hit & np.isinf(tmax)
+                if np.any(escaped):
+                    self._add_escaped(L, path, beta, d, escaped, prev, prev_pdf, specular)
+
+            # ---- surfaces ----------------------------------------------------------------
+            keep = np.nonzero(hits.hit)[0]
+            if not keep.size:
+                break
+            path, beta, o, d, tmax, depth = path[keep], beta[keep], o[keep], d[keep], tmax[keep], depth[keep]
+            prev, prev_pdf, specular = prev.take(keep), prev_pdf[keep], specular[keep]
+            si = self._interaction(hits.prim[keep], hits.b1[keep], hits.b2[keep], d)
+            t_hit = hits.t[keep]
+            params = scene.materials.evaluate(si.mat, si.st)
+
+            # Opacity as presence: a ray that passes through keeps its state, depth and MIS
+            # bookkeeping, and continues from just past the surface.
+            through = np.zeros(path.size, dtype=bool)
+            if scene.materials.has_cutout:
+                through = rng.random(path.size) >= scene.materials.presence(params)
+            if np.any(through):
+                tr = np.nonzero(through)[0]
+                pass_o = offset_origin(si.p[tr], si.ng[tr], d[tr], scene.accel.ray_epsilon(si.p[tr]))
+                pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr],
+                              prev.take(tr), prev_pdf[tr], specular[tr])
+                solid = np.nonzero(~through)[0]
+                path, beta, d, depth = path[solid], beta[solid], d[solid], depth[solid]
+                si = _take(si, solid)
+                params = _take(params, solid)
+            else:
+                pass_state = None
+
+            if scene.materials.has_emission and np.any(params.emission):
+                np.add.at(L, path, beta * params.emission)
+
+            # ---- stop at the maximum depth -----------------------------------------------
+            alive = depth < opt.max_depth
+            if not np.all(alive):
+                a = np.nonzero(alive)[0]
+                path, beta, d, depth = path[a], beta[a], d[a], depth[a]
+                si = _take(si, a)
+                params = _take(params, a)
+
+            n = path.size
+            if n:
+                bsdf = make_bsdf(params)
+                s, t = coordinate_frame(si.ns)
+                wo_l = to_local(si.wo, s, t, si.ns)
+                ctx = ShadingContext(si.p, si.ng, si.ns)
+                eps = scene.accel.ray_epsilon(si.p)
+
+                # ---- next-event estimation ------------------------------------------------
+                if self.has_lights:
+                    self._next_event(L, path, beta, si, ctx, bsdf, wo_l, s, t, eps, rng)
+
+                # ---- sample the BSDF for the extension ray --------------------------------
+                # The extension ray leaving the D-th vertex can still find emission (pbrt's
+                # convention), but the vertex it reaches scatters no further.
+                depth = depth + 1
+                bs = bsdf.sample_f(wo_l, rng.random(n), rng.random((n, 2)))
+                wi = to_world(bs.wi, s, t, si.ns)
+                cos_i = np.abs(bs.wi[:, 2])
+                ok = (bs.pdf > 0.0) & (dot(wi, si.ng) > 0.0)
+                beta = beta * safe_div(bs.f * cos_i[:, None], bs.pdf)
+                ok &= np.any(beta > 0.0, axis=1) & np.all(np.isfinite(beta), axis=1)
+
+                # ---- Russian roulette, driven by throughput -------------------------------
+                rr = depth >= opt.rr_depth
+                if np.any(rr):
+                    q = np.where(rr, np.clip(1.0 - beta.max(axis=1), 0.0, 0.95), 0.0)
+                    survive = rng.random(n) >= q
+                    beta = beta / (1.0 - q)[:, None]
+                    ok &= survive
+
+                k = np.nonzero(ok)[0]
+                next_state = (path[k], beta[k], offset_origin(si.p[k], si.ng[k], wi[k], eps[k]), wi[k],
+                              np.full(k.size, np.inf), depth[k], ctx.take(k), bs.pdf[k], np.zeros(k.size, bool))
+                self.rays.add(extension=k.size)
+            else:
+                next_state = None
+
+            # ---- gather the rays that continue ---------------------------------------------
+            states = [st for st in (next_state, pass_state) if st is not None and st[0].size]
+            if not states:
+                break
+            if len(states) == 1:
+                path, beta, o, d, tmax, depth, prev, prev_pdf, specular = states[0]
+            else:
+                a_, b_ = states
+                path = np.concatenate([a_[0], b_[0]])
+                beta = np.concatenate([a_[1], b_[1]])
+                o = np.concatenate([a_[2], b_[2]])
+                d = np.concatenate([a_[3], b_[3]])
+                tmax = np.concatenate([a_[4], b_[4]])
+                depth = np.concatenate([a_[5], b_[5]])
+                prev = ShadingContext(*(np.concatenate([getattr(a_[6], f), getattr(b_[6], f)]) for f in ("p", "n", "ns")))
+                prev_pdf = np.concatenate([a_[7], b_[7]])
+                specular = np.concatenate([a_[8], b_[8]])
+        return L
+
+    # ---------------------------------------------------------------------- pieces
+    def _interaction(self, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray, d: np.ndarray) -> Interaction:
+        g = self.scene.geometry
+        b0 = 1.0 - b1 - b2
+        v = g.vertices[prim]
+        # Rebuild the hit point in float64 from barycentrics: it lies on the float64 triangle,
+        # so the offset only has to cover embree's float32 rounding of the triangle itself.
+        p = v[:, 0] * b0[:, None] + v[:, 1] * b1[:, None] + v[:, 2] * b2[:, None]
+        ng = g.face_normal[prim]
+        nn = g.normals[prim]
+        ns = normalize(nn[:, 0] * b0[:, None] + nn[:, 1] * b1[:, None] + nn[:, 2] * b2[:, None])
+        stc = g.st[prim]
+        st = stc[:, 0] * b0[:, None] + stc[:, 1] * b1[:, None] + stc[:, 2] * b2[:, None]
+        wo = -d
+        # Two-sided shading: face both normals toward the viewer.
+        flip = dot(ng, wo) < 0.0
+        ng = np.where(flip[:, None], -ng, ng)
+        ns = np.where((dot(ns, ng) < 0.0)[:, None], -ns, ns)
+        # A shading normal that faces away from wo would give a black or negative cosine:
+        # fall back to the geometric normal there.
+        bad = dot(ns, wo) <= 0.0
+        ns = np.where(bad[:, None], ng, ns)
+        return Interaction(p=p, ng=ng, ns=ns, wo=wo, st=st, mat=g.material[prim], mesh=g.mesh[prim])
+
+    def _mis_light_weight(self, light: np.ndarray, prev_ctx: ShadingContext, d: np.ndarray,
+                          prev_pdf: np.ndarray) -> np.ndarray:
+        """Weight for emission found by BSDF sampling: p_b vs p_l = pmf(light) * pdf_li."""
+        p_l = self.scene.light_sampler.pmf(prev_ctx, light) * self.lights.pdf_li(light, prev_ctx, d)
+        return power_heuristic(1, prev_pdf, 1, p_l)
+
+    def _add_light_hits(self, L, path, beta, o, d, t_limit, prev_ctx, prev_pdf, specular) -> None:
+        """Add emission of every finite light crossed by the rays before t_limit (lights are transparent)."""
+        rows, light, t_hit = self._light_hits(o, d, t_limit)
+        if rows.size == 0:
+            return
+        p_light = o[rows] + d[rows] * t_hit[:, None]
+        Le = self.lights.le(light, p_light, d[rows])
+        w = np.ones(rows.size)
+        mis = ~specular[rows]
+        if prev_ctx is not None and np.any(mis):
+            r = rows[mis]
+            w[mis] = self._mis_light_weight(light[mis], prev_ctx.take(r), d[r], prev_pdf[r])
+        np.add.at(L, path[rows], beta[rows] * Le * w[:, None])
+
+    def _light_hits(self, o, d, t_limit):
+        """All (row, light, t) with an exact light hit at t < t_limit."""
+        lights = self.lights
+        scene = self.scene
+        if scene.light_accel is None:
+            rows_l, lights_l, ts = [], [], []
+            n = o.shape[0]
+            for li in self.finite:
+                idx = np.full(n, li, dtype=np.int64)
+                t = lights.intersect(idx, o, d)
+                hit = np.nonzero(t < t_limit)[0]
+                if hit.size:
+                    rows_l.append(hit)
+                    lights_l.append(idx[hit])
+                    ts.append(t[hit])
+            self.rays.add(light_probe=n)
+            if not rows_l:
+                return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+            return np.concatenate(rows_l), np.concatenate(lights_l), np.concatenate(ts)
+        # Many lights: walk the proxy BVH, confirming each candidate exactly. A ray may cross
+        # several proxies, so continue past each candidate until the surface is reached.
+        rows_l, lights_l, ts = [], [], []
+        active = np.arange(o.shape[0])
+        t_start = np.zeros(o.shape[0])
+        last_light = np.full(o.shape[0], -1, dtype=np.int64)
+        for _ in range(32):
+            if not active.size:
+                break
+            oa = o[active] + d[active] * t_start[active, None]
+            h = scene.light_accel.intersect(oa, d[active], t_limit[active] - t_start[active])
+            self.rays.add(light_probe=active.size)
+            got = h.hit
+            active = active[got]
+            if not active.size:
+                break
+            t_proxy = t_start[active] + h.t[got]
+            owner = scene.light_owner[h.prim[got]]
+            # Exact test from a point just before the proxy hit.
+            back = 1e-6 * np.maximum(t_proxy, 1e-12) + scene.accel.ray_epsilon(o[active]) * 0.0
+            o_seg = o[active] + d[active] * (t_proxy - back)[:, None]
+            t_ex = lights.intersect(owner, o_seg, d[active]) + (t_proxy - back)
+            ok = (t_ex < t_limit[active]) & ~((owner == last_light[active]) & (t_ex <= t_start[active] * (1 + 1e-9)))
+            if np.any(ok):
+                rows_l.append(active[ok])
+                lights_l.append(owner[ok])
+                ts.append(t_ex[ok])
+                last_light[active[ok]] = owner[ok]
+            # Continue just past this proxy triangle.
+            t_start[active] = t_proxy * (1.0 + 1e-7) + 1e-9 * scene.accel.diagonal
+        if not rows_l:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        rows = np.concatenate(rows_l)
+        light = np.concatenate(lights_l)
+        t = np.concatenate(ts)
+        # A light found twice by one ray (two proxy faces) counts once.
+        key = rows * (lights.count + 1) + light
+        _, first = np.unique(key, return_index=True)
+        return rows[first], light[first], t[first]
+
+    def _add_escaped(self, L, path, beta, d, escaped, prev_ctx, prev_pdf, specular) -> None:
+        rows = np.nonzero(escaped)[0]
+        for li in self.infinite:
+            idx = np.full(rows.size, li, dtype=np.int64)
+            Le = self.lights.le_escaped(idx, d[rows])
+            w = np.ones(rows.size)
+            mis = ~specular[rows]
+            if prev_ctx is not None and np.any(mis):
+                r = rows[mis]
+                w[mis] = self._mis_light_weight(idx[mis], prev_ctx.take(r), d[r], prev_pdf[r])
+            np.add.at(L, path[rows], beta[rows] * Le * w[:, None])
+
+    def _next_event(self, L, path, beta, si, ctx, bsdf, wo_l, s, t, eps, rng) -> None:
+        """One light picked by the lighting service, one light sample, power-heuristic MIS."""
+        n = path.size
+        light, pmf = self.scene.light_sampler.sample(ctx, rng.random(n))
+        ls = self.lights.sample_li(light, ctx, rng.random((n, 2)))
+        wi_l = to_local(ls.wi, s, t, si.ns)
+        f = bsdf.f(wo_l, wi_l) * np.abs(wi_l[:, 2])[:, None]
+        ok = (pmf > 0.0) & (ls.pdf > 0.0) & (dot(ls.wi, si.ng) > 0.0) & np.any(ls.L > 0.0, axis=1)
+        ok &= np.any(f > 0.0, axis=1)
+        if not np.any(ok):
+            return
+        rows = np.nonzero(ok)[0]
+        p_l = pmf[rows] * ls.pdf[rows]
+        delta = self.lights.delta[light[rows]]
+        p_b = bsdf.pdf(wo_l[rows], wi_l[rows])
+        w = np.where(delta, 1.0, power_heuristic(1, p_l, 1, p_b))
+        contrib = beta[rows] * f[rows] * ls.L[rows] * safe_div(w, p_l)[:, None]
+        o_sh = offset_origin(si.p[rows], si.ng[rows], ls.wi[rows], eps[rows])
+        dist = ls.dist[rows]
+        # Stop short of the light's surface by the same relative margin as the origin offset.
+        t_max = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - eps[rows], np.inf)
+        blocked = self.scene.accel.occluded(o_sh, ls.wi[rows], t_max)
+        self.rays.add(shadow=rows.size)
+        vis = ~blocked
+        np.add.at(L, path[rows[vis]], contrib[vis])
+
+
+def _take(obj, mask):
+    """Row-select every array field of a dataclass."""
+    import dataclasses
+
+    vals = {}
+    for f_ in dataclasses.fields(obj):
+        v = getattr(obj, f_.name)
+        vals[f_.name] = v[mask] if isinstance(v, np.ndarray) and v.ndim >= 1 else v
+    return type(obj)(**vals)

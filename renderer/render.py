@@ -1,0 +1,286 @@
+"""The single render entry point used by the CLI, the benchmarks and the service.
+
+``render(stage, options)`` loads the stage (renderer/usd), builds the scene once, then runs
+progressive passes (one sample per pixel of the whole data window per pass) until the sample
+count or the time budget is reached, or ``cancel()`` returns True. Callbacks report progress and
+hand out snapshots of the film for previews and checkpoints.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable, Optional
+
+import numpy as np
+
+from .errors import SettingsError
+from .film import Film, write_exr, write_png
+
+__all__ = ["RenderOptions", "RenderResult", "render", "write_outputs", "VERSION"]
+
+VERSION = "0.1.0"
+DEFAULT_SPP = 64
+
+
+@dataclass
+class RenderOptions:
+    """What the user asked for; None means "use the stage's RenderSettings or our default".
+
+    resolution: (width, height) override. time_budget: seconds of rendering (load and build
+    excluded). spp: samples per pixel; with a time budget and no spp the budget alone decides.
+    """
+
+    spp: Optional[int] = None
+    time_budget: Optional[float] = None
+    resolution: Optional[tuple[int, int]] = None
+    camera: Optional[str] = None
+    settings: Optional[str] = None
+    frame: Optional[float] = None
+    purposes: Optional[tuple[str, ...]] = None
+    seed: int = 0
+    threads: Optional[int] = None
+    max_depth: int = 8
+    rr_depth: int = 3
+    light_sampler: str = "auto"
+    estimator: dict = field(default_factory=dict)       # {"": token} for all lights or {path: token}
+    cv_alpha: dict = field(default_factory=dict)
+    light_samples: dict = field(default_factory=dict)
+
+    def validate(self) -> None:
+        def bad(name, msg):
+            raise SettingsError(msg, attribute=name)
+
+        if self.spp is not None and (not isinstance(self.spp, (int, np.integer)) or self.spp < 1):
+            bad("spp", f"must be a positive integer, got {self.spp!r}")
+        if self.spp is not None and self.spp > 1_000_000:
+            bad("spp", f"{self.spp} exceeds the limit of 1000000")
+        if self.time_budget is not None and not (math.isfinite(self.time_budget) and self.time_budget > 0):
+            bad("time_budget", f"must be a positive number of seconds, got {self.time_budget!r}")
+        if not isinstance(self.max_depth, (int, np.integer)) or not (0 <= self.max_depth <= 1024):
+            bad("max_depth", f"must be an integer in [0, 1024], got {self.max_depth!r}")
+        if self.threads is not None and not (1 <= self.threads <= 256):
+            bad("threads", f"must be in [1, 256], got {self.threads!r}")
+        if self.frame is not None and not math.isfinite(self.frame):
+            bad("frame", f"must be finite, got {self.frame!r}")
+        if self.resolution is not None:
+            from .camera import check_resolution
+
+            check_resolution(int(self.resolution[0]), int(self.resolution[1]), "resolution")
+
+
+@dataclass
+class RenderResult:
+    film: Film
+    stats: dict
+    metadata: dict
+    camera: object
+    warnings: list[str]
+
+
+ProgressFn = Callable[[int, Optional[int], float], None]   # (spp done, spp target or None, fraction 0..1)
+SnapshotFn = Callable[[Film, int], None]                     # (film, spp done)
+
+
+def render(
+    stage_path: str,
+    options: RenderOptions | None = None,
+    *,
+    progress: ProgressFn | None = None,
+    snapshot: SnapshotFn | None = None,
+    snapshot_interval: float = 5.0,
+    cancel: Callable[[], bool] | None = None,
+    resume: Film | None = None,
+    scene_cache: dict | None = None,
+) -> RenderResult:
+    """Render a stage progressively. See the module docstring.
+
+    resume: a film checkpoint to continue (its samples count toward spp; pass indices continue
+    after its sample count so the random streams never repeat).
+    scene_cache: optional dict reused across calls (e.g. by a service worker or a Ray actor) to
+    keep the loaded scene and BVH resident for the same (stage, frame, options) key.
+    """
+    from .accel import default_threads
+    from .camera import Camera
+    from .integrators.path import IntegratorOptions, PathIntegrator
+    from .scene import build_scene
+    from .usd import load_stage
+
+    opt = options or RenderOptions()
+    opt.validate()
+    threads = opt.threads or default_threads()
+    phases = {}
+    t_start = time.perf_counter()
+
+    # ---- load + build (cached for resident workers) --------------------------------------
+    key = (os.path.abspath(stage_path), os.path.getmtime(stage_path) if os.path.exists(stage_path) else 0,
+           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads)
+    cached = scene_cache.get(key) if scene_cache is not None else None
+    if cached is None:
+        t0 = time.perf_counter()
+        desc = load_stage(stage_path, camera=opt.camera, settings=opt.settings, frame=opt.frame,
+                          purposes=opt.purposes)
+        phases["load"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler)
+        phases["build"] = time.perf_counter() - t0
+        if scene_cache is not None:
+            scene_cache.clear()
+            scene_cache[key] = (desc, scene)
+    else:
+        desc, scene = cached
+        phases["load"] = 0.0
+        phases["build"] = 0.0
+
+    settings = desc.settings
+    width, height = opt.resolution or settings.resolution
+    width, height = int(width), int(height)
+    camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy)
+    window = _data_window(settings.data_window_ndc, width, height)
+    film = resume if resume is not None else Film(width, height, window)
+    if resume is not None and (resume.width, resume.height, resume.window) != (width, height, window):
+        raise SettingsError("checkpoint does not match the requested resolution/data window", attribute="resume")
+
+    integrator = PathIntegrator(scene, camera, IntegratorOptions(max_depth=opt.max_depth, rr_depth=opt.rr_depth,
+                                                                 seed=opt.seed, threads=threads))
+    target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
+    done = int(film.count.max()) if film.count.size else 0
+    t0 = time.perf_counter()
+    last_snapshot = t0
+    passes = 0
+    try:
+        while True:
+            if target is not None and done >= target:
+                break
+            elapsed = time.perf_counter() - t0
+            if opt.time_budget is not None and elapsed >= opt.time_budget and passes > 0:
+                break
+            if cancel is not None and cancel():
+                break
+            integrator.render_pass(film, done)
+            done += 1
+            passes += 1
+            now = time.perf_counter()
+            if progress is not None:
+                fr = []
+                if target is not None:
+                    fr.append(done / target)
+                if opt.time_budget is not None:
+                    fr.append((now - t0) / opt.time_budget)
+                progress(done, target, min(1.0, max(fr) if fr else 0.0))
+            if snapshot is not None and now - last_snapshot >= snapshot_interval:
+                snapshot(film, done)
+                last_snapshot = now
+    finally:
+        integrator.close()
+        if scene_cache is None:
+            scene.close()
+    phases["render"] = time.perf_counter() - t0
+
+    rays = integrator.rays.as_dict()
+    total_rays = rays["camera"] + rays["extension"] + rays["shadow"]
+    r_sec = max(phases["render"], 1e-9)
+    h, w = film.shape
+    light_info = _light_estimators(scene)
+    stats = {
+        "illum_version": VERSION,
+        "stage": os.path.abspath(stage_path),
+        "resolution": [width, height],
+        "data_window": list(window),
+        "product_name": settings.product_name,
+        "spp": done,
+        "passes_this_run": passes,
+        "seed": opt.seed,
+        "threads": threads,
+        "max_depth": opt.max_depth,
+        "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
+        "wall_seconds": time.perf_counter() - t_start,
+        "seconds": phases,
+        "rays": rays,
+        "mrays_per_second": total_rays / r_sec / 1e6,
+        "samples_per_second": passes * w * h / r_sec,
+        "nonfinite_dropped": film.nonfinite_dropped,
+        "negative_samples": film.negative_samples,
+        "skipped": list(scene.skipped) + list(integrator.skipped),
+        "lights": light_info,
+        "warnings": list(scene.warnings),
+        "triangles": int(scene.geometry.count),
+        "machine": {"platform": platform.platform(), "python": platform.python_version(),
+                    "cpus": os.cpu_count()},
+    }
+    metadata = {
+        "illum:version": VERSION,
+        "illum:spp": done,
+        "illum:renderSeconds": float(phases["render"]),
+        "illum:seed": int(opt.seed),
+        "illum:maxDepth": int(opt.max_depth),
+        "illum:stage": os.path.abspath(stage_path),
+        "illum:camera": desc.camera.path,
+        "illum:estimators": {li["path"]: li["estimator"] for li in light_info},
+        "illum:lightSampler": stats["light_sampler"],
+        "worldToCamera": camera.world_to_camera(),
+        "worldToScreen": camera.projection_matrix() @ camera.world_to_camera(),
+    }
+    return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings))
+
+
+def _light_estimators(scene) -> list[dict]:
+    lights = scene.lights
+    out = []
+    for i in range(lights.count):
+        est = lights.estimators[i] if hasattr(lights, "estimators") else None
+        out.append({
+            "path": lights.paths[i],
+            "estimator": "mis" if est is None else est.estimator,
+            "samples": 1 if est is None else int(est.samples),
+        })
+    return out
+
+
+def _data_window(ndc, width: int, height: int) -> tuple[int, int, int, int]:
+    """UsdRender dataWindowNDC (xmin, ymin, xmax, ymax; (0,0) bottom-left) -> pixel window
+    (x0, y0, x1, y1) with y down, clamped to the image (overscan is not rendered)."""
+    xmin, ymin, xmax, ymax = (float(v) for v in ndc)
+    if not all(math.isfinite(v) for v in (xmin, ymin, xmax, ymax)) or xmax <= xmin or ymax <= ymin:
+        raise SettingsError(f"dataWindowNDC {tuple(ndc)} is empty or not finite", attribute="dataWindowNDC")
+    x0 = int(np.clip(math.floor(xmin * width + 1e-9), 0, width))
+    x1 = int(np.clip(math.ceil(xmax * width - 1e-9), 0, width))
+    y0 = int(np.clip(math.floor((1.0 - ymax) * height + 1e-9), 0, height))
+    y1 = int(np.clip(math.ceil((1.0 - ymin) * height - 1e-9), 0, height))
+    if x1 <= x0 or y1 <= y0:
+        raise SettingsError(f"dataWindowNDC {tuple(ndc)} covers no pixel", attribute="dataWindowNDC")
+    return x0, y0, x1, y1
+
+
+def write_outputs(result: RenderResult, exr: str | None = None, png: str | None = None,
+                  stats_json: str | None = None) -> dict:
+    """Write the requested files (atomically) and return the write time in seconds."""
+    t0 = time.perf_counter()
+    if exr:
+        write_exr(exr, result.film, result.metadata)
+    if png:
+        write_png(png, result.film)
+    write_s = time.perf_counter() - t0
+    result.stats["seconds"]["write"] = write_s
+    if stats_json:
+        d = os.path.dirname(os.path.abspath(stats_json))
+        os.makedirs(d, exist_ok=True)
+        tmp = stats_json + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump(result.stats, fh, indent=2, default=_json_default)
+        os.replace(tmp, stats_json)
+    return {"write": write_s}
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    return str(o)

@@ -1,0 +1,145 @@
+"""Shared state and helpers of one stage read: errors, warnings, stats, matrices, assets."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import OrderedDict
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom
+
+from renderer.errors import StageError
+
+
+def gf_matrix_to_np(m: Gf.Matrix4d) -> np.ndarray:
+    """Gf row-vector matrix -> (4, 4) float64 column-vector matrix (``p' = M @ p``)."""
+    return np.array(m, dtype=np.float64).reshape(4, 4).T.copy()
+
+
+def one_line(text: str) -> str:
+    """Collapse a multi-line pxr error message into one line for the CLI."""
+    return " ".join(str(text).split())
+
+
+class WarningLog:
+    """Warnings said once per stage.
+
+    Each warning has a key; repeats of a key are counted, and the first message is reported
+    with "(N more like it)" so a stage with 10,000 offending prims gives one line, not 10,000.
+    """
+
+    def __init__(self) -> None:
+        self._first: OrderedDict[str, str] = OrderedDict()
+        self._count: dict[str, int] = {}
+
+    def add(self, key: str, message: str) -> None:
+        if key not in self._first:
+            self._first[key] = message
+            self._count[key] = 0
+        self._count[key] += 1
+
+    def messages(self) -> list[str]:
+        out = []
+        for key, message in self._first.items():
+            extra = self._count[key] - 1
+            out.append(message if extra == 0 else f"{message} (and {extra} more like it)")
+        return out
+
+
+class ReadContext:
+    """Everything one ``load_stage`` call shares between the reader modules.
+
+    file: the stage path as the user gave it (used in every error message).
+    time: the Usd.TimeCode all values are read at.
+    xform_cache: one UsdGeom.XformCache(time) for the whole read.
+    """
+
+    def __init__(self, stage: Usd.Stage, file: str, time: Usd.TimeCode):
+        self.stage = stage
+        self.file = file
+        self.time = time
+        self.xform_cache = UsdGeom.XformCache(time)
+        self.warnings = WarningLog()
+        self.stats: dict[str, int] = {
+            "prims_visited": 0,
+            "prims_pruned": 0,
+            "points_read": 0,
+            "meshes": 0,
+            "implicit_prims": 0,
+            "triangles": 0,
+            "instancers": 0,
+            "instances": 0,
+            "lights": 0,
+            "materials": 0,
+        }
+        self.up_axis = str(UsdGeom.GetStageUpAxis(stage))
+
+    # ---- errors and warnings ---------------------------------------------------------
+    def error(self, message: str, prim: Usd.Prim | str | None = None, attribute: str = "") -> StageError:
+        """A StageError located at this file (and prim/attribute when given); raise it."""
+        prim_path = ""
+        if prim is not None:
+            prim_path = str(prim.GetPath()) if isinstance(prim, Usd.Prim) else str(prim)
+        return StageError(message, file=self.file, prim=prim_path, attribute=attribute)
+
+    def warn(self, key: str, message: str) -> None:
+        self.warnings.add(key, message)
+
+    # ---- transforms ------------------------------------------------------------------
+    def local_to_world(self, prim: Usd.Prim) -> np.ndarray:
+        """(4, 4) column-vector world matrix of ``prim`` at the read time."""
+        return gf_matrix_to_np(self.xform_cache.GetLocalToWorldTransform(prim))
+
+    def relative_transform(self, prim: Usd.Prim, ancestor: Usd.Prim) -> np.ndarray:
+        """(4, 4) column-vector transform from ``prim``'s local space to ``ancestor``'s."""
+        m, _reset = self.xform_cache.ComputeRelativeTransform(prim, ancestor)
+        return gf_matrix_to_np(m)
+
+    # ---- values ----------------------------------------------------------------------
+    def get(self, prim: Usd.Prim, name: str, default=None):
+        """Value of attribute ``name`` at the read time (schema fallback if unauthored), or default."""
+        attr = prim.GetAttribute(name)
+        if not attr:
+            return default
+        value = attr.Get(self.time)
+        return default if value is None else value
+
+    def finite_float(self, prim: Usd.Prim, name: str, value, *, min_value: float | None = None,
+                     positive: bool = False) -> float:
+        """Validate a scalar: finite, and >= min_value or > 0 as asked; else StageError."""
+        v = float(value)
+        if not math.isfinite(v):
+            raise self.error(f"value is {v} (must be finite)", prim, name)
+        if positive and v <= 0.0:
+            raise self.error(f"value is {v:g} (must be > 0)", prim, name)
+        if min_value is not None and v < min_value:
+            raise self.error(f"value is {v:g} (must be >= {min_value:g})", prim, name)
+        return v
+
+    def finite_tuple(self, prim: Usd.Prim, name: str, value) -> tuple:
+        """Validate a vector value (colour, float4, ...) as all-finite; return it as a float tuple."""
+        t = tuple(float(x) for x in value)
+        if not all(math.isfinite(x) for x in t):
+            raise self.error(f"value {t} is not finite", prim, name)
+        return t
+
+    def resolve_asset(self, prim: Usd.Prim, name: str, value) -> str:
+        """Absolute path of an asset-valued attribute ('' when unauthored or empty).
+
+        The asset resolver anchors relative paths to the layer that authored them; a path that
+        does not resolve to an existing file is a StageError naming the prim and attribute.
+        """
+        if value is None:
+            return ""
+        if isinstance(value, Sdf.AssetPath):
+            authored, resolved = value.path, value.resolvedPath
+        else:  # a plain string (hand-written files sometimes use string for asset paths)
+            authored, resolved = str(value), ""
+        if not authored:
+            return ""
+        if not resolved and os.path.isabs(authored) and os.path.exists(authored):
+            resolved = authored
+        if not resolved:
+            raise self.error(f"file not found: '{authored}'", prim, name)
+        return os.path.abspath(resolved)

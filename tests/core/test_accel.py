@@ -1,0 +1,63 @@
+"""The embree adapter: hits, misses, occlusion, and offsets far from the origin."""
+
+import numpy as np
+import pytest
+
+from renderer.accel import Accel
+from renderer.geometry import offset_origin
+
+
+def _quad(center, size=1.0):
+    c = np.asarray(center, dtype=np.float64)
+    a, b, cc, d = (c + [-size, -size, 0], c + [size, -size, 0], c + [size, size, 0], c + [-size, size, 0])
+    return np.array([[a, b, cc], [a, cc, d]])
+
+
+def test_hit_and_miss():
+    acc = Accel(_quad([0, 0, 0]), threads=1)
+    o = np.array([[0.1, 0.2, 1.0], [5.0, 5.0, 1.0]])
+    d = np.array([[0, 0, -1.0], [0, 0, -1.0]])
+    h = acc.intersect(o, d)
+    assert h.prim[0] >= 0 and h.prim[1] == -1
+    assert h.t[0] == pytest.approx(1.0) and np.isinf(h.t[1])
+    occ = acc.occluded(o, d, np.array([0.5, 10.0]))
+    assert not occ.any()
+    assert acc.occluded(o, d, np.array([2.0, 2.0])).tolist() == [True, False]
+
+
+def test_empty_scene_misses_everything():
+    acc = Accel(np.zeros((0, 3, 3)))
+    h = acc.intersect(np.zeros((3, 3)), np.tile([0, 0, 1.0], (3, 1)))
+    assert np.all(h.prim == -1) and np.all(np.isinf(h.t))
+
+
+@pytest.mark.parametrize("origin", [0.0, 1e4, 1e5])
+def test_no_self_intersection_far_from_origin(origin):
+    # A floor and its reflected rays: offset origins must clear the surface at any placement.
+    tri = _quad([origin, origin, origin], size=50.0)
+    acc = Accel(tri, threads=2)
+    rng = np.random.default_rng(0)
+    n = 20000
+    p = np.column_stack([origin + rng.uniform(-40, 40, n), origin + rng.uniform(-40, 40, n), np.full(n, origin)])
+    ng = np.tile([0, 0, 1.0], (n, 1))
+    # Grazing-to-steep directions leaving the surface.
+    cos_t = rng.uniform(1e-3, 1.0, n)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    s = np.sqrt(1 - cos_t ** 2)
+    d = np.column_stack([s * np.cos(phi), s * np.sin(phi), cos_t])
+    o = offset_origin(p, ng, d, acc.ray_epsilon(p))
+    h = acc.intersect(o, d)
+    assert (h.prim >= 0).sum() == 0, "rays leaving the surface hit it again (acne)"
+    # The offset is tiny relative to the scene: shadow rays toward points just above still work.
+    assert acc.ray_epsilon(p).max() < 1e-3 * max(1.0, origin)
+
+
+def test_threads_give_identical_answers():
+    tri = np.random.default_rng(5).random((500, 3, 3)) * 10
+    o = np.random.default_rng(6).random((100000, 3)) * 10
+    d = np.random.default_rng(7).normal(size=(100000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    a = Accel(tri, threads=1).intersect(o, d)
+    b = Accel(tri, threads=2).intersect(o, d)
+    np.testing.assert_array_equal(a.prim, b.prim)
+    np.testing.assert_array_equal(a.t, b.t)
