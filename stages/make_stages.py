@@ -72,7 +72,7 @@ def new_stage(filename: str, up: str, mpu: float, doc: str) -> Usd.Stage:
 def save(stage: Usd.Stage) -> str:
     path = stage._illum_path
     # Author extents last so they reflect final geometry.
-    for prim in stage.Traverse():
+    for prim in stage.TraverseAll():  # includes the abstract `class` prototype
         author_extent(prim)
     stage.GetRootLayer().Export(path)
     return path
@@ -188,6 +188,21 @@ def mesh(stage, path, points, counts, indices, *, normals=None, normals_interp="
     return m
 
 
+def signed_volume(points, counts, indices, left_handed=False):
+    """Divergence-theorem volume of a closed polygon mesh: > 0 iff its faces point
+    outwards under its orientation rule (fan triangulation is exact for this)."""
+    p = np.asarray(points, float)
+    vol, k = 0.0, 0
+    for c in counts:
+        f = indices[k:k + c]
+        k += c
+        if left_handed:
+            f = f[::-1]
+        for i in range(1, c - 1):
+            vol += np.dot(p[f[0]], np.cross(p[f[i]], p[f[i + 1]])) / 6.0
+    return vol
+
+
 def unit_cube_mesh():
     """8 points of the [-0.5, 0.5]^3 cube and 6 quads wound counter-clockwise seen
     from outside (right-handed => outward normals)."""
@@ -258,7 +273,7 @@ def write_textures():
     n, sq = 64, 8
     yy, xx = np.mgrid[0:n, 0:n]
     odd = ((xx // sq + yy // sq) % 2).astype(bool)
-    light = np.array([0.90, 0.88, 0.84])  # sRGB-encoded values (~0.79 linear)
+    light = np.array([0.80, 0.79, 0.76])  # sRGB-encoded values (~0.6 linear)
     dark = np.array([0.22, 0.24, 0.28])   # (~0.04 linear)
     img = np.where(odd[..., None], dark, light).astype(np.float32)
     buf = oiio.ImageBuf(img)
@@ -309,7 +324,7 @@ def sky_radiance(w=128, h=64, sub=8):
     horizon = np.array([0.20, 0.23, 0.28])
     zenith = np.array([0.30, 0.42, 0.75])
     sky[above] = (horizon + (zenith - horizon) * zen)[above]
-    sky[~above] = np.array([0.05, 0.045, 0.04])  # dim brown "ground" below the horizon
+    sky[~above] = np.array([0.2, 0.19, 0.17])  # ground-coloured lower hemisphere (hides the seam beyond the ground quad)
     # sun disk with a soft edge, defined in the world frame
     wd = world_from_dome_local_zup(d)
     ang = np.degrees(np.arccos(np.clip(wd @ SUN_DIR_WORLD, -1, 1)))
@@ -331,6 +346,7 @@ def write_sky(path):
     spec = oiio.ImageSpec(w, h, 3, oiio.FLOAT)
     spec.channelnames = ("R", "G", "B")
     spec.attribute("compression", "zip")
+    spec.attribute("DateTime", "2026:11:22 00:00:00")  # fixed, so regenerating does not change the bytes
     spec.attribute("ImageDescription", "illum zup_dome sky: lat-long (OpenEXR convention), linear Rec.709 radiance in nits")
     out = oiio.ImageOutput.create(path)
     assert out.open(path, spec), oiio.geterror()
@@ -371,7 +387,14 @@ def block_params(top):
     ez = pts[1] - pts[0]
     # rotateY(t) maps local +X to (cos t, -sin t) in (x, z)
     t = math.degrees(math.atan2(-ex[1], ex[0]))
-    return c, t, np.linalg.norm(ex), np.linalg.norm(ez)
+    sx, sz = np.linalg.norm(ex), np.linalg.norm(ez)
+    # a box is symmetric under quarter turns: bring t into (-45, 45], swapping the
+    # footprint sizes for odd quarter turns, so the .usda shows the small angle
+    k = round(t / 90.0)
+    t -= 90.0 * k
+    if k % 2:
+        sx, sz = sz, sx
+    return c, t, sx, sz
 
 
 def make_cornell():
@@ -381,13 +404,14 @@ def make_cornell():
            "near-Lambertian UsdPreviewSurface (specular workflow, specularColor 0, roughness 1). Lit only by a "
            "13 x 10.5 cm RectLight 0.8 mm below the ceiling with the classic radiance (17, 12, 4).")
     stage = new_stage("cornell_box.usda", "Y", 0.01, doc)
-    mat_doc = ("Near-Lambertian wall: useSpecularWorkflow=1 with specularColor=0 sets the specular F0 to 0 "
+    looks_doc = ("Near-Lambertian walls: useSpecularWorkflow=1 with specularColor=0 sets the specular F0 to 0 "
                "(the default metallic workflow would add a 4% ior=1.5 GGX coat), and roughness=1 spreads what "
                "is left (Schlick Fresnel towards white at grazing angles) as widely as possible.")
+    stage.GetPrimAtPath("/World/Looks").SetDocumentation(looks_doc)
     wall = dict(roughness=1.0, useSpecularWorkflow=1, specularColor=(0.0, 0.0, 0.0))
-    white = material(stage, "White", mat_doc, diffuseColor=(0.725, 0.71, 0.68), **wall)
-    red = material(stage, "Red", mat_doc, diffuseColor=(0.63, 0.065, 0.05), **wall)
-    green = material(stage, "Green", mat_doc, diffuseColor=(0.14, 0.45, 0.091), **wall)
+    white = material(stage, "White", diffuseColor=(0.725, 0.71, 0.68), **wall)
+    red = material(stage, "Red", diffuseColor=(0.63, 0.065, 0.05), **wall)
+    green = material(stage, "Green", diffuseColor=(0.14, 0.45, 0.091), **wall)
 
     UsdGeom.Xform.Define(stage, "/World/Box")
     mats = {"Floor": white, "Ceiling": white, "BackWall": white, "RightWall": green, "LeftWall": red}
@@ -402,6 +426,7 @@ def make_cornell():
         bind(m, mats[name])
 
     cube_pts, cube_counts, cube_idx = unit_cube_mesh()
+    assert abs(signed_volume(cube_pts, cube_counts, cube_idx) - 1.0) < 1e-9
     for name, top, height in (("ShortBlock", CB_SHORT_TOP_MM, 16.5), ("TallBlock", CB_TALL_TOP_MM, 33.0)):
         c, t, sx, sz = block_params(top)
         m = mesh(stage, f"/World/Box/{name}", cube_pts, cube_counts, cube_idx,
@@ -445,18 +470,19 @@ def make_cornell():
 # --------------------------------------------------------------------------- 2. Z-up dome
 def make_zup_dome():
     doc = ("Z-up stage (metersPerUnit 1) lit only by a DomeLight_1 (poleAxis = \"scene\", so its top pole is the "
-           "stage's +Z) with a 128x64 lat-long EXR sky: blue gradient brighter towards the zenith, dim ground "
+           "stage's +Z) with a 128x64 lat-long EXR sky: blue gradient brighter towards the zenith, a grey ground colour "
            "below the horizon and a small sun at about 44 deg elevation to the camera's left, behind it. "
-           "A chrome sphere, an orange cube and a grey ground quad. If the dome or the camera ignore the "
+           "A chrome sphere, an orange cube and a 1 km grey ground quad. If the dome or the camera ignore the "
            "up axis the sky ends up sideways and the sun lights the objects from the wrong direction.")
     stage = new_stage("zup_dome.usda", "Z", 1.0, doc)
     grey = material(stage, "Ground", diffuseColor=(0.5, 0.5, 0.5), roughness=0.9)
     chrome = material(stage, "Chrome", diffuseColor=(0.9, 0.9, 0.92), metallic=1.0, roughness=0.12)
     orange = material(stage, "Orange", diffuseColor=(0.8, 0.35, 0.08), roughness=0.6)
 
-    g = 30.0
+    g = 500.0
     ground = mesh(stage, "/World/Ground", [(-g, -g, 0), (g, -g, 0), (g, g, 0), (-g, g, 0)], [4], [0, 1, 2, 3],
-                  normals=[(0, 0, 1)] * 4, doc="60 m square ground in the XY plane, normal +Z.")
+                  normals=[(0, 0, 1)] * 4, doc="1 km square ground in the XY plane, normal +Z (large enough "
+                                               "that almost none of the lower hemisphere shows).")
     bind(ground, grey)
     sph = UsdGeom.Sphere.Define(stage, "/World/Sphere")
     sph.CreateRadiusAttr(1.0)
@@ -479,7 +505,7 @@ def make_zup_dome():
 
     # Camera in a Z-up world: rotateX 90 turns the camera's -Z view axis into world +Y
     # and its +Y (image up) into world +Z; rotateZ then turns it about world +Z.
-    pos, target = np.array([3.0, -9.0, 2.6]), np.array([0.0, 0.5, 0.8])
+    pos, target = np.array([3.0, -9.0, 1.7]), np.array([0.0, 0.5, 1.3])
     d = (target - pos) / np.linalg.norm(target - pos)
     pitch = math.degrees(math.asin(d[2]))
     yaw = math.degrees(math.atan2(-d[0], d[1]))
@@ -583,7 +609,7 @@ def make_instanced():
     pi.CreateIdsAttr(Vt.Int64Array(list(range(n))))
     pi.CreateInvisibleIdsAttr(Vt.Int64Array([4, 11, 23, 37, 46]))
 
-    ground = quad(stage, "/World/Ground", 14.0, 14.0)
+    ground = quad(stage, "/World/Ground", 40.0, 40.0)
     bind(ground, ground_m)
 
     # --- must-not-render prims
@@ -598,17 +624,17 @@ def make_instanced():
     gs = UsdGeom.Cube.Define(stage, "/World/GuideSlab")
     gs.CreatePurposeAttr(UsdGeom.Tokens.guide)
     gs.GetPrim().SetDocumentation("purpose = guide: excluded by RenderSettings.includedPurposes. If it "
-                                  "rendered, this glowing green slab would block the DiskLight.")
+                                  "rendered, this glowing green slab would cover the top of the frame and block the DiskLight.")
     gs.CreateSizeAttr(1.0)
-    place(gs, translate=(0, 3.4, 0.5), scale=(6.0, 0.05, 5.0))
+    place(gs, translate=(0, 2.4, 0.3), scale=(6.0, 0.05, 5.0))
     bind(gs, guide_m)
 
     # --- lights
     disk = UsdLux.DiskLight.Define(stage, "/World/Lights/Key")
-    disk.GetPrim().SetDocumentation("Warm disk 4 m above the ground facing down (rotateX -90 maps local -Z "
-                                    "to world -Y). Radiance 30 nits, radius 0.6 m: ~2.1 irradiance below it.")
-    place(disk, translate=(0, 4.0, 0.5), rotate_x=-90)
-    disk.CreateRadiusAttr(0.6)
+    disk.GetPrim().SetDocumentation("Warm disk 4.5 m above the ground facing down (rotateX -90 maps local -Z "
+                                    "to world -Y). Radiance 30 nits, radius 0.8 m: ~2.9 irradiance below it.")
+    place(disk, translate=(0, 4.5, 0.3), rotate_x=-90)
+    disk.CreateRadiusAttr(0.8)
     disk.CreateIntensityAttr(30.0)
     disk.CreateColorAttr(Gf.Vec3f(1.0, 0.9, 0.75))
     sl = UsdLux.SphereLight.Define(stage, "/World/Lights/Fill")
@@ -618,7 +644,7 @@ def make_instanced():
     sl.CreateIntensityAttr(80.0)
     sl.CreateColorAttr(Gf.Vec3f(0.65, 0.8, 1.0))
 
-    cpos, tgt = (0.0, 3.3, 8.8), (0.0, 0.4, 0.3)
+    cpos, tgt = (0.0, 3.3, 7.8), (0.0, 0.3, -0.1)
     yaw, pitch = aim_angles(cpos, tgt)
     camera(stage, "/World/Camera", focal=0.35, h_ap=0.36, v_ap=0.27, clip=(0.01, 10000.0), translate=cpos,
            rotate_y=round(yaw, 2), rotate_x=round(pitch, 2),
@@ -685,6 +711,7 @@ def make_textured():
     bind(ground, floor_m)
 
     pts, nrm, st, counts, idx = uv_sphere(0.7)
+    assert signed_volume(pts, counts, idx) > 0
     sph = mesh(stage, "/World/StripedSphere", pts, counts, idx, normals=nrm, st=st,
                doc="32 x 16 UV sphere (seam column duplicated so st is per-vertex), smooth vertex normals; "
                    "roughness from textures/roughness_stripes.png (8 stripes, 0.08 / 0.6).")
@@ -707,6 +734,7 @@ def make_textured():
     ppts = [(-b, 0, b), (b, 0, b), (b, 0, -b), (-b, 0, -b), (0, h, 0)]
     faces_ccw = [(0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4), (0, 3, 2, 1)]
     faces_cw = [tuple(reversed(f)) for f in faces_ccw]
+    assert signed_volume(ppts, [len(f) for f in faces_cw], [i for f in faces_cw for i in f], left_handed=True) > 0
     pm = mesh(stage, "/World/LeftHandedPyramid", ppts, [len(f) for f in faces_cw], [i for f in faces_cw for i in f],
               orientation=UsdGeom.Tokens.leftHanded, double_sided=False, doc=(
                   "orientation = leftHanded and doubleSided = 0: faces are listed clockwise as seen from "
@@ -721,11 +749,11 @@ def make_textured():
     place(key, translate=kpos, rotate_y=round(yaw, 2), rotate_x=round(pitch, 2))
     key.GetPrim().SetDocumentation(
         "1.5 x 1 m RectLight aimed at the scene (local -Z towards (0, 0.3, 0)). normalize = 1 divides the "
-        "intensity by the 1.5 m^2 area, so the radiance is 90 / 1.5 = 60 nits, times the 3200 K colour "
+        "intensity by the 1.5 m^2 area, so the radiance is 60 / 1.5 = 40 nits, times the 3200 K colour "
         "(normalised so that 6500 K is white, luminance ~1).")
     key.CreateWidthAttr(1.5)
     key.CreateHeightAttr(1.0)
-    key.CreateIntensityAttr(90.0)
+    key.CreateIntensityAttr(60.0)
     key.CreateNormalizeAttr(True)
     key.CreateEnableColorTemperatureAttr(True)
     key.CreateColorTemperatureAttr(3200.0)
@@ -747,17 +775,28 @@ def make_textured():
 
 
 # --------------------------------------------------------------------------- 5. depth of field
-DOF_DEPTHS = [60.0, 80.0, 110.0, 150.0, 200.0, 270.0, 360.0]  # cm in front of the camera; the middle is 150
+DOF_DEPTHS = [50.0, 70.0, 100.0, 150.0, 220.0, 320.0, 460.0]  # cm in front of the camera; the middle is 150
+DOF_FOCAL_MM, DOF_FSTOP, DOF_GATE_MM, DOF_RES = 50.0, 2.8, (36.0, 24.0), (768, 512)
+DOF_CAM_HEIGHT, DOF_RADIUS = 10.0, 5.0
+
+
+def coc_pixels(depth_cm, focus_cm=DOF_DEPTHS[3]):
+    """Thin-lens circle-of-confusion diameter in pixels for a point at depth_cm."""
+    f, d, s = DOF_FOCAL_MM, depth_cm * 10.0, focus_cm * 10.0
+    c_mm = (f * f / DOF_FSTOP) * abs(d - s) / (d * (s - f))
+    return c_mm / DOF_GATE_MM[0] * DOF_RES[0]
 
 
 def make_dof():
     doc = ("Depth-of-field test in CENTIMETRES (metersPerUnit 0.01), so the camera's 'tenths of a scene unit' "
            "are millimetres: a 50 mm lens (focalLength 50) on a 36 x 24 mm gate, fStop 2.8, focused at "
-           "focusDistance 150 cm on the middle of seven 8 cm spheres receding from 60 cm to 360 cm. The camera "
-           "looks horizontally down -Z, so a sphere's depth is its -z. Thin-lens aperture radius = "
-           "50 mm / (2 * 2.8) = 0.89 cm. The nearest sphere is blurred by a ~16 px circle of confusion at "
-           "768 px, the farthest by ~7 px; the fourth is sharp. A checker ground shows the focal plane. Lit by "
-           "a 1-degree DistantLight (sun) and a dim constant DomeLight (no texture).")
+           "focusDistance 150 cm on the middle (4th, white) of seven 5 cm-radius spheres receding from 50 cm to "
+           "460 cm and spread left to right. The camera looks horizontally down -Z from 10 cm above the ground, "
+           "so a sphere's depth is its -z. Thin-lens aperture radius = 50 mm / (2 * 2.8) = 0.89 cm. "
+           f"Circle of confusion at 768 px wide: nearest sphere ~{coc_pixels(DOF_DEPTHS[0]):.0f} px, "
+           f"farthest ~{coc_pixels(DOF_DEPTHS[-1]):.0f} px, the 4th sharp; the 5 cm checker ground shows the "
+           "sharp band at 150 cm. Lit by a 1-degree DistantLight (sun, from the upper left behind the camera) "
+           "and a dim constant DomeLight (no texture).")
     stage = new_stage("dof.usda", "Y", 0.01, doc)
     floor_m = material(stage, "Checker", diffuseColor=(0.5, 0.5, 0.5), roughness=0.8)
     tex = texture_chain(stage, floor_m, "./textures/checker.png", "sRGB")
@@ -774,12 +813,15 @@ def make_dof():
     for i, (d, c) in enumerate(zip(DOF_DEPTHS, cols)):
         m = material(stage, f"Ball{i}", diffuseColor=c, roughness=0.3)
         s = UsdGeom.Sphere.Define(stage, f"/World/Spheres/Ball{i}")
-        s.CreateRadiusAttr(8.0)
-        x = -10.0 + 50.0 * (d - DOF_DEPTHS[0]) / (DOF_DEPTHS[-1] - DOF_DEPTHS[0])
-        place(s, translate=(x, 8.0, -d))
+        s.CreateRadiusAttr(DOF_RADIUS)
+        # spread evenly across the frame: image x from -260 px to +280 px at 768 px
+        x_mm = (-260.0 + 90.0 * i) * DOF_GATE_MM[0] / DOF_RES[0]
+        place(s, translate=(round(x_mm * d / DOF_FOCAL_MM, 1), DOF_RADIUS, -d))
         bind(s, m)
         if i == 3:
             s.GetPrim().SetDocumentation("In focus: centre at depth 150 cm = camera focusDistance.")
+        else:
+            s.GetPrim().SetDocumentation(f"Depth {d:g} cm: circle of confusion ~{coc_pixels(d):.0f} px.")
 
     sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
     ddir = np.array([0.55, -0.65, -0.35])  # direction light travels: from upper left, slightly behind camera
@@ -798,11 +840,11 @@ def make_dof():
     sky.CreateIntensityAttr(0.25)
     sky.CreateColorAttr(Gf.Vec3f(0.55, 0.7, 1.0))
 
-    camera(stage, "/World/Camera", focal=50.0, h_ap=36.0, v_ap=24.0, clip=(1.0, 100000.0), translate=(0.0, 20.0, 0.0),
-           f_stop=2.8, focus=DOF_DEPTHS[3],
+    camera(stage, "/World/Camera", focal=DOF_FOCAL_MM, h_ap=DOF_GATE_MM[0], v_ap=DOF_GATE_MM[1], clip=(1.0, 100000.0),
+           translate=(0.0, DOF_CAM_HEIGHT, 0.0), f_stop=DOF_FSTOP, focus=DOF_DEPTHS[3],
            doc="50 mm f/2.8 focused at 150 cm; units are centimetres so focalLength/apertures read as mm. "
-               "Looks straight down -Z from 20 cm above the ground.")
-    render_settings(stage, "/World/Camera", (768, 512), "dof.exr")
+               "Looks straight down -Z (no rotation) from 10 cm above the ground.")
+    render_settings(stage, "/World/Camera", DOF_RES, "dof.exr")
     return save(stage)
 
 
@@ -858,7 +900,7 @@ def validate(paths) -> bool:
             if err.GetType() != UsdValidation.ValidationErrorType.None_:
                 problems.append(f"validator {err.GetValidator().GetMetadata().name}: {err.GetMessage()}")
         diags = delegate.TakeUncoalescedDiagnostics()
-        problems += [f"pxr diagnostic: {d.msg}" for d in diags]
+        problems += [f"pxr diagnostic: {d.commentary}" for d in diags]
         size = os.path.getsize(path)
         if size > 200_000:
             problems.append(f"file is {size} bytes (> 200 KB)")
@@ -964,7 +1006,7 @@ EXPOSURE_PROBES = {
     "zup_dome.usda": [("ground", (0, 3, 0), (0, 0, 1)), ("cube side facing camera", (1.4, 0.0, 0.8), (0, -1, 0))],
     "instanced.usda": [("ground centre", (0, 0, 0.5), (0, 1, 0)), ("ground front", (0, 0, 3), (0, 1, 0))],
     "textured.usda": [("ground centre", (0, 0, 0), (0, 1, 0)), ("star (faces +Z)", (1.35, 0.8, -0.8), (0, 0, 1))],
-    "dof.usda": [("ground", (0, 0, -150), (0, 1, 0))],
+    "dof.usda": [("ground", (0, 0, -150), (0, 1, 0)), ("in-focus sphere, side facing camera", (0, 5, -145), (0, 0, 1))],
 }
 
 
