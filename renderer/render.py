@@ -145,8 +145,9 @@ def render(
     if resume is not None and (resume.width, resume.height, resume.window) != (width, height, window):
         raise SettingsError("checkpoint does not match the requested resolution/data window", attribute="resume")
 
-    integrator = PathIntegrator(scene, camera, IntegratorOptions(max_depth=opt.max_depth, rr_depth=opt.rr_depth,
-                                                                 seed=opt.seed, threads=threads))
+    integrator = PathIntegrator(scene, camera, IntegratorOptions(
+        max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed, threads=threads,
+        estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples)))
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
     t0 = time.perf_counter()
@@ -185,7 +186,7 @@ def render(
     total_rays = rays["camera"] + rays["extension"] + rays["shadow"]
     r_sec = max(phases["render"], 1e-9)
     h, w = film.shape
-    light_info = _light_estimators(scene)
+    light_info = integrator.light_settings
     stats = {
         "illum_version": VERSION,
         "stage": os.path.abspath(stage_path),
@@ -207,6 +208,9 @@ def render(
         "negative_samples": film.negative_samples,
         "skipped": list(scene.skipped) + list(integrator.skipped),
         "lights": light_info,
+        "direct_rule": {"rule": "first vertex: each picked light takes its own N samples (alpha = v_bar "
+                                "formed per light); deeper vertices: N = 1, control variate alpha = 1",
+                        **integrator.rule_counts},
         "warnings": list(scene.warnings),
         "triangles": int(scene.geometry.count),
         "machine": {"platform": platform.platform(), "python": platform.python_version(),
@@ -226,19 +230,6 @@ def render(
         "worldToScreen": camera.projection_matrix() @ camera.world_to_camera(),
     }
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings))
-
-
-def _light_estimators(scene) -> list[dict]:
-    lights = scene.lights
-    out = []
-    for i in range(lights.count):
-        est = lights.estimators[i] if hasattr(lights, "estimators") else None
-        out.append({
-            "path": lights.paths[i],
-            "estimator": "mis" if est is None else est.estimator,
-            "samples": 1 if est is None else int(est.samples),
-        })
-    return out
 
 
 def _data_window(ndc, width: int, height: int) -> tuple[int, int, int, int]:

@@ -8,6 +8,17 @@ kernels release the GIL).
 ``max_depth`` counts scattering events, as pbrt's maxdepth does: 0 shows only emitters seen
 directly, 1 is direct lighting, and so on.
 
+Direct lighting at every scattering vertex is done *per light* by the estimator the light's
+IllumLightAPI chose (renderer/estimators): the lighting service picks the light(s), the estimator
+draws that light's own light and/or BSDF samples and returns its whole contribution. The path's
+continuation ray therefore adds light emission only on unsampled segments (camera rays), never
+after a scattering event, so nothing is counted twice and no MIS bookkeeping rides on the path.
+
+Rule for per-light sample counts (the talk's "interplay with path tracing"): at the first
+scattering vertex every picked light gets its own N = illum:samples, so α = v̄ is formed from that
+light's own samples; at deeper vertices each picked light gets N = 1, where α = v̄ is undefined and
+the control variate uses α = 1. ``stats["direct_rule"]`` counts both cases.
+
 Conventions: area lights are *transparent* to every ray (as in Cycles): a ray that crosses a
 light picks up its emission and continues to the geometry behind it. Shadow rays likewise ignore
 lights. Both choices keep next-event estimation and BSDF sampling estimating the same integral,
@@ -27,17 +38,80 @@ from ..film import Film
 from ..geometry import coordinate_frame, dot, normalize, offset_origin, to_local, to_world
 from ..lights.base import ShadingContext
 from ..materials import make_bsdf
-from ..sampling import balance_heuristic, power_heuristic, safe_div
+from ..errors import SettingsError
+from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
+from ..sampling import safe_div
+
+ESTIMATOR_TOKENS = tuple(t for t in TOKENS if t != "auto")
+ALPHA_TOKENS = ALPHAS
+HEURISTIC_TOKENS = HEURISTICS
+TOKEN_CV = ESTIMATOR_TOKENS.index("controlVariate")
+ALPHA_ONE = ALPHA_TOKENS.index("one")
 
 PIXELS_PER_CHUNK = 16384
 
 
 @dataclass
 class IntegratorOptions:
+    """estimator / cv_alpha / light_samples: overrides, {"": value} for all lights or
+    {"/Light/Path": value} for one (the CLI's --estimator, --cv-alpha, --light-samples)."""
+
     max_depth: int = 8
     rr_depth: int = 3
     seed: int = 0
     threads: int = 2
+    estimator: dict = field(default_factory=dict)
+    cv_alpha: dict = field(default_factory=dict)
+    light_samples: dict = field(default_factory=dict)
+
+
+def resolve_estimators(lights, opt: IntegratorOptions) -> list[dict]:
+    """Per-light estimator settings after CLI overrides and the `auto` rule.
+
+    Returns one dict per light: token, alpha, samples, heuristic, auto (bool: chosen by auto).
+    Unknown override paths or tokens raise SettingsError naming the flag.
+    """
+    paths = list(lights.paths)
+    for flag, table in (("estimator", opt.estimator), ("cv-alpha", opt.cv_alpha),
+                        ("light-samples", opt.light_samples)):
+        for key in table:
+            if key and key not in paths:
+                raise SettingsError(f"no light at {key!r} (lights: {', '.join(paths) or 'none'})", attribute=flag)
+    out = []
+    for i, path in enumerate(paths):
+        es = lights.estimators[i]
+        token = opt.estimator.get(path, opt.estimator.get("", es.estimator))
+        alpha = opt.cv_alpha.get(path, opt.cv_alpha.get("", es.cv_alpha))
+        samples = opt.light_samples.get(path, opt.light_samples.get("", es.samples))
+        if token not in TOKENS:
+            raise SettingsError(f"{token!r} is not one of {', '.join(TOKENS)}", prim=path, attribute="illum:estimator")
+        if alpha not in ALPHAS:
+            raise SettingsError(f"{alpha!r} is not one of {', '.join(ALPHAS)}", prim=path, attribute="illum:cv:alpha")
+        if not isinstance(samples, (int, np.integer)) or samples < 1 or samples > 4096:
+            raise SettingsError(f"{samples!r} must be an integer in [1, 4096]", prim=path, attribute="illum:samples")
+        heuristic = es.mis_heuristic if es.mis_heuristic in HEURISTICS else "power"
+        auto = token == "auto"
+        if auto:
+            token = auto_estimator(lights, i, int(samples))
+        out.append({"path": path, "estimator": token, "cv_alpha": alpha, "samples": int(samples),
+                    "mis_heuristic": heuristic, "auto": auto})
+    return out
+
+
+def auto_estimator(lights, i: int, samples: int) -> str:
+    """The `auto` rule (documented in the README):
+
+    * delta lights (point, zero-angle distant): light sampling, the only technique that reaches them;
+    * lights with an exact unshadowed integral F and N >= 2: the control variate with α = v̄ and the
+      unbiased 1/(N-1) rescaling -- zero variance wherever the light is fully visible or hidden,
+      so the noise is confined to penumbrae;
+    * everything else: MIS, the robust default.
+    """
+    if lights.delta[i]:
+        return "lightSampling"
+    if lights.has_exact_integral[i] and samples >= 2:
+        return "controlVariate"
+    return "mis"
 
 
 @dataclass
@@ -86,8 +160,15 @@ class PathIntegrator:
         self.finite = np.nonzero(~scene.lights.is_infinite)[0] if self.has_lights else np.zeros(0, np.int64)
         self.pool = ThreadPoolExecutor(max(1, options.threads)) if options.threads > 1 else None
         self.skipped: list[str] = []
+        self.rule_counts = {"own_samples": 0, "alpha_one_fallback": 0}
+        self.light_settings = resolve_estimators(self.lights, options) if self.has_lights else []
+        ls = self.light_settings
+        self.est_token = np.array([ESTIMATOR_TOKENS.index(x["estimator"]) for x in ls], dtype=np.int64)
+        self.est_alpha = np.array([ALPHA_TOKENS.index(x["cv_alpha"]) for x in ls], dtype=np.int64)
+        self.est_samples = np.array([x["samples"] for x in ls], dtype=np.int64)
+        self.est_heuristic = np.array([HEURISTIC_TOKENS.index(x["mis_heuristic"]) for x in ls], dtype=np.int64)
         if options.max_depth <= 1:
-            self.skipped.append("max depth <= 1: no extension rays beyond the first bounce")
+            self.skipped.append("max depth <= 1: no extension rays are traced (unless emissive geometry needs them)")
 
     def close(self) -> None:
         if self.pool is not None:
@@ -132,9 +213,7 @@ class PathIntegrator:
         path = np.arange(m)                  # which path each live row belongs to
         beta = np.ones((m, 3))               # path throughput
         depth = np.zeros(m, dtype=np.int64)  # scattering events so far
-        prev = ShadingContext(np.zeros((m, 3)), np.zeros((m, 3)), np.zeros((m, 3)))  # last vertex
-        prev_pdf = np.zeros(m)               # BSDF pdf of the direction d at that vertex
-        specular = np.ones(m, dtype=bool)    # True: d was not sampled by a BSDF (no MIS)
+        unsampled = np.ones(m, dtype=bool)   # True: no scattering yet, so emitters count fully
         budget = opt.max_depth + 64          # bound on loop trips (cutout pass-throughs included)
 
         while path.size and budget > 0:
@@ -144,19 +223,21 @@ class PathIntegrator:
             t_geo = np.minimum(hits.t, tmax)
 
             # ---- emission from lights crossed before the surface, and from the environment
-            if self.finite.size:
-                self._add_light_hits(L, path, beta, o, d, t_geo, prev, prev_pdf, specular)
-            if self.infinite.size:
-                escaped = ~hits.hit & np.isinf(tmax)
-                if np.any(escaped):
-                    self._add_escaped(L, path, beta, d, escaped, prev, prev_pdf, specular)
+            # After a scattering event the estimators already covered every light (see above).
+            if np.any(unsampled):
+                if self.finite.size:
+                    self._add_light_hits(L, path, beta, o, d, t_geo, unsampled)
+                if self.infinite.size:
+                    escaped = ~hits.hit & np.isinf(tmax) & unsampled
+                    if np.any(escaped):
+                        self._add_escaped(L, path, beta, d, escaped)
 
             # ---- surfaces ----------------------------------------------------------------
             keep = np.nonzero(hits.hit)[0]
             if not keep.size:
                 break
             path, beta, o, d, tmax, depth = path[keep], beta[keep], o[keep], d[keep], tmax[keep], depth[keep]
-            prev, prev_pdf, specular = prev.take(keep), prev_pdf[keep], specular[keep]
+            unsampled = unsampled[keep]
             si = self._interaction(hits.prim[keep], hits.b1[keep], hits.b2[keep], d)
             t_hit = hits.t[keep]
             params = scene.materials.evaluate(si.mat, si.st)
@@ -169,8 +250,7 @@ class PathIntegrator:
             if np.any(through):
                 tr = np.nonzero(through)[0]
                 pass_o = offset_origin(si.p[tr], si.ng[tr], d[tr], scene.accel.ray_epsilon(si.p[tr]))
-                pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr],
-                              prev.take(tr), prev_pdf[tr], specular[tr])
+                pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr], unsampled[tr])
                 solid = np.nonzero(~through)[0]
                 path, beta, d, depth = path[solid], beta[solid], d[solid], depth[solid]
                 si = _take(si, solid)
@@ -190,6 +270,7 @@ class PathIntegrator:
                 params = _take(params, a)
 
             n = path.size
+            next_state = None
             if n:
                 bsdf = make_bsdf(params)
                 s, t = coordinate_frame(si.ns)
@@ -197,11 +278,17 @@ class PathIntegrator:
                 ctx = ShadingContext(si.p, si.ng, si.ns)
                 eps = scene.accel.ray_epsilon(si.p)
 
-                # ---- next-event estimation ------------------------------------------------
+                # ---- direct lighting, per light, by its estimator --------------------------
                 if self.has_lights:
-                    self._next_event(L, path, beta, si, ctx, bsdf, wo_l, s, t, eps, rng)
+                    self._direct(L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary=depth == 0)
+
+                # With no emissive geometry, a ray whose next vertex cannot scatter finds nothing.
+                if not scene.materials.has_emission and np.all(depth + 1 >= opt.max_depth):
+                    next_state = None
+                    n = 0
 
                 # ---- sample the BSDF for the extension ray --------------------------------
+            if n:
                 # The extension ray leaving the D-th vertex can still find emission (pbrt's
                 # convention), but the vertex it reaches scatters no further.
                 depth = depth + 1
@@ -222,28 +309,15 @@ class PathIntegrator:
 
                 k = np.nonzero(ok)[0]
                 next_state = (path[k], beta[k], offset_origin(si.p[k], si.ng[k], wi[k], eps[k]), wi[k],
-                              np.full(k.size, np.inf), depth[k], ctx.take(k), bs.pdf[k], np.zeros(k.size, bool))
+                              np.full(k.size, np.inf), depth[k], np.zeros(k.size, bool))
                 self.rays.add(extension=k.size)
-            else:
-                next_state = None
 
             # ---- gather the rays that continue ---------------------------------------------
             states = [st for st in (next_state, pass_state) if st is not None and st[0].size]
             if not states:
                 break
-            if len(states) == 1:
-                path, beta, o, d, tmax, depth, prev, prev_pdf, specular = states[0]
-            else:
-                a_, b_ = states
-                path = np.concatenate([a_[0], b_[0]])
-                beta = np.concatenate([a_[1], b_[1]])
-                o = np.concatenate([a_[2], b_[2]])
-                d = np.concatenate([a_[3], b_[3]])
-                tmax = np.concatenate([a_[4], b_[4]])
-                depth = np.concatenate([a_[5], b_[5]])
-                prev = ShadingContext(*(np.concatenate([getattr(a_[6], f), getattr(b_[6], f)]) for f in ("p", "n", "ns")))
-                prev_pdf = np.concatenate([a_[7], b_[7]])
-                specular = np.concatenate([a_[8], b_[8]])
+            path, beta, o, d, tmax, depth, unsampled = (
+                states[0] if len(states) == 1 else tuple(np.concatenate(x) for x in zip(*states)))
         return L
 
     # ---------------------------------------------------------------------- pieces
@@ -270,25 +344,16 @@ class PathIntegrator:
         ns = np.where(bad[:, None], ng, ns)
         return Interaction(p=p, ng=ng, ns=ns, wo=wo, st=st, mat=g.material[prim], mesh=g.mesh[prim])
 
-    def _mis_light_weight(self, light: np.ndarray, prev_ctx: ShadingContext, d: np.ndarray,
-                          prev_pdf: np.ndarray) -> np.ndarray:
-        """Weight for emission found by BSDF sampling: p_b vs p_l = pmf(light) * pdf_li."""
-        p_l = self.scene.light_sampler.pmf(prev_ctx, light) * self.lights.pdf_li(light, prev_ctx, d)
-        return power_heuristic(1, prev_pdf, 1, p_l)
-
-    def _add_light_hits(self, L, path, beta, o, d, t_limit, prev_ctx, prev_pdf, specular) -> None:
-        """Add emission of every finite light crossed by the rays before t_limit (lights are transparent)."""
-        rows, light, t_hit = self._light_hits(o, d, t_limit)
+    def _add_light_hits(self, L, path, beta, o, d, t_limit, unsampled) -> None:
+        """Add emission of every finite light crossed before t_limit by unsampled rays
+        (lights are transparent, so a ray may cross several)."""
+        rows_u = np.nonzero(unsampled)[0]
+        rows, light, t_hit = self._light_hits(o[rows_u], d[rows_u], t_limit[rows_u])
         if rows.size == 0:
             return
-        p_light = o[rows] + d[rows] * t_hit[:, None]
-        Le = self.lights.le(light, p_light, d[rows])
-        w = np.ones(rows.size)
-        mis = ~specular[rows]
-        if prev_ctx is not None and np.any(mis):
-            r = rows[mis]
-            w[mis] = self._mis_light_weight(light[mis], prev_ctx.take(r), d[r], prev_pdf[r])
-        np.add.at(L, path[rows], beta[rows] * Le * w[:, None])
+        rows = rows_u[rows]
+        Le = self.lights.le(light, o[rows] + d[rows] * t_hit[:, None], d[rows])
+        np.add.at(L, path[rows], beta[rows] * Le)
 
     def _light_hits(self, o, d, t_limit):
         """All (row, light, t) with an exact light hit at t < t_limit."""
@@ -349,43 +414,58 @@ class PathIntegrator:
         _, first = np.unique(key, return_index=True)
         return rows[first], light[first], t[first]
 
-    def _add_escaped(self, L, path, beta, d, escaped, prev_ctx, prev_pdf, specular) -> None:
+    def _add_escaped(self, L, path, beta, d, escaped) -> None:
         rows = np.nonzero(escaped)[0]
         for li in self.infinite:
-            idx = np.full(rows.size, li, dtype=np.int64)
-            Le = self.lights.le_escaped(idx, d[rows])
-            w = np.ones(rows.size)
-            mis = ~specular[rows]
-            if prev_ctx is not None and np.any(mis):
-                r = rows[mis]
-                w[mis] = self._mis_light_weight(idx[mis], prev_ctx.take(r), d[r], prev_pdf[r])
-            np.add.at(L, path[rows], beta[rows] * Le * w[:, None])
+            Le = self.lights.le_escaped(np.full(rows.size, li, dtype=np.int64), d[rows])
+            np.add.at(L, path[rows], beta[rows] * Le)
 
-    def _next_event(self, L, path, beta, si, ctx, bsdf, wo_l, s, t, eps, rng) -> None:
-        """One light picked by the lighting service, one light sample, power-heuristic MIS."""
+    def _visible(self, p, ng, wi, dist, eps) -> np.ndarray:
+        """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf)."""
+        o = offset_origin(p, ng, wi, eps)
+        # Stop short of the light's surface by a relative margin and the origin offset.
+        t_max = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - eps, np.inf)
+        self.rays.add(shadow=p.shape[0])
+        return ~self.scene.accel.occluded(o, wi, t_max)
+
+    def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary) -> None:
+        """Direct lighting at n shading points: lights picked by the lighting service, each
+        estimated by its own estimator with its own sample count (see the module docstring)."""
         n = path.size
-        light, pmf = self.scene.light_sampler.sample(ctx, rng.random(n))
-        ls = self.lights.sample_li(light, ctx, rng.random((n, 2)))
-        wi_l = to_local(ls.wi, s, t, si.ns)
-        f = bsdf.f(wo_l, wi_l) * np.abs(wi_l[:, 2])[:, None]
-        ok = (pmf > 0.0) & (ls.pdf > 0.0) & (dot(ls.wi, si.ng) > 0.0) & np.any(ls.L > 0.0, axis=1)
-        ok &= np.any(f > 0.0, axis=1)
-        if not np.any(ok):
+        lights = self.lights
+        sampler = self.scene.light_sampler
+        if getattr(sampler, "exhaustive", False):
+            # Every light at every point (the talk's small scenes): pmf 1 per pair.
+            rows = np.repeat(np.arange(n), lights.count)
+            light = np.tile(np.arange(lights.count, dtype=np.int64), n)
+            pmf = np.ones(rows.size)
+        else:
+            light, pmf = sampler.sample(ctx, rng.random(n))
+            rows = np.nonzero(pmf > 0.0)[0]
+            light, pmf = light[rows], pmf[rows]
+        if not rows.size:
             return
-        rows = np.nonzero(ok)[0]
-        p_l = pmf[rows] * ls.pdf[rows]
-        delta = self.lights.delta[light[rows]]
-        p_b = bsdf.pdf(wo_l[rows], wi_l[rows])
-        w = np.where(delta, 1.0, power_heuristic(1, p_l, 1, p_b))
-        contrib = beta[rows] * f[rows] * ls.L[rows] * safe_div(w, p_l)[:, None]
-        o_sh = offset_origin(si.p[rows], si.ng[rows], ls.wi[rows], eps[rows])
-        dist = ls.dist[rows]
-        # Stop short of the light's surface by the same relative margin as the origin offset.
-        t_max = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - eps[rows], np.inf)
-        blocked = self.scene.accel.occluded(o_sh, ls.wi[rows], t_max)
-        self.rays.add(shadow=rows.size)
-        vis = ~blocked
-        np.add.at(L, path[rows[vis]], contrib[vis])
+        tok = self.est_token[light]
+        N = np.where(primary[rows], self.est_samples[light], 1)
+        alpha = self.est_alpha[light]
+        # α = v̄ needs N >= 2: at deeper vertices (N = 1) the control variate uses α = 1.
+        fallback = (N < 2) & (alpha != ALPHA_ONE) & (tok == TOKEN_CV)
+        self.rule_counts["own_samples"] += int((primary[rows] & (tok == TOKEN_CV)).sum())
+        self.rule_counts["alpha_one_fallback"] += int(fallback.sum())
+        alpha = np.where(N < 2, ALPHA_ONE, alpha)
+        heur = self.est_heuristic[light]
+        key = ((tok * 8 + alpha) * 4 + heur) * 4096 + np.minimum(N, 4095)
+        for k in np.unique(key):
+            g = np.nonzero(key == k)[0]
+            r = rows[g]
+            token = ESTIMATOR_TOKENS[tok[g[0]]]
+            est = REGISTRY[token]
+            q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r])
+            Nk = int(N[g[0]])
+            res = est.estimate(q, lights, self._visible, Nk, DirectRandom.draw(rng, g.size, Nk),
+                               ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])
+            contrib = beta[r] * safe_div(res.Ld, pmf[g])
+            np.add.at(L, path[r], contrib)
 
 
 def _take(obj, mask):

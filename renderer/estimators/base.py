@@ -1,0 +1,237 @@
+"""Direct-lighting estimators: the shared sampling stage and the estimator contract.
+
+An estimator computes, for rows of (shading point, light) pairs, the light's direct
+contribution  ∫ f(wo, wi) L(wi) v(wi) |cos θ_i| dωi  toward ``wo``, with that light's N samples.
+Each estimator is self-contained: it draws its own light samples and/or BSDF samples, traces
+their shadow rays through ``trace`` and returns the *whole* contribution of the light. The
+path's continuation ray therefore never adds emission from a light that an estimator already
+covered at that vertex (see integrators/path.py), so nothing is counted twice.
+
+Everything here is batched with the batch axis first; ``N`` samples per row are laid out as
+(n, N, ...) arrays. Random numbers come in through ``DirectRandom`` from the integrator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+import numpy as np
+
+from ..geometry import dot, offset_origin, to_local, to_world
+from ..lights.base import ShadingContext
+from ..sampling import balance_heuristic, power_heuristic, safe_div
+
+# visible(p, ng, wi, dist, eps) -> (m,) bool.  p, ng, wi: (m, 3); dist, eps: (m,)
+TraceFn = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class DirectQuery:
+    """n rows, each one shading point and one light.
+
+    ctx: shading points (p, ng, ns faced toward wo); s, t: (n, 3) shading tangents;
+    wo_l: (n, 3) wo in the local shading frame; bsdf: the BSDF for these rows;
+    light: (n,) global light index; eps: (n,) ray-origin offsets.
+    """
+
+    ctx: ShadingContext
+    s: np.ndarray
+    t: np.ndarray
+    wo_l: np.ndarray
+    bsdf: object
+    light: np.ndarray
+    eps: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return self.light.shape[0]
+
+
+@dataclass(frozen=True)
+class DirectRandom:
+    """u_light: (n, N, 2); u_lobe: (n, N); u_bsdf: (n, N, 2)."""
+
+    u_light: np.ndarray
+    u_lobe: np.ndarray
+    u_bsdf: np.ndarray
+
+    @staticmethod
+    def draw(rng: np.random.Generator, n: int, N: int) -> "DirectRandom":
+        return DirectRandom(rng.random((n, N, 2)), rng.random((n, N)), rng.random((n, N, 2)))
+
+
+@dataclass
+class SampleSet:
+    """N samples per row of one technique. All (n, N[, 3]).
+
+    fd, fs: diffuse / specular BSDF times |cos| times the light's radiance L (unshadowed);
+    p_l, p_b: the sample direction's light pdf and BSDF (mixture) pdf; v: visibility (0/1),
+    0 below the geometric or shading horizon; valid: the sample carries a usable pdf.
+    """
+
+    fd: np.ndarray
+    fs: np.ndarray
+    p_l: np.ndarray
+    p_b: np.ndarray
+    v: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass
+class DirectResult:
+    """Ld: (n, 3) contribution (not yet divided by the light-pick pmf).
+    shadow_rays: rays traced; negative: rows whose estimate has a negative channel."""
+
+    Ld: np.ndarray
+    shadow_rays: int = 0
+
+
+class DirectEstimator(Protocol):
+    token: str
+
+    def estimate(self, q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom,
+                 alpha: str, heuristic: str) -> DirectResult:
+        ...
+
+
+def _flat(q: DirectQuery, N: int) -> np.ndarray:
+    """Row index of every sample when the (n, N) layout is flattened."""
+    return np.repeat(np.arange(q.n), N)
+
+
+def light_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom,
+                  need_visibility: bool = True, trace_mask: np.ndarray | None = None) -> tuple[SampleSet, int]:
+    """N light samples per row, unshadowed integrands and (optionally) their visibility.
+
+    trace_mask: (n,) rows for which shadow rays may be traced (others get v = 0 where f > 0);
+    shadow rays are traced only where the unshadowed integrand is non-zero.
+    """
+    n = q.n
+    r = _flat(q, N)
+    ctx = q.ctx.take(r)
+    light = q.light[r]
+    ls = lights.sample_li(light, ctx, u.u_light.reshape(-1, 2))
+    wi_l = to_local(ls.wi, q.s[r], q.t[r], ctx.ns)
+    cos_i = np.abs(wi_l[:, 2])
+    above = (wi_l[:, 2] > 0.0) & (dot(ls.wi, ctx.n) > 0.0)
+    valid = ls.pdf > 0.0
+    fd_b = q.bsdf.f_diffuse(q.wo_l[r], wi_l)
+    fs_b = q.bsdf.f_specular(q.wo_l[r], wi_l)
+    scale = (cos_i * above)[:, None] * ls.L
+    fd = fd_b * scale * lights.diffuse_scale[light][:, None]
+    fs = fs_b * scale * lights.specular_scale[light][:, None]
+    p_b = q.bsdf.pdf(q.wo_l[r], wi_l)
+    v = np.zeros(r.size)
+    rays = 0
+    if need_visibility:
+        want = valid & above & (np.any(fd > 0.0, axis=1) | np.any(fs > 0.0, axis=1))
+        if trace_mask is not None:
+            want &= trace_mask[r]
+        idx = np.nonzero(want)[0]
+        if idx.size:
+            v[idx] = trace(ctx.p[idx], ctx.n[idx], ls.wi[idx], ls.dist[idx], q.eps[r][idx]).astype(np.float64)
+            rays = idx.size
+    delta = lights.delta[light]
+    # Delta lights cannot be hit by BSDF samples: their light pdf is "infinite" for MIS.
+    p_l = np.where(delta, np.inf, ls.pdf)
+    return SampleSet(fd.reshape(n, N, 3), fs.reshape(n, N, 3), p_l.reshape(n, N), p_b.reshape(n, N),
+                     v.reshape(n, N), valid.reshape(n, N)), rays
+
+
+def bsdf_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom,
+                 rows_mask: np.ndarray | None = None) -> tuple[SampleSet, int]:
+    """N BSDF samples per row; each finds whether it hits *this row's light* and with what L.
+
+    rows_mask: (n,) rows that need BSDF samples at all (others get zeros, no rays).
+    """
+    n = q.n
+    r = _flat(q, N)
+    if rows_mask is not None:
+        keep = rows_mask[r]
+    else:
+        keep = np.ones(r.size, dtype=bool)
+    fd = np.zeros((r.size, 3))
+    fs = np.zeros((r.size, 3))
+    p_l = np.zeros(r.size)
+    p_b = np.zeros(r.size)
+    v = np.zeros(r.size)
+    valid = np.zeros(r.size, dtype=bool)
+    rays = 0
+    k = np.nonzero(keep)[0]
+    if k.size:
+        rk = r[k]
+        bsdf = q.bsdf.take(rk)
+        bs = bsdf.sample_f(q.wo_l[rk], u.u_lobe.reshape(-1)[k], u.u_bsdf.reshape(-1, 2)[k])
+        wi = to_world(bs.wi, q.s[rk], q.t[rk], q.ctx.ns[rk])
+        ctx = q.ctx.take(rk)
+        light = q.light[rk]
+        ok = (bs.pdf > 0.0) & (dot(wi, ctx.n) > 0.0) & (bs.wi[:, 2] > 0.0)
+        # Which samples reach the light, and at what distance / radiance.
+        o = offset_origin(ctx.p, ctx.n, wi, q.eps[rk])
+        t_l, Le = light_along(lights, light, o, wi)
+        hit = ok & np.any(Le > 0.0, axis=1)
+        cos_i = np.abs(bs.wi[:, 2])
+        fdk = bsdf.f_diffuse(q.wo_l[rk], bs.wi) * (cos_i * hit)[:, None] * Le
+        fsk = bsdf.f_specular(q.wo_l[rk], bs.wi) * (cos_i * hit)[:, None] * Le
+        fdk *= lights.diffuse_scale[light][:, None]
+        fsk *= lights.specular_scale[light][:, None]
+        pl = np.zeros(k.size)
+        if np.any(hit):
+            h = np.nonzero(hit)[0]
+            pl[h] = lights.pdf_li(light[h], ctx.take(h), wi[h])
+        want = hit & (np.any(fdk > 0.0, axis=1) | np.any(fsk > 0.0, axis=1))
+        vk = np.zeros(k.size)
+        w_idx = np.nonzero(want)[0]
+        if w_idx.size:
+            # The shadow ray stops at the light (finite) or runs to infinity (dome, distant).
+            vk[w_idx] = trace(ctx.p[w_idx], ctx.n[w_idx], wi[w_idx], t_l[w_idx], q.eps[rk][w_idx]).astype(np.float64)
+            rays = w_idx.size
+        fd[k], fs[k], p_l[k], p_b[k], v[k], valid[k] = fdk, fsk, pl, bs.pdf, vk, ok
+    return SampleSet(fd.reshape(n, N, 3), fs.reshape(n, N, 3), p_l.reshape(n, N), p_b.reshape(n, N),
+                     v.reshape(n, N), valid.reshape(n, N)), rays
+
+
+def light_along(lights, light: np.ndarray, o: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (m,) and radiance (m, 3) of light ``light`` seen from o along wi.
+
+    Finite lights: exact intersection (inf and L = 0 on a miss). Infinite lights: t = inf and
+    the escaped radiance (0 outside a distant light's cone).
+    """
+    m = light.shape[0]
+    t = np.full(m, np.inf)
+    Le = np.zeros((m, 3))
+    inf = lights.is_infinite[light]
+    fi = np.nonzero(~inf)[0]
+    if fi.size:
+        tf = lights.intersect(light[fi], o[fi], wi[fi])
+        h = np.isfinite(tf)
+        if np.any(h):
+            hi = fi[h]
+            t[hi] = tf[h]
+            Le[hi] = lights.le(light[hi], o[hi] + wi[hi] * tf[h][:, None], wi[hi])
+    ii = np.nonzero(inf)[0]
+    if ii.size:
+        Le[ii] = lights.le_escaped(light[ii], wi[ii])
+    return t, Le
+
+
+def mis_weights(heuristic: str, p_this: np.ndarray, p_other: np.ndarray) -> np.ndarray:
+    """Equal sample counts on both techniques cancel in the heuristics."""
+    h = power_heuristic if heuristic == "power" else balance_heuristic
+    return h(1, p_this, 1, p_other)
+
+
+def mean_over_samples(x: np.ndarray) -> np.ndarray:
+    """(n, N, 3) -> (n, 3) mean over samples."""
+    return x.mean(axis=1)
+
+
+def ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """num / den per sample, 0 where den is 0 or non-finite (a pdf of 0 marks a failed sample)."""
+    shape = num.shape
+    if num.ndim == 3:
+        out = safe_div(num.reshape(-1, 3), den.reshape(-1))
+    else:
+        out = safe_div(num.reshape(-1), den.reshape(-1))
+    return out.reshape(shape)
