@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections import OrderedDict
 
 import numpy as np
@@ -17,9 +18,16 @@ def gf_matrix_to_np(m: Gf.Matrix4d) -> np.ndarray:
     return np.array(m, dtype=np.float64).reshape(4, 4).T.copy()
 
 
+_TF_LOCATION = re.compile(r"Error in '[^']*' at line \d+ in file [^:]* : '(.*?)'(?=\s*(?:Error in '|$))", re.S)
+
+
 def one_line(text: str) -> str:
-    """Collapse a multi-line pxr error message into one line for the CLI."""
-    return " ".join(str(text).split())
+    """A pxr error (Tf.ErrorException) as one line: the messages without C++ locations."""
+    text = str(text)
+    messages = _TF_LOCATION.findall(text)
+    if messages:
+        text = "; ".join(m.strip() for m in messages)
+    return " ".join(text.split())
 
 
 class WarningLog:

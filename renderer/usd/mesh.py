@@ -121,7 +121,8 @@ def triangulate(points: np.ndarray, counts: np.ndarray, indices: np.ndarray,
     if len(faces):
         c = starts[faces][:, None] + np.arange(4)  # (Q, 4) corners
         v = points[indices[c]].astype(np.float64)  # (Q, 4, 3)
-        nrm = _newell_normals(v)
+        # A quad's Newell normal is the cross product of its diagonals (2 x area vector).
+        nrm = np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 1])
         # Diagonal 0-2 is valid iff triangles (0,1,2) and (0,2,3) both face the quad's normal;
         # otherwise the reflex corner is 1 or 3 and diagonal 1-3 is the valid one.
         a012 = np.einsum("ij,ij->i", np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), nrm)

@@ -1,0 +1,31 @@
+"""The USD reading layer: the only package of illum that imports ``pxr``.
+
+``load_stage(path, ...)`` opens a stage and returns a ``renderer.description.SceneDescription``
+of plain numpy dataclasses; ``read_stage(stage, ...)`` does the same for an open ``Usd.Stage``.
+
+Modules: ``stage_reader`` (traversal, pruning, meshes, implicit prims, instancing),
+``mesh`` (triangulation, primvar expansion), ``implicit`` (tessellation), ``camera``,
+``render_settings``, ``materials``, ``lux`` (lights, linking), ``estimator_api`` (illum schema).
+
+What is read and what is not (each unsupported feature gives one warning per stage):
+* Subdivision meshes render as their control cage; BasisCurves, Points, NURBS and other
+  non-mesh, non-implicit gprims are skipped.
+* Lights: Rect, Disk, Sphere, Cylinder, Distant, DomeLight, DomeLight_1. PortalLight,
+  GeometryLight, PluginLight, MeshLightAPI/VolumeLightAPI emission, light filters, ShapingAPI
+  and ShadowAPI are skipped or ignored; lights inside PointInstancer prototypes are skipped.
+* Materials: UsdPreviewSurface (universal render context) with UsdUVTexture and
+  UsdPrimvarReader_float2; UsdTransform2d is followed but its transform ignored; normal,
+  displacement, clearcoat and occlusion inputs are ignored; UDIM paths use the fallback.
+* displayColor fallback uses the first value of ``primvars:displayColor`` for the whole prim.
+* Time: one time code, no motion blur (velocities and multiple samples are not read).
+* Purpose: a subtree whose authored (or inherited) purpose is excluded is pruned whole, even
+  if a descendant authors an included purpose.
+"""
+
+# usd_schemas registers illum's schema plugin; that must precede any use of
+# Usd.SchemaRegistry (first stage open), so it is imported before everything else here.
+import usd_schemas  # noqa: F401  (isort: skip)
+
+from .stage_reader import load_stage, read_stage  # noqa: E402
+
+__all__ = ["load_stage", "read_stage"]

@@ -1,0 +1,100 @@
+"""UsdGeom.Camera -> CameraDesc, and the choice of which camera renders."""
+
+from __future__ import annotations
+
+import math
+
+from pxr import Sdf, Usd, UsdGeom
+
+from renderer.description import CameraDesc
+
+from .common import ReadContext
+
+__all__ = ["read_camera", "find_camera"]
+
+# UsdGeomCamera's focal length and apertures are in tenths of a scene unit (Gf.Camera's
+# APERTURE_UNIT == FOCAL_LENGTH_UNIT == 0.1).
+TENTHS = 0.1
+
+
+def read_camera(prim: Usd.Prim, ctx: ReadContext) -> CameraDesc:
+    """Camera values at the read time, lengths converted to scene units and validated."""
+    cam = UsdGeom.Camera(prim)
+
+    def num(name: str, **kw) -> float:
+        return ctx.finite_float(prim, name, ctx.get(prim, name), **kw)
+
+    projection = str(ctx.get(prim, "projection", "perspective"))
+    if projection not in ("perspective", "orthographic"):
+        raise ctx.error(f"unknown projection '{projection}'", prim, "projection")
+    near, far = (float(x) for x in ctx.get(prim, "clippingRange"))
+    if not (math.isfinite(near) and math.isfinite(far)) or near < 0.0 or far <= near:
+        raise ctx.error(f"clipping range ({near:g}, {far:g}) must satisfy 0 <= near < far", prim, "clippingRange")
+
+    if hasattr(cam, "ComputeLinearExposureScale"):
+        exposure_scale = float(cam.ComputeLinearExposureScale(ctx.time))
+    else:  # older usd-core: only the plain exposure attribute exists
+        exposure_scale = 2.0 ** num("exposure")
+    if not math.isfinite(exposure_scale) or exposure_scale < 0.0:
+        raise ctx.error(f"linear exposure scale is {exposure_scale:g}", prim, "exposure")
+
+    return CameraDesc(
+        path=str(prim.GetPath()),
+        camera_to_world=ctx.local_to_world(prim),
+        projection=projection,
+        focal_length=num("focalLength", positive=True) * TENTHS,
+        horizontal_aperture=num("horizontalAperture", positive=True) * TENTHS,
+        vertical_aperture=num("verticalAperture", positive=True) * TENTHS,
+        horizontal_aperture_offset=num("horizontalApertureOffset") * TENTHS,
+        vertical_aperture_offset=num("verticalApertureOffset") * TENTHS,
+        clipping_range=(near, far),
+        f_stop=num("fStop", min_value=0.0),
+        focus_distance=num("focusDistance", min_value=0.0),
+        exposure_scale=exposure_scale,
+    )
+
+
+def find_camera(ctx: ReadContext, requested: str | None, settings_camera: str,
+                settings_prim: str, first_seen: str | None) -> Usd.Prim:
+    """Pick the render camera.
+
+    Order: the ``camera`` argument (a path, or a bare prim name searched for among cameras),
+    then the RenderSettings ``camera`` relationship, then the first camera met during the
+    render traversal, then the first camera anywhere on the stage (e.g. under an invisible
+    scope). No camera at all is a StageError naming the file.
+    """
+    stage = ctx.stage
+    if requested:
+        if not requested.startswith("/"):
+            matches = [p for p in _all_cameras(stage) if p.GetName() == requested]
+            if len(matches) == 1:
+                return matches[0]
+            if not matches:
+                raise ctx.error(f"no camera named '{requested}' on the stage")
+            raise ctx.error(f"camera name '{requested}' is ambiguous: "
+                            f"{', '.join(str(p.GetPath()) for p in matches)}")
+        if not Sdf.Path.IsValidPathString(requested):
+            raise ctx.error(f"'{requested}' is not a valid prim path", requested)
+        prim = stage.GetPrimAtPath(requested)
+        if not prim:
+            raise ctx.error("camera prim does not exist", requested)
+        if not prim.IsA(UsdGeom.Camera):
+            raise ctx.error(f"prim is a '{prim.GetTypeName()}', not a Camera", requested)
+        return prim
+    if settings_camera:
+        prim = stage.GetPrimAtPath(settings_camera)
+        if not prim or not prim.IsA(UsdGeom.Camera):
+            what = "does not exist" if not prim else f"is a '{prim.GetTypeName()}', not a Camera"
+            raise ctx.error(f"camera target {settings_camera} {what}", settings_prim, "camera")
+        return prim
+    if first_seen:
+        return stage.GetPrimAtPath(first_seen)
+    for prim in _all_cameras(stage):
+        return prim
+    raise ctx.error("the stage has no camera (pass --camera or add a UsdGeom.Camera)")
+
+
+def _all_cameras(stage: Usd.Stage):
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+        if prim.IsA(UsdGeom.Camera):
+            yield prim

@@ -1,0 +1,259 @@
+"""UsdShade -> MaterialDesc: binding resolution, UsdPreviewSurface inputs, UsdUVTexture chains.
+
+Inputs are resolved with ``UsdShadeInput.GetValueProducingAttributes``, which follows
+connections through NodeGraph outputs and Material/NodeGraph interface inputs to either a
+shader output (a texture) or an attribute holding a value. Unauthored inputs take their
+defaults from the Sdr node definitions shipped with usd-core.
+
+Fallback when a gprim has no bound material (or a material without a UsdPreviewSurface):
+``primvars:displayColor``'s first value (so constant, or uniform/vertex where the first element
+stands in for the whole prim; per-face colours are not supported) as diffuse colour, else
+UsdPreviewSurface's own default grey (0.18).
+"""
+
+from __future__ import annotations
+
+from pxr import Sdr, Usd, UsdGeom, UsdShade
+
+from renderer.description import MaterialDesc, MaterialInput, TextureDesc
+
+from .common import ReadContext
+
+__all__ = ["MaterialTable"]
+
+_SURFACE_ID = "UsdPreviewSurface"
+_TEXTURE_ID = "UsdUVTexture"
+_WRAP_MODES = ("black", "clamp", "repeat", "mirror")
+_COLOR_SPACES = ("raw", "sRGB", "auto")
+_OUTPUT_CHANNELS = {"rgb": slice(0, 3), "r": 0, "g": 1, "b": 2, "a": 3}
+# MaterialDesc field -> (UsdPreviewSurface input, kind); kind 'color' | 'float'.
+_TEXTURABLE = {
+    "diffuse_color": ("diffuseColor", "color"),
+    "emissive_color": ("emissiveColor", "color"),
+    "specular_color": ("specularColor", "color"),
+    "metallic": ("metallic", "float"),
+    "roughness": ("roughness", "float"),
+    "opacity": ("opacity", "float"),
+}
+
+
+def _sdr_defaults(identifier: str) -> dict:
+    node = Sdr.Registry().GetShaderNodeByIdentifier(identifier)
+    if not node:
+        return {}
+    return {name: node.GetShaderInput(name).GetDefaultValue() for name in node.GetShaderInputNames()}
+
+
+class MaterialTable:
+    """Deduplicated table of MaterialDesc, filled as gprims are read.
+
+    ``index_for(prim)`` returns (material index, st primvar name or None when untextured).
+    """
+
+    def __init__(self, ctx: ReadContext, binding_purposes: tuple[str, ...]):
+        self.ctx = ctx
+        self.purposes = tuple(binding_purposes) or ("full", "")
+        self.materials: list[MaterialDesc] = []
+        self._index: dict[MaterialDesc, int] = {}
+        self._by_path: dict[str, tuple[int, str | None] | None] = {}
+        self._surface_defaults = _sdr_defaults(_SURFACE_ID)
+        self._texture_defaults = _sdr_defaults(_TEXTURE_ID)
+
+    # ---- table -----------------------------------------------------------------------
+    def _add(self, desc: MaterialDesc) -> int:
+        idx = self._index.get(desc)
+        if idx is None:
+            idx = len(self.materials)
+            self.materials.append(desc)
+            self._index[desc] = idx
+        return idx
+
+    def index_for(self, prim: Usd.Prim) -> tuple[int, str | None]:
+        """Material of a gprim: bound material by purpose order, else displayColor, else grey."""
+        material = self._bound_material(prim)
+        if material is not None:
+            key = str(material.GetPath())
+            if key not in self._by_path:
+                # Read each material once; an unusable one is remembered as None so that it is
+                # neither re-read nor re-warned for every prim bound to it.
+                desc, st_name = self._read_material(material)
+                self._by_path[key] = None if desc is None else (self._add(desc), st_name)
+            hit = self._by_path[key]
+            if hit is not None:
+                return hit
+        return self._add(self._fallback(prim)), None
+
+    def _bound_material(self, prim: Usd.Prim) -> UsdShade.Material | None:
+        api = UsdShade.MaterialBindingAPI(prim)
+        for purpose in self.purposes:
+            material, _rel = api.ComputeBoundMaterial(purpose)
+            if material:
+                return material
+        return None
+
+    def _fallback(self, prim: Usd.Prim) -> MaterialDesc:
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        if pv and pv.HasValue():
+            values = pv.ComputeFlattened(self.ctx.time)
+            if values is not None and len(values) > 0:
+                color = self.ctx.finite_tuple(prim, "primvars:displayColor", values[0])
+                return MaterialDesc(path="", diffuse_color=MaterialInput(color))
+        return MaterialDesc(path="")
+
+    # ---- UsdPreviewSurface -----------------------------------------------------------
+    def _read_material(self, material: UsdShade.Material) -> tuple[MaterialDesc | None, str | None]:
+        ctx = self.ctx
+        shader, _out, _kind = material.ComputeSurfaceSource()
+        if not shader:
+            ctx.warn("material-no-surface",
+                     f"{material.GetPath()}: material has no universal surface output; using displayColor/grey")
+            return None, None
+        shader_id = shader.GetIdAttr().Get()
+        if shader_id != _SURFACE_ID:
+            ctx.warn(f"material-shader-{shader_id}",
+                     f"{shader.GetPath()}: surface shader '{shader_id}' is not supported "
+                     f"(only {_SURFACE_ID}); using displayColor/grey")
+            return None, None
+
+        fields: dict = {"path": str(material.GetPath())}
+        st_names: list[str] = []
+        for field, (name, kind) in _TEXTURABLE.items():
+            fields[field] = self._texturable_input(shader, name, kind, st_names)
+        fields["use_specular_workflow"] = bool(int(self._constant_input(shader, "useSpecularWorkflow")))
+        fields["ior"] = float(self._constant_input(shader, "ior"))
+        fields["opacity_threshold"] = float(self._constant_input(shader, "opacityThreshold"))
+        fields["opacity_mode"] = str(self._constant_input(shader, "opacityMode"))
+        for unsupported in ("normal", "displacement", "clearcoat", "occlusion"):
+            inp = shader.GetInput(unsupported)
+            if inp and (inp.HasConnectedSource() or inp.GetAttr().HasAuthoredValue()):
+                ctx.warn(f"preview-{unsupported}",
+                         f"{shader.GetPath()}: UsdPreviewSurface input '{unsupported}' is ignored by illum")
+        st_name = st_names[0] if st_names else None
+        if len(set(st_names)) > 1:
+            ctx.warn("material-many-st",
+                     f"{material.GetPath()}: textures read different st primvars {sorted(set(st_names))}; "
+                     f"illum uses '{st_name}' for all")
+        return MaterialDesc(**fields), st_name
+
+    def _producing_attribute(self, shader: UsdShade.Shader, name: str):
+        """The attribute that produces input ``name``'s value (after connections), or None."""
+        inp = shader.GetInput(name)
+        if not inp:
+            return None
+        attrs = inp.GetValueProducingAttributes()
+        return attrs[0] if attrs else None
+
+    def _constant_input(self, shader: UsdShade.Shader, name: str, defaults: dict | None = None):
+        attr = self._producing_attribute(shader, name)
+        defaults = self._surface_defaults if defaults is None else defaults
+        if attr is not None and not UsdShade.Output.IsOutput(attr):
+            value = attr.Get(self.ctx.time)
+            if value is not None:
+                return value
+        return defaults.get(name)
+
+    def _texturable_input(self, shader: UsdShade.Shader, name: str, kind: str,
+                          st_names: list[str]) -> MaterialInput:
+        ctx = self.ctx
+        attr = self._producing_attribute(shader, name)
+        where, attr_name = shader.GetPrim(), f"inputs:{name}"
+        if attr is not None and UsdShade.Output.IsOutput(attr):
+            source = UsdShade.Shader(attr.GetPrim())
+            source_id = source.GetIdAttr().Get() if source else None
+            if source_id == _TEXTURE_ID:
+                output = UsdShade.Output(attr).GetBaseName()
+                tex = self._texture(source, output)
+                if tex is None:  # no file authored: UsdUVTexture outputs its fallback
+                    fb = self._texture_value(source, "fallback")
+                    return MaterialInput(self._channel_value(fb, output, kind))
+                st_names.append(tex.st_primvar)
+                return MaterialInput(self._channel_value(tex.fallback, output, kind), tex)
+            ctx.warn(f"input-source-{source_id}",
+                     f"{attr.GetPrim().GetPath()}: shader '{source_id}' feeding "
+                     f"{shader.GetPath()}.inputs:{name} is not supported; using the default value")
+            value = self._surface_defaults.get(name)
+        elif attr is not None and attr.Get(ctx.time) is not None:
+            value = attr.Get(ctx.time)
+            where, attr_name = attr.GetPrim(), attr.GetName()
+        else:
+            value = self._surface_defaults.get(name)
+        if kind == "color":
+            return MaterialInput(ctx.finite_tuple(where, attr_name, value))
+        return MaterialInput(ctx.finite_float(where, attr_name, value))
+
+    @staticmethod
+    def _channel_value(value4: tuple, output: str, kind: str):
+        """The part of a float4 (e.g. a texture fallback) that an output name selects."""
+        sel = _OUTPUT_CHANNELS.get(output, slice(0, 3))
+        if isinstance(sel, slice):
+            rgb = tuple(float(x) for x in value4[sel])
+            return rgb if kind == "color" else rgb[0]
+        v = float(value4[sel])
+        return (v, v, v) if kind == "color" else v
+
+    # ---- UsdUVTexture ----------------------------------------------------------------
+    def _texture_value(self, tex: UsdShade.Shader, name: str):
+        return self._constant_input(tex, name, self._texture_defaults)
+
+    def _texture(self, tex: UsdShade.Shader, output: str) -> TextureDesc | None:
+        ctx = self.ctx
+        prim = tex.GetPrim()
+        file_attr = self._producing_attribute(tex, "file")
+        raw = file_attr.Get(ctx.time) if file_attr is not None and not UsdShade.Output.IsOutput(file_attr) else None
+        authored = getattr(raw, "path", raw) or ""
+        if not authored:
+            ctx.warn("texture-no-file", f"{prim.GetPath()}: UsdUVTexture has no inputs:file; using its fallback")
+            return None
+        if "<UDIM>" in authored:
+            ctx.warn("texture-udim", f"{prim.GetPath()}: UDIM textures are not supported; using the fallback")
+            return None
+        path = ctx.resolve_asset(prim, "inputs:file", raw)
+
+        def wrap(name: str) -> str:
+            mode = str(self._texture_value(tex, name))
+            if mode == "useMetadata":
+                return "repeat"  # as hdStorm when the file carries no wrap metadata
+            if mode not in _WRAP_MODES:
+                raise ctx.error(f"unknown wrap mode '{mode}' (allowed: {', '.join(_WRAP_MODES)}, useMetadata)",
+                                prim, f"inputs:{name}")
+            return mode
+
+        space = str(self._texture_value(tex, "sourceColorSpace"))
+        if space not in _COLOR_SPACES:
+            raise ctx.error(f"unknown colour space '{space}' (allowed: {', '.join(_COLOR_SPACES)})",
+                            prim, "inputs:sourceColorSpace")
+        if output not in _OUTPUT_CHANNELS:
+            raise ctx.error(f"unknown UsdUVTexture output '{output}'", prim, f"outputs:{output}")
+        return TextureDesc(
+            file=path,
+            source_color_space=space,
+            wrap_s=wrap("wrapS"),
+            wrap_t=wrap("wrapT"),
+            scale=ctx.finite_tuple(prim, "inputs:scale", self._texture_value(tex, "scale")),
+            bias=ctx.finite_tuple(prim, "inputs:bias", self._texture_value(tex, "bias")),
+            fallback=ctx.finite_tuple(prim, "inputs:fallback", self._texture_value(tex, "fallback")),
+            output=output,
+            st_primvar=self._st_primvar(tex),
+        )
+
+    def _st_primvar(self, tex: UsdShade.Shader) -> str:
+        """Primvar name read by the UsdPrimvarReader_float2 feeding ``inputs:st`` ('st' if none)."""
+        attr = self._producing_attribute(tex, "st")
+        seen = 0
+        while attr is not None and UsdShade.Output.IsOutput(attr) and seen < 8:
+            seen += 1
+            src = UsdShade.Shader(attr.GetPrim())
+            src_id = str(src.GetIdAttr().Get()) if src else ""
+            if src_id.startswith("UsdPrimvarReader"):
+                var_attr = self._producing_attribute(src, "varname")
+                name = var_attr.Get(self.ctx.time) if var_attr is not None else None
+                name = str(name or "st")
+                # Some exporters write the full attribute name; the primvar's name is what we need.
+                return name[len("primvars:"):] if name.startswith("primvars:") else name
+            if src_id == "UsdTransform2d":
+                self.ctx.warn("transform2d", f"{src.GetPath()}: UsdTransform2d is ignored (texture "
+                                             "coordinates are used untransformed)")
+                attr = self._producing_attribute(src, "in")
+                continue
+            break
+        return "st"

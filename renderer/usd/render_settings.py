@@ -1,0 +1,152 @@
+"""UsdRender.Settings (+ its first RenderProduct) -> RenderSettingsDesc."""
+
+from __future__ import annotations
+
+from pxr import Sdf, Usd, UsdRender
+
+from renderer.description import RenderSettingsDesc
+from renderer.errors import SettingsError
+
+from .common import ReadContext
+from .estimator_api import read_light_sampler
+
+__all__ = ["find_settings_prim", "read_render_settings", "MAX_SIDE", "MAX_PIXELS"]
+
+MAX_SIDE = 16384
+MAX_PIXELS = 64 * 1024 * 1024
+_CONFORM = ("expandAperture", "cropAperture", "adjustApertureWidth", "adjustApertureHeight",
+            "adjustPixelAspectRatio")
+_PURPOSES = ("default", "render", "proxy", "guide")
+
+
+def find_settings_prim(ctx: ReadContext, requested: str | None) -> Usd.Prim | None:
+    """The settings prim: ``settings`` argument, else the stage's ``renderSettingsPrimPath``
+    metadata, else None (RenderSettingsDesc defaults)."""
+    path = requested
+    where = "settings"
+    if not path:
+        path = ctx.stage.GetMetadata("renderSettingsPrimPath") if ctx.stage.HasAuthoredMetadata(
+            "renderSettingsPrimPath") else ""
+        where = "renderSettingsPrimPath"
+    if not path:
+        return None
+    if not Sdf.Path.IsValidPathString(path) or not Sdf.Path(path).IsAbsolutePath():
+        raise ctx.error(f"'{path}' ({where}) is not an absolute prim path")
+    prim = ctx.stage.GetPrimAtPath(path)
+    if not prim:
+        raise ctx.error(f"render settings prim does not exist ({where})", path)
+    if not prim.IsA(UsdRender.Settings):
+        raise ctx.error(f"prim is a '{prim.GetTypeName()}', not a RenderSettings ({where})", path)
+    return prim
+
+
+def _pick(name: str, settings: Usd.Prim, product: Usd.Prim | None):
+    """(prim, attribute) holding the winning opinion: the product's where authored."""
+    if product is not None:
+        attr = product.GetAttribute(name)
+        if attr and attr.HasAuthoredValue():
+            return product, attr
+    return settings, settings.GetAttribute(name)
+
+
+def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
+                         purposes: tuple[str, ...] | None) -> tuple[RenderSettingsDesc, bool]:
+    """Merge RenderSettings with its first RenderProduct.
+
+    Returns (desc, disable_depth_of_field). ``purposes`` (the CLI's) replaces includedPurposes.
+    """
+    if settings is None:
+        desc = RenderSettingsDesc()
+        if purposes is not None:
+            desc = RenderSettingsDesc(included_purposes=_check_purposes(ctx, tuple(purposes), None, ""))
+        return desc, False
+
+    product = None
+    rel = settings.GetRelationship("products")
+    targets = rel.GetForwardedTargets() if rel else []
+    if targets:
+        product = ctx.stage.GetPrimAtPath(targets[0])
+        if not product or not product.IsA(UsdRender.Product):
+            raise ctx.error(f"first product target {targets[0]} is not a RenderProduct", settings, "products")
+        if len(targets) > 1:
+            ctx.warn("render-products", f"{settings.GetPath()}: {len(targets)} RenderProducts; "
+                                        f"illum renders only the first, {targets[0]}")
+
+    def value(name: str):
+        prim, attr = _pick(name, settings, product)
+        return prim, (attr.Get(ctx.time) if attr else None)
+
+    prim, res = value("resolution")
+    w, h = int(res[0]), int(res[1])
+    if w <= 0 or h <= 0 or w > MAX_SIDE or h > MAX_SIDE or w * h > MAX_PIXELS:
+        raise ctx.error(f"resolution {w}x{h} is out of range (1..{MAX_SIDE} per side, "
+                        f"at most {MAX_PIXELS // (1024 * 1024)} Mpixel)", prim, "resolution")
+
+    prim, par = value("pixelAspectRatio")
+    par = ctx.finite_float(prim, "pixelAspectRatio", par, positive=True)
+
+    prim, conform = value("aspectRatioConformPolicy")
+    conform = str(conform)
+    if conform not in _CONFORM:
+        raise ctx.error(f"'{conform}' is not one of {', '.join(_CONFORM)}", prim, "aspectRatioConformPolicy")
+
+    prim, window = value("dataWindowNDC")
+    window = ctx.finite_tuple(prim, "dataWindowNDC", window)
+    if not (window[0] < window[2] and window[1] < window[3]):
+        raise ctx.error(f"data window {window} is empty (need xmin < xmax and ymin < ymax)", prim, "dataWindowNDC")
+
+    camera = ""
+    for p in (product, settings):
+        crel = p.GetRelationship("camera") if p is not None else None
+        if crel and crel.HasAuthoredTargets():
+            cams = crel.GetForwardedTargets()
+            if cams:
+                camera = str(cams[0])
+                break
+
+    if purposes is not None:
+        included = _check_purposes(ctx, tuple(purposes), None, "")
+    else:
+        included = _check_purposes(ctx, tuple(str(x) for x in settings.GetAttribute("includedPurposes").Get() or ()),
+                                   settings, "includedPurposes")
+    binding = tuple(str(x) for x in (settings.GetAttribute("materialBindingPurposes").Get() or ()))
+    for b in binding:
+        if b not in ("full", "preview", ""):
+            raise ctx.error(f"'{b}' is not a material binding purpose (full, preview, '')",
+                            settings, "materialBindingPurposes")
+
+    product_name = ""
+    if product is not None:
+        name = product.GetAttribute("productName").Get(ctx.time)
+        product_name = str(name or "")
+
+    _prim, dof_off = value("disableDepthOfField")
+    space = settings.GetAttribute("renderingColorSpace")
+    if space and space.HasAuthoredValue() and str(space.Get()) not in ("lin_rec709", "lin_rec709_scene"):
+        ctx.warn("rendering-color-space", f"{settings.GetPath()}: renderingColorSpace '{space.Get()}' is "
+                                          "ignored; illum renders linear Rec.709")
+
+    desc = RenderSettingsDesc(
+        path=str(settings.GetPath()),
+        resolution=(w, h),
+        pixel_aspect_ratio=par,
+        aspect_ratio_conform_policy=conform,
+        data_window_ndc=window,
+        camera=camera,
+        included_purposes=included,
+        material_binding_purposes=binding,
+        product_name=product_name,
+        light_sampler=read_light_sampler(settings, ctx),
+    )
+    return desc, bool(dof_off)
+
+
+def _check_purposes(ctx: ReadContext, purposes: tuple[str, ...], prim, attr: str) -> tuple[str, ...]:
+    """Validate purpose tokens; a bad CLI value (prim None) is a SettingsError, not a stage one."""
+    for p in purposes:
+        if p not in _PURPOSES:
+            message = f"'{p}' is not a purpose ({', '.join(_PURPOSES)})"
+            if prim is None:
+                raise SettingsError(message, attribute="purposes")
+            raise ctx.error(message, prim, attr)
+    return purposes

@@ -1,0 +1,520 @@
+"""Stage traversal: pruning, meshes, implicit prims, instancing, and the SceneDescription.
+
+Pruning rules (a pruned subtree's geometry is never read; ``stats`` proves it):
+* inactive prims and abstract (``class``) prims: ``Usd.PrimDefaultPredicate``;
+* invisible prims at the render time. The traversal checks each imageable prim's own
+  ``visibility`` on the way down, which equals ``ComputeVisibility(t)`` because an invisible
+  ancestor has already pruned the subtree;
+* an authored (or inherited authored) purpose not in the included purposes. A prim whose purpose
+  is only the fallback 'default' is skipped if 'default' is excluded, but its children are still
+  visited, since they may author an included purpose;
+* PointInstancer children (prototypes are drawn only through the instancer), Material/Shader
+  subtrees.
+
+Instanceable references are flattened through ``Usd.TraverseInstanceProxies``; each proxy keeps
+its proxy path. PointInstancer instances become one world-space MeshDesc per prototype gprim
+(all visible instances merged), named by that prototype gprim's path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pxr import Ar, Tf, Usd, UsdGeom, UsdLux, UsdShade
+
+from renderer.description import MeshDesc, SceneDescription
+from renderer.errors import StageError
+
+from . import implicit
+from .camera import find_camera, read_camera
+from .common import ReadContext, one_line
+from .estimator_api import check_light_api_target
+from .lux import read_light, resolve_light_links
+from .materials import MaterialTable
+from .mesh import expand_primvar, primvar_element_count, triangulate
+from .render_settings import find_settings_prim, read_render_settings
+
+__all__ = ["load_stage", "read_stage"]
+
+_MAX_INSTANCER_DEPTH = 8
+_PROTOTYPE_PREDICATE = Usd.TraverseInstanceProxies(Usd.PrimIsActive & Usd.PrimIsLoaded & Usd.PrimIsDefined)
+_IMPLICIT_TYPES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylinder_1, UsdGeom.Cone,
+                   UsdGeom.Capsule, UsdGeom.Capsule_1, UsdGeom.Plane)
+
+
+# --------------------------------------------------------------------------------------
+# Entry points
+# --------------------------------------------------------------------------------------
+def load_stage(path: str, *, camera: str | None = None, settings: str | None = None,
+               frame: float | None = None, purposes: tuple[str, ...] | None = None) -> SceneDescription:
+    """Open a USD stage file and read it into a SceneDescription.
+
+    camera: camera prim path (or a unique camera prim name); default: the RenderSettings
+        camera, else the first camera in traversal order.
+    settings: RenderSettings prim path; default: the stage's ``renderSettingsPrimPath``.
+    frame: time code to read at; default: the stage's startTimeCode if authored, else Default
+        (then ``SceneDescription.time_code`` is NaN, USD's numeric value of the Default time).
+    purposes: included purposes, replacing RenderSettings.includedPurposes.
+
+    Raises StageError (file, prim, attribute in the message) for unreadable stages and for
+    values that cannot be rendered.
+    """
+    # Resolve through Ar rather than os.path so that a custom asset resolver's identifiers work.
+    if not Ar.GetResolver().Resolve(path):
+        raise StageError("stage file not found", file=path)
+    try:
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise StageError(f"cannot open stage: {one_line(exc)}", file=path) from None
+    if stage is None:
+        raise StageError("cannot open stage", file=path)
+    return read_stage(stage, source=path, camera=camera, settings=settings, frame=frame, purposes=purposes)
+
+
+def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
+               frame: float | None = None, purposes: tuple[str, ...] | None = None) -> SceneDescription:
+    """Read an already open stage (same options as ``load_stage``; ``source`` names it in errors)."""
+    source = source or stage.GetRootLayer().identifier
+    if frame is not None:
+        if not math.isfinite(float(frame)):
+            raise StageError(f"frame {frame} is not finite", file=source)
+        time = Usd.TimeCode(float(frame))
+    elif stage.HasAuthoredMetadata("startTimeCode"):
+        time = Usd.TimeCode(stage.GetStartTimeCode())
+    else:
+        time = Usd.TimeCode.Default()
+    ctx = ReadContext(stage, source, time)
+    try:
+        return _read(ctx, camera, settings, purposes)
+    except Tf.ErrorException as exc:  # anything pxr itself refuses, as one line naming the file
+        raise ctx.error(one_line(exc)) from None
+
+
+_MAX_COMPOSITION_WARNINGS = 10
+
+
+def _read(ctx: ReadContext, camera: str | None, settings: str | None,
+          purposes: tuple[str, ...] | None) -> SceneDescription:
+    # Missing sublayers/references still give a stage; say so instead of rendering silently.
+    errors = ctx.stage.GetCompositionErrors()
+    for k, err in enumerate(errors[:_MAX_COMPOSITION_WARNINGS]):
+        ctx.warn(f"composition-{k}", f"composition error: {one_line(err)}")
+    if len(errors) > _MAX_COMPOSITION_WARNINGS:
+        ctx.warn("composition-more", f"{len(errors) - _MAX_COMPOSITION_WARNINGS} more composition errors")
+    if ctx.time.IsDefault() and any(layer.ListAllTimeSamples() for layer in ctx.stage.GetUsedLayers()):
+        # USD answers Get(Default) with the default value only, ignoring time samples: an animated
+        # camera would silently sit at its un-animated position.
+        ctx.warn("default-time", "the stage has time samples but is read at the Default time code (no "
+                                 "frame given, no startTimeCode authored): time-sampled values are ignored")
+    settings_prim = find_settings_prim(ctx, settings)
+    settings_desc, dof_off = read_render_settings(ctx, settings_prim, purposes)
+    reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes)
+    reader.run()
+    cam_prim = find_camera(ctx, camera, settings_desc.camera, settings_desc.path, reader.first_camera)
+    camera_desc = read_camera(cam_prim, ctx)
+    if dof_off:
+        camera_desc = dataclasses.replace(camera_desc, f_stop=0.0)
+    lights = resolve_light_links(reader.light_prims, reader.lights, [m.path for m in reader.meshes])
+    ctx.stats["meshes"] = len(reader.meshes)
+    ctx.stats["lights"] = len(lights)
+    ctx.stats["materials"] = len(reader.materials.materials)
+    return SceneDescription(
+        source=ctx.file,
+        time_code=float(ctx.time.GetValue()),
+        meshes=reader.meshes,
+        materials=reader.materials.materials,
+        lights=lights,
+        camera=camera_desc,
+        settings=settings_desc,
+        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(ctx.stage)),
+        up_axis=ctx.up_axis,
+        warnings=ctx.warnings.messages(),
+        stats=dict(ctx.stats),
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Local geometry (before placement)
+# --------------------------------------------------------------------------------------
+@dataclass
+class _LocalMesh:
+    """A gprim triangulated in its own local space, winding already front-facing (CCW).
+
+    points (V, 3) float64; triangles (T, 3) int64; normals (T, 3, 3) float64 or None;
+    st (T, 3, 2) float32 or None.
+    """
+
+    path: str
+    points: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray | None
+    st: np.ndarray | None
+    material: int
+    double_sided: bool
+
+
+def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
+    """Transform a local mesh by N (4, 4) column-vector matrices into one world-space MeshDesc.
+
+    A matrix with negative determinant mirrors the geometry, which turns the winding
+    clockwise as seen from the front, so its triangles get two corners swapped. Normals use the
+    inverse transpose, which is already correct under mirroring.
+    """
+    n_inst, n_pts, n_tri = len(mats), len(lm.points), len(lm.triangles)
+    rot = mats[:, :3, :3]
+    pts = np.einsum("nij,vj->nvi", rot, lm.points) + mats[:, None, :3, 3]
+    tris = lm.triangles[None, :, :] + (np.arange(n_inst, dtype=np.int64) * n_pts)[:, None, None]
+    flip = np.linalg.det(rot) < 0.0
+    swap = [0, 2, 1]
+    if flip.any():
+        tris[flip] = tris[flip][:, :, swap]
+    normals = None
+    if lm.normals is not None:
+        inv_t = np.linalg.inv(rot).transpose(0, 2, 1)
+        nw = np.einsum("nij,tcj->ntci", inv_t, lm.normals)
+        length = np.sqrt(np.einsum("...i,...i->...", nw, nw))[..., None]
+        nw = nw / np.where(length > 0.0, length, 1.0)
+        if flip.any():
+            nw[flip] = nw[flip][:, :, swap]
+        normals = nw.reshape(n_inst * n_tri, 3, 3).astype(np.float32)
+    st = None
+    if lm.st is not None:
+        st = np.broadcast_to(lm.st, (n_inst,) + lm.st.shape).copy()
+        if flip.any():
+            st[flip] = st[flip][:, :, swap]
+        st = st.reshape(n_inst * n_tri, 3, 2).astype(np.float32, copy=False)
+    return MeshDesc(
+        path=lm.path,
+        points=pts.reshape(-1, 3),
+        triangles=tris.reshape(-1, 3).astype(np.int32),
+        normals=normals,
+        st=st,
+        material=lm.material,
+        double_sided=lm.double_sided,
+    )
+
+
+class _Traversal:
+    """One pass over the stage collecting meshes, lights and the first camera."""
+
+    def __init__(self, ctx: ReadContext, included: tuple[str, ...], binding_purposes: tuple[str, ...]):
+        self.ctx = ctx
+        self.included = frozenset(included)
+        self.materials = MaterialTable(ctx, binding_purposes)
+        self.meshes: list[MeshDesc] = []
+        self.lights = []
+        self.light_prims: dict[str, Usd.Prim] = {}
+        self.first_camera: str | None = None
+
+    # ---- pruning ---------------------------------------------------------------------
+    def _classify(self, prim: Usd.Prim, parent_info):
+        """-> (render_this, prune_subtree, purpose_info) for one prim."""
+        if not prim.IsA(UsdGeom.Imageable):
+            if prim.IsA(UsdShade.Material) or prim.IsA(UsdShade.Shader) or prim.IsA(UsdShade.NodeGraph):
+                return False, True, parent_info
+            return True, False, parent_info
+        im = UsdGeom.Imageable(prim)
+        if im.GetVisibilityAttr().Get(self.ctx.time) == UsdGeom.Tokens.invisible:
+            return False, True, None
+        info = im.ComputePurposeInfo(parent_info) if parent_info is not None else im.ComputePurposeInfo()
+        if info.purpose not in self.included:
+            # authored/inherited purposes exclude the subtree; the bare fallback only this prim
+            return False, bool(info.isInheritable), info
+        return True, False, info
+
+    # ---- main traversal --------------------------------------------------------------
+    def run(self) -> None:
+        ctx = self.ctx
+        infos: dict = {}
+        it = iter(ctx.stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
+        for prim in it:
+            ctx.stats["prims_visited"] += 1
+            render, prune, info = self._classify(prim, infos.get(prim.GetPath().GetParentPath()))
+            if prune:
+                ctx.stats["prims_pruned"] += 1
+                it.PruneChildren()
+                continue
+            infos[prim.GetPath()] = info
+            if prim.HasAuthoredMetadata("apiSchemas"):
+                check_light_api_target(prim, ctx)
+            if prim.IsA(UsdGeom.PointInstancer):
+                it.PruneChildren()
+                if render:
+                    self._top_instancer(prim, info)
+                continue
+            if not render:
+                continue
+            if prim.HasAPI(UsdLux.LightAPI):
+                light = read_light(prim, ctx)
+                if light is not None:
+                    self.lights.append(light)
+                    self.light_prims[light.path] = prim
+            if prim.IsA(UsdGeom.Camera):
+                if self.first_camera is None:
+                    self.first_camera = str(prim.GetPath())
+            elif prim.IsA(UsdGeom.Gprim):
+                lm = self._local_geometry(prim)
+                if lm is not None:
+                    self._emit(lm, ctx.local_to_world(prim)[None])
+
+    def _emit(self, lm: _LocalMesh, mats: np.ndarray) -> None:
+        finite = np.isfinite(mats).all(axis=(1, 2))
+        if not finite.all():
+            raise self.ctx.error("world transform is not finite", lm.path, "xformOpOrder")
+        # Zero-scale instances (a common way to hide some) have no surface: drop them.
+        mats = mats[np.abs(np.linalg.det(mats[:, :3, :3])) > 0.0]
+        if len(mats) == 0 or len(lm.triangles) == 0:
+            return
+        desc = _place(lm, mats)
+        self.meshes.append(desc)
+        self.ctx.stats["triangles"] += len(desc.triangles)
+
+    # ---- point instancers ------------------------------------------------------------
+    def _top_instancer(self, prim: Usd.Prim, info) -> None:
+        groups: dict[int, tuple[_LocalMesh, list[np.ndarray]]] = {}
+        for lm, mats in self._instancer_items(prim, info, 0):
+            groups.setdefault(id(lm), (lm, []))[1].append(mats)
+        world = self.ctx.local_to_world(prim)
+        for lm, mats_list in groups.values():
+            self._emit(lm, np.einsum("ij,njk->nik", world, np.concatenate(mats_list)))
+
+    def _instancer_items(self, prim: Usd.Prim, info, depth: int) -> list[tuple[_LocalMesh, np.ndarray]]:
+        """(local mesh, (N, 4, 4) gprim-local -> instancer-local matrices) for every prototype gprim."""
+        ctx = self.ctx
+        if depth > _MAX_INSTANCER_DEPTH:
+            raise ctx.error(f"PointInstancers nested deeper than {_MAX_INSTANCER_DEPTH} (a cycle?)",
+                            prim, "prototypes")
+        pi = UsdGeom.PointInstancer(prim)
+        protos = pi.GetPrototypesRel().GetForwardedTargets()
+        raw = pi.GetProtoIndicesAttr().Get(ctx.time)
+        proto_indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
+        ctx.stats["instancers"] += 1
+        if len(proto_indices) == 0:
+            return []
+        if proto_indices.min() < 0 or proto_indices.max() >= len(protos):
+            raise ctx.error(f"protoIndices must be in [0, {len(protos)}) (the number of prototypes)",
+                            prim, "protoIndices")
+        xforms = pi.ComputeInstanceTransformsAtTime(ctx.time, ctx.time, UsdGeom.PointInstancer.IncludeProtoXform,
+                                                    UsdGeom.PointInstancer.IgnoreMask)
+        if len(xforms) != len(proto_indices):
+            raise ctx.error(f"positions/orientations/scales do not match the {len(proto_indices)} protoIndices",
+                            prim, "positions")
+        mats = np.array(xforms, dtype=np.float64).reshape(-1, 4, 4).transpose(0, 2, 1)
+        if not np.isfinite(mats).all():
+            raise ctx.error("instance transforms are not finite", prim, "positions")
+        keep = np.ones(len(proto_indices), dtype=bool)
+        mask = pi.ComputeMaskAtTime(ctx.time)  # invisibleIds / inactiveIds; empty when none
+        if mask is not None and len(mask):
+            keep = np.asarray(mask, dtype=bool)
+        ctx.stats["instances"] += int(keep.sum())
+        items: list[tuple[_LocalMesh, np.ndarray]] = []
+        for k in np.unique(proto_indices[keep]):
+            sel = mats[keep & (proto_indices == k)]
+            proto = ctx.stage.GetPrimAtPath(protos[int(k)])
+            if not proto:
+                raise ctx.error(f"prototype {protos[int(k)]} does not exist", prim, "prototypes")
+            for lm, rel in self._prototype_items(proto, info, depth):
+                both = np.einsum("sij,rjk->srik", sel, rel).reshape(-1, 4, 4)
+                items.append((lm, both))
+        return items
+
+    def _prototype_items(self, root: Usd.Prim, info, depth: int) -> list[tuple[_LocalMesh, np.ndarray]]:
+        """Gprims under a prototype root with (K, 4, 4) gprim-local -> root-local matrices.
+
+        Visibility and purpose are judged from the root down (the root's ancestors often hide
+        the prototypes on purpose); nested instancers recurse.
+        """
+        ctx = self.ctx
+        out: list[tuple[_LocalMesh, np.ndarray]] = []
+        infos: dict = {root.GetPath().GetParentPath(): info}
+        it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE))
+        for prim in it:
+            render, prune, pinfo = self._classify(prim, infos.get(prim.GetPath().GetParentPath()))
+            if prune:
+                ctx.stats["prims_pruned"] += 1
+                it.PruneChildren()
+                continue
+            infos[prim.GetPath()] = pinfo
+            if not render:
+                continue
+            rel = ctx.relative_transform(prim, root) if prim != root else np.eye(4)
+            if prim.IsA(UsdGeom.PointInstancer):
+                it.PruneChildren()
+                for lm, mats in self._instancer_items(prim, pinfo, depth + 1):
+                    out.append((lm, np.einsum("ij,njk->nik", rel, mats)))
+            elif prim.HasAPI(UsdLux.LightAPI):
+                ctx.warn("instanced-light", f"{prim.GetPath()}: lights inside PointInstancer prototypes "
+                                            "are not supported; skipped")
+            elif prim.IsA(UsdGeom.Gprim):
+                lm = self._local_geometry(prim)
+                if lm is not None:
+                    out.append((lm, rel[None]))
+        return out
+
+    # ---- gprims ----------------------------------------------------------------------
+    def _local_geometry(self, prim: Usd.Prim) -> _LocalMesh | None:
+        if prim.IsA(UsdGeom.Mesh):
+            material, st_name = self.materials.index_for(prim)
+            return self._read_mesh(prim, material, st_name or "st")
+        if any(prim.IsA(t) for t in _IMPLICIT_TYPES):
+            material, _st = self.materials.index_for(prim)
+            return self._read_implicit(prim, material)
+        self.ctx.warn(f"gprim-{prim.GetTypeName()}",
+                      f"{prim.GetPath()}: {prim.GetTypeName()} prims are not supported; skipped")
+        return None
+
+    def _read_mesh(self, prim: Usd.Prim, material: int, st_name: str) -> _LocalMesh | None:
+        ctx, t = self.ctx, self.ctx.time
+        mesh = UsdGeom.Mesh(prim)
+        raw_points = mesh.GetPointsAttr().Get(t)
+        if raw_points is None or len(raw_points) == 0:
+            return None
+        points = np.asarray(raw_points, dtype=np.float64)
+        ctx.stats["points_read"] += len(points)
+        if not np.isfinite(points).all():
+            bad = int(np.nonzero(~np.isfinite(points).all(axis=1))[0][0])
+            raise ctx.error(f"point {bad} is not finite ({tuple(points[bad])})", prim, "points")
+        raw = mesh.GetFaceVertexCountsAttr().Get(t)
+        counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
+        raw = mesh.GetFaceVertexIndicesAttr().Get(t)
+        indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
+        if len(counts) and counts.min() < 0:
+            raise ctx.error("negative face vertex count", prim, "faceVertexCounts")
+        if int(counts.sum()) != len(indices):
+            raise ctx.error(f"faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has "
+                            f"{len(indices)} entries", prim, "faceVertexCounts")
+        if len(indices) and (indices.min() < 0 or indices.max() >= len(points)):
+            bad = int(indices.max() if indices.max() >= len(points) else indices.min())
+            raise ctx.error(f"index {bad} is out of range for {len(points)} points", prim, "faceVertexIndices")
+        if len(counts) and counts.min() < 3:
+            ctx.warn("mesh-small-faces", f"{prim.GetPath()}: faces with fewer than 3 vertices are skipped")
+
+        scheme = mesh.GetSubdivisionSchemeAttr().Get(t)
+        if scheme != UsdGeom.Tokens.none:
+            # one key for the whole stage: reported once, with the count of further meshes
+            ctx.warn("subdivision", f"{prim.GetPath()}: subdivisionScheme '{scheme}' (catmullClark is the "
+                                    "fallback when unauthored): illum renders subdivision meshes as their "
+                                    "control cage")
+        holes = mesh.GetHoleIndicesAttr().Get(t)
+        holes = np.asarray(holes, dtype=np.int64) if holes is not None and len(holes) else None
+
+        tri_corners, tri_face = triangulate(points, counts, indices, holes)
+        if mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded:
+            tri_corners = tri_corners[:, [0, 2, 1]]  # front faces wind clockwise: make them CCW
+        sizes = (len(points), len(counts), len(indices))
+        normals = self._mesh_normals(prim, mesh, tri_corners, tri_face, indices, sizes)
+        st = self._primvar_corners(prim, st_name, tri_corners, tri_face, indices, sizes, width=2)
+        return _LocalMesh(
+            path=str(prim.GetPath()),
+            points=points,
+            triangles=indices[tri_corners],
+            normals=normals,
+            st=None if st is None else st.astype(np.float32),
+            material=material,
+            double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
+        )
+
+    def _mesh_normals(self, prim, mesh, tri_corners, tri_face, indices, sizes):
+        """Per-corner local normals: ``primvars:normals`` wins over ``normals``; None if neither."""
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
+        if pv and pv.HasAuthoredValue():
+            return self._primvar_corners(prim, "normals", tri_corners, tri_face, indices, sizes, width=3)
+        attr = mesh.GetNormalsAttr()
+        if not attr.HasAuthoredValue():
+            return None
+        values = attr.Get(self.ctx.time)
+        if values is None:
+            return None
+        return self._expand(prim, "normals", np.asarray(values, dtype=np.float64), None,
+                            str(mesh.GetNormalsInterpolation()), tri_corners, tri_face, indices, sizes, 3)
+
+    def _primvar_corners(self, prim, name, tri_corners, tri_face, indices, sizes, width):
+        """(T, 3, width) float64 corners of primvar ``name`` or None when absent/unusable."""
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+        if not pv or not pv.HasValue():
+            return None
+        values = pv.Get(self.ctx.time)
+        if values is None:
+            return None
+        values = np.asarray(values, dtype=np.float64)
+        element_indices = None
+        if pv.IsIndexed():
+            raw = pv.GetIndices(self.ctx.time)
+            element_indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
+        return self._expand(prim, f"primvars:{name}", values, element_indices, str(pv.GetInterpolation()),
+                            tri_corners, tri_face, indices, sizes, width)
+
+    def _expand(self, prim, attr_name, values, element_indices, interpolation, tri_corners, tri_face,
+                indices, sizes, width):
+        ctx = self.ctx
+        path = prim.GetPath()
+        if values.ndim != 2 or values.shape[1] < width:
+            ctx.warn(f"primvar-type-{attr_name}", f"{path}: {attr_name} does not hold {width}-vectors; ignored")
+            return None
+        values = values[:, :width]
+        need = primvar_element_count(interpolation, *sizes)
+        have = len(element_indices) if element_indices is not None else len(values)
+        if need < 0 or have < need:
+            ctx.warn(f"primvar-size-{attr_name}",
+                     f"{path}: {attr_name} has {have} elements but {interpolation} interpolation needs "
+                     f"{max(need, 0)}; ignored")
+            return None
+        if element_indices is not None and len(element_indices) and (
+                element_indices.min() < 0 or element_indices.max() >= len(values)):
+            ctx.warn(f"primvar-indices-{attr_name}", f"{path}: {attr_name} indices are out of range; ignored")
+            return None
+        if not np.isfinite(values).all():
+            ctx.warn(f"primvar-nan-{attr_name}", f"{path}: {attr_name} has non-finite values; ignored")
+            return None
+        return expand_primvar(values, interpolation, tri_corners, tri_face, indices, element_indices)
+
+    def _read_implicit(self, prim: Usd.Prim, material: int) -> _LocalMesh | None:
+        ctx = self.ctx
+
+        def size(name: str) -> float:
+            return ctx.finite_float(prim, name, ctx.get(prim, name), min_value=0.0)
+
+        def axis() -> str:
+            a = str(ctx.get(prim, "axis", "Z"))
+            if a not in ("X", "Y", "Z"):
+                raise ctx.error(f"axis '{a}' is not X, Y or Z", prim, "axis")
+            return a
+
+        if prim.IsA(UsdGeom.Sphere):
+            pts, tris, nrm = implicit.sphere(size("radius"))
+        elif prim.IsA(UsdGeom.Cube):
+            pts, tris, nrm = implicit.cube(size("size"))
+        elif prim.IsA(UsdGeom.Cylinder):
+            r = size("radius")
+            pts, tris, nrm = implicit.cylinder(r, r, size("height"), axis())
+        elif prim.IsA(UsdGeom.Cylinder_1):
+            pts, tris, nrm = implicit.cylinder(size("radiusBottom"), size("radiusTop"), size("height"), axis())
+        elif prim.IsA(UsdGeom.Cone):
+            pts, tris, nrm = implicit.cone(size("radius"), size("height"), axis())
+        elif prim.IsA(UsdGeom.Capsule):
+            r = size("radius")
+            pts, tris, nrm = implicit.capsule(r, r, size("height"), axis())
+        elif prim.IsA(UsdGeom.Capsule_1):
+            pts, tris, nrm = implicit.capsule(size("radiusBottom"), size("radiusTop"), size("height"), axis())
+        else:  # Plane
+            pts, tris, nrm = implicit.plane(size("width"), size("length"), axis())
+        ctx.stats["implicit_prims"] += 1
+        if (np.ptp(pts, axis=0) > 0.0).sum() < 2:
+            return None  # a zero radius/size leaves no surface to render
+        corner_normals = nrm[tris]
+        if ctx.get(prim, "orientation") == UsdGeom.Tokens.leftHanded:
+            # leftHanded declares the inside to be the front: flip both winding and normals.
+            tris = tris[:, [0, 2, 1]]
+            corner_normals = -corner_normals[:, [0, 2, 1]]
+        return _LocalMesh(
+            path=str(prim.GetPath()),
+            points=pts,
+            triangles=tris,
+            normals=corner_normals,
+            st=None,
+            material=material,
+            double_sided=bool(ctx.get(prim, "doubleSided", False)),
+        )
