@@ -40,9 +40,38 @@ class BSDF(Protocol):
         ...
 
     def f_diffuse(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
-        """(n, 3) the diffuse (constant) lobe alone, used by the control-variate estimators."""
+        """(n, 3) the diffuse lobe alone, used by the control-variate estimators.
+
+        It factors as ``diffuse_constant(wo) * diffuse_factor_wi(wi)`` (see
+        ``SupportsDiffuseControlVariate``); for Lambert the factor is 1 (constant lobe), for the
+        preview surface it is a reciprocal, energy-conserving coupling that is not constant in wi.
+        """
         ...
 
     def f_specular(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n, 3) every non-diffuse lobe (f == f_diffuse + f_specular)."""
+        ...
+
+
+class SupportsDiffuseControlVariate(Protocol):
+    """Optional extension (Lambert and PreviewSurfaceBSDF implement it) for control variates.
+
+    f_diffuse(wo, wi) == diffuse_constant(wo) * diffuse_factor_wi(wi), where the factor's
+    cosine-weighted mean over the upper hemisphere is 1. So g(wi) = diffuse_constant(wo) L(wi) cos
+    is a constant-in-wi lobe with the diffuse lobe's directional albedo, and its integral against
+    any light is analytic whenever the light's unshadowed irradiance is. A control variate built
+    on it is unbiased as long as the Monte Carlo residual is f(wo, wi) - diffuse_constant(wo)
+    (the full BSDF minus g), not f_specular alone, unless diffuse_factor_wi is identically 1.
+    """
+
+    def diffuse_albedo(self) -> np.ndarray:
+        """(n, 3) the diffuse base albedo rho_d (before any angular coupling)."""
+        ...
+
+    def diffuse_constant(self, wo: np.ndarray) -> np.ndarray:
+        """(n, 3) directional albedo of the diffuse lobe for wo, divided by pi (0 if wo.z <= 0)."""
+        ...
+
+    def diffuse_factor_wi(self, wi: np.ndarray) -> np.ndarray:
+        """(n, 3) the wi-dependent factor of f_diffuse (1 for Lambert; 0 if wi.z <= 0)."""
         ...

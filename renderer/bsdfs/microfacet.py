@@ -25,7 +25,7 @@ Schlick's Fresnel (F90 = 1), which is linear in F0:
 
 (the split-sum factorisation hdStorm's dome-light BRDF table also uses). A and B live in
 ``_ggx_albedo_data.py`` (regenerate with ``python -m renderer.bsdfs.microfacet``), and
-``albedo_tables()`` interpolates them bilinearly in (mu, sqrt(alpha)). The cosine-weighted
+``albedo_tables()`` interpolates them bilinearly in (sqrt(mu), log(alpha)). The cosine-weighted
 hemispherical averages E_avg = 2 * integral E(mu) mu dmu are computed from the *same* piecewise-linear
 interpolant, exactly, so that a lobe shaped like (1 - E(mu)) / (1 - E_avg) integrates to one against
 cos/pi to rounding error. The preview-surface BSDF relies on that for its energy balance.
@@ -39,9 +39,10 @@ import numpy as np
 
 INV_PI = 1.0 / np.pi
 
-# Smallest GGX alpha we use. Below it the lobe is a near-delta whose peak (1 / (pi alpha^2))
-# overflows the float32 film and the pdf stops being a usable density; pbrt-v4 and hdStorm clamp
-# at a similar value (hdStorm: roughness >= 0.001 before squaring).
+# Smallest GGX alpha we use (roughness ~0.032). illum has no delta lobes, so a "mirror" is a very
+# narrow GGX lobe; its peak f ~ 1 / (pi alpha^2) = 3e5 and pdf stay finite and usable for MIS.
+# (hdStorm clamps roughness at 1e-3 before squaring, alpha = 1e-6, which is fine for a
+# rasteriser but gives ~1e11 peaks, i.e. fireflies, in a path tracer.)
 ALPHA_MIN = 1.0e-3
 
 # Rec.709 luminance weights (linear RGB).
@@ -163,19 +164,24 @@ def ggx_reflection_pdf(cos_o: np.ndarray, cos_h: np.ndarray, alpha: np.ndarray) 
 # --------------------------------------------------------------------------------------
 # Directional albedo tables
 # --------------------------------------------------------------------------------------
-# Table layout: axis 0 = mu = cos(theta_o) at nodes i / (N_MU - 1); axis 1 = r = sqrt(alpha) at
-# nodes j / (N_R - 1), with alpha clamped to ALPHA_MIN (so nodes below sqrt(ALPHA_MIN) repeat it).
+# Table layout. Axis 0: x = sqrt(mu) at nodes i / (N_MU - 1), mu = cos(theta_o); the square root
+# puts nodes close to grazing, where the albedo of a smooth lobe changes on the scale mu ~ alpha.
+# Axis 1: y = log(alpha / ALPHA_MIN) / log(1 / ALPHA_MIN) at nodes j / (N_A - 1), i.e. alpha from
+# ALPHA_MIN to 1 in geometric steps (near grazing E depends on alpha / mu, so log spacing is what
+# resolves small alphas; at large alpha E is smooth).
 N_MU = 64
-N_R = 32
-# mu is never evaluated exactly at 0 (the albedo of a grazing-exactly direction is a limit).
-MU_EPS = 1.0e-4
+N_A = 64
+# The mu = 0 node is evaluated here (the albedo of an exactly grazing direction is a limit).
+MU_EPS = 1.0e-6
+_LOG_ALPHA_MIN = float(np.log(ALPHA_MIN))
 
 
 def table_nodes() -> tuple[np.ndarray, np.ndarray]:
-    """(mu nodes (N_MU,), alpha nodes (N_R,)) at which A and B are tabulated."""
-    mu = np.linspace(0.0, 1.0, N_MU)
-    r = np.linspace(0.0, 1.0, N_R)
-    return mu, np.maximum(r * r, ALPHA_MIN)
+    """(mu nodes (N_MU,), alpha nodes (N_A,)) at which A and B are tabulated."""
+    mu = np.linspace(0.0, 1.0, N_MU) ** 2
+    alpha = np.exp(_LOG_ALPHA_MIN * (1.0 - np.linspace(0.0, 1.0, N_A)))
+    alpha[-1] = 1.0
+    return mu, alpha
 
 
 def compute_albedo_tables(k: int = 128, mu=None, alpha=None) -> tuple[np.ndarray, np.ndarray]:
@@ -220,16 +226,24 @@ def compute_albedo_tables(k: int = 128, mu=None, alpha=None) -> tuple[np.ndarray
 
 
 def _mu_average_weights(n: int) -> np.ndarray:
-    """Weights w (n,) with sum(w * y) = 2 * integral_0^1 y(mu) mu dmu for the piecewise-linear
-    interpolant y of nodal values on the uniform grid mu_i = i / (n - 1)."""
+    """Weights w (n,) with sum(w * y) = 2 * integral_0^1 y(mu) mu dmu for the interpolant y that
+    is piecewise linear in x = sqrt(mu) on the nodes x_i = i / (n - 1).
+
+    With mu = x^2 the integral is integral y(x) 4 x^3 dx: per segment a polynomial of degree 4,
+    integrated exactly by 4-point Gauss-Legendre.
+    """
     x = np.linspace(0.0, 1.0, n)
-    h = x[1] - x[0]
+    gx, gw = np.polynomial.legendre.leggauss(4)
     w = np.zeros(n)
-    # On [x_i, x_{i+1}]: integral of the linear interpolant times mu =
-    # h * (y_i (x_i/3 + x_{i+1}/6) + y_{i+1} (x_i/6 + x_{i+1}/3)).
-    w[:-1] += h * (x[:-1] / 3.0 + x[1:] / 6.0)
-    w[1:] += h * (x[:-1] / 6.0 + x[1:] / 3.0)
-    return 2.0 * w
+    for i in range(n - 1):
+        a, b = x[i], x[i + 1]
+        h = b - a
+        xs = a + 0.5 * h * (gx + 1.0)
+        ws = 0.5 * h * gw * 4.0 * xs**3
+        t = (xs - a) / h
+        w[i] += np.sum(ws * (1.0 - t))
+        w[i + 1] += np.sum(ws * t)
+    return w
 
 
 @functools.lru_cache(maxsize=1)
@@ -237,8 +251,12 @@ def albedo_tables() -> "AlbedoTables":
     """The shared, read-only albedo tables (loaded once per process)."""
     from renderer.bsdfs import _ggx_albedo_data as data
 
-    a = np.asarray(data.A, dtype=np.float64).reshape(N_MU, N_R)
-    b = np.asarray(data.B, dtype=np.float64).reshape(N_MU, N_R)
+    a = np.asarray(data.A, dtype=np.float64).reshape(N_MU, N_A)
+    b = np.asarray(data.B, dtype=np.float64).reshape(N_MU, N_A)
+    # Quadrature noise must not break the invariants 0 <= B, 0 <= A, A + B <= 1 (so E <= 1 for
+    # any F0 in [0, 1], and 1 - E >= 0); bilinear interpolation then keeps them everywhere.
+    b = np.clip(b, 0.0, 1.0)
+    a = np.clip(a, 0.0, 1.0 - b)
     w = _mu_average_weights(N_MU)
     return AlbedoTables(a=a, b=b, a_avg=w @ a, b_avg=w @ b)
 
@@ -246,8 +264,8 @@ def albedo_tables() -> "AlbedoTables":
 class AlbedoTables:
     """Bilinear lookups of the single-scattering GGX+Schlick albedo E = F0 A + B.
 
-    a, b: (N_MU, N_R) nodal values; a_avg, b_avg: (N_R,) exact cosine-weighted averages of the
-    mu-interpolants (2 integral A(mu) mu dmu).
+    a, b: (N_MU, N_A) nodal values; a_avg, b_avg: (N_A,) exact cosine-weighted averages of the
+    mu-interpolants (2 integral A(mu) mu dmu). Interpolation is bilinear in (sqrt(mu), log(alpha)).
     """
 
     def __init__(self, a: np.ndarray, b: np.ndarray, a_avg: np.ndarray, b_avg: np.ndarray):
@@ -260,13 +278,14 @@ class AlbedoTables:
 
     @staticmethod
     def _r_coord(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x = np.clip(np.sqrt(np.maximum(alpha, 0.0)), 0.0, 1.0) * (N_R - 1)
-        j0 = np.minimum(x.astype(np.int64), N_R - 2)
-        return j0, x - j0
+        la = np.log(np.clip(alpha, ALPHA_MIN, 1.0))
+        y = (1.0 - la / _LOG_ALPHA_MIN) * (N_A - 1)
+        j0 = np.clip(y.astype(np.int64), 0, N_A - 2)
+        return j0, np.clip(y - j0, 0.0, 1.0)
 
     def lookup(self, mu: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(A, B) at (mu (n,), alpha (n,)) -> ((n,), (n,)); mu is clamped to [0, 1]."""
-        x = np.clip(mu, 0.0, 1.0) * (N_MU - 1)
+        x = np.sqrt(np.clip(mu, 0.0, 1.0)) * (N_MU - 1)
         i0 = np.minimum(x.astype(np.int64), N_MU - 2)
         fx = x - i0
         j0, fy = self._r_coord(alpha)
@@ -282,7 +301,7 @@ class AlbedoTables:
         return out[0], out[1]
 
     def lookup_avg(self, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(A_avg, B_avg) at alpha (n,), linear in sqrt(alpha) like ``lookup``."""
+        """(A_avg, B_avg) at alpha (n,), interpolated in log(alpha) exactly like ``lookup``."""
         j0, fy = self._r_coord(alpha)
         return (
             self.a_avg[j0] * (1.0 - fy) + self.a_avg[j0 + 1] * fy,
@@ -301,7 +320,7 @@ class AlbedoTables:
 
 
 def _write_table_module(path: str, k: int = 512) -> None:
-    """Regenerate the stored tables (takes about two minutes at k = 512)."""
+    """Regenerate the stored tables (about six CPU-minutes at k = 512: 64 x 64 nodes, 262k rays each)."""
     a, b = compute_albedo_tables(k)
 
     def fmt(arr: np.ndarray) -> str:
@@ -311,7 +330,7 @@ def _write_table_module(path: str, k: int = 512) -> None:
 
     text = (
         '"""Generated by ``python -m renderer.bsdfs.microfacet`` (do not edit).\n\n'
-        f"Single-scattering GGX albedo split E = F0 A + B on a {N_MU} (mu) x {N_R} (sqrt alpha) grid,\n"
+        f"Single-scattering GGX albedo split E = F0 A + B on a {N_MU} (sqrt mu) x {N_A} (log alpha) grid,\n"
         f"row-major, stratified VNDF quadrature with {k}x{k} midpoints per node.\n"
         '"""\n\n'
         f"A = {fmt(a)}\n\nB = {fmt(b)}\n"

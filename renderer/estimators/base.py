@@ -32,7 +32,9 @@ class DirectQuery:
 
     ctx: shading points (p, ng, ns faced toward wo); s, t: (n, 3) shading tangents;
     wo_l: (n, 3) wo in the local shading frame; bsdf: the BSDF for these rows;
-    light: (n,) global light index; eps: (n,) ray-origin offsets.
+    light: (n,) global light index; eps: (n,) ray-origin offsets;
+    control: (n, 3) c(wo), the BSDF's wi-constant diffuse lobe at each row (the control
+    variate's function, whose integral F = c(wo)·E is exact).
     """
 
     ctx: ShadingContext
@@ -42,6 +44,7 @@ class DirectQuery:
     bsdf: object
     light: np.ndarray
     eps: np.ndarray
+    control: np.ndarray
 
     @property
     def n(self) -> int:
@@ -65,7 +68,10 @@ class DirectRandom:
 class SampleSet:
     """N samples per row of one technique. All (n, N[, 3]).
 
-    fd, fs: diffuse / specular BSDF times |cos| times the light's radiance L (unshadowed);
+    fd: the control lobe g = c(wo) (the BSDF's wi-constant diffuse part, ``diffuse_constant``)
+        times |cos| times the light's radiance L (unshadowed): its integral is known exactly;
+    fs: the residual f − g (the specular lobes plus the diffuse lobe's wi-dependent part),
+        times |cos| times L. fd + fs is the whole integrand;
     p_l, p_b: the sample direction's light pdf and BSDF (mixture) pdf; v: visibility (0/1),
     0 below the geometric or shading horizon; valid: the sample carries a usable pdf.
     """
@@ -116,12 +122,8 @@ def light_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRando
     cos_i = np.abs(wi_l[:, 2])
     above = (wi_l[:, 2] > 0.0) & (dot(ls.wi, ctx.n) > 0.0)
     valid = ls.pdf > 0.0
-    fd_b = q.bsdf.f_diffuse(q.wo_l[r], wi_l)
-    fs_b = q.bsdf.f_specular(q.wo_l[r], wi_l)
-    scale = (cos_i * above)[:, None] * ls.L
-    fd = fd_b * scale * lights.diffuse_scale[light][:, None]
-    fs = fs_b * scale * lights.specular_scale[light][:, None]
-    p_b = q.bsdf.pdf(q.wo_l[r], wi_l)
+    fd, fs, p_b = split_integrand(q.bsdf, q.wo_l[r], wi_l, (cos_i * above)[:, None] * ls.L, lights, light,
+                                  control=q.control[r])
     v = np.zeros(r.size)
     rays = 0
     if need_visibility:
@@ -172,10 +174,8 @@ def bsdf_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom
         t_l, Le = light_along(lights, light, o, wi)
         hit = ok & np.any(Le > 0.0, axis=1)
         cos_i = np.abs(bs.wi[:, 2])
-        fdk = bsdf.f_diffuse(q.wo_l[rk], bs.wi) * (cos_i * hit)[:, None] * Le
-        fsk = bsdf.f_specular(q.wo_l[rk], bs.wi) * (cos_i * hit)[:, None] * Le
-        fdk *= lights.diffuse_scale[light][:, None]
-        fsk *= lights.specular_scale[light][:, None]
+        fdk, fsk, _ = split_integrand(bsdf, q.wo_l[rk], bs.wi, (cos_i * hit)[:, None] * Le, lights, light,
+                                      control=q.control[rk], with_pdf=False)
         pl = np.zeros(k.size)
         if np.any(hit):
             h = np.nonzero(hit)[0]
@@ -190,6 +190,28 @@ def bsdf_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom
         fd[k], fs[k], p_l[k], p_b[k], v[k], valid[k] = fdk, fsk, pl, bs.pdf, vk, ok
     return SampleSet(fd.reshape(n, N, 3), fs.reshape(n, N, 3), p_l.reshape(n, N), p_b.reshape(n, N),
                      v.reshape(n, N), valid.reshape(n, N)), rays
+
+
+def split_integrand(bsdf, wo_l, wi_l, weight, lights, light, control, with_pdf=True):
+    """Control lobe g and residual f − g of the integrand, each times ``weight`` (m, 3)
+    (= |cos| · L · geometric masks), with UsdLux's per-light diffuse/specular multipliers.
+
+    control: (m, 3) c(wo) of each row (the BSDF's wi-constant diffuse part).
+    Returns (g (m, 3), residual (m, 3), BSDF pdf of wi (m,) or None).
+    """
+    if with_pdf and hasattr(bsdf, "f_pdf"):
+        f_all, pdf = bsdf.f_pdf(wo_l, wi_l)
+    else:
+        f_all = bsdf.f(wo_l, wi_l)
+        pdf = bsdf.pdf(wo_l, wi_l) if with_pdf else None
+    f_d = bsdf.f_diffuse(wo_l, wi_l)
+    up = (wi_l[:, 2] > 0.0) & (wo_l[:, 2] > 0.0)
+    sd = lights.diffuse_scale[light][:, None]
+    ss = lights.specular_scale[light][:, None]
+    g = control * up[:, None]
+    # f = g + (f_d − g) + f_s; the diffuse multiplier scales both diffuse parts.
+    residual = (f_d - g) * sd + (f_all - f_d) * ss
+    return g * sd * weight, residual * weight, pdf
 
 
 def light_along(lights, light: np.ndarray, o: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

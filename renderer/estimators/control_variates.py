@@ -11,7 +11,9 @@ with f_i = f_d L cos at light sample i, p_i its light pdf, v_i its visibility an
 the v_i. Samples below the geometric or shading horizon have v_i = 0 (the surface itself blocks
 them), so a light straddling the horizon keeps an unbiased estimate.
 
-The specular lobes of the same point use MIS (light samples shared with the control variate,
+Here f is the BSDF's *control lobe* g = c(wo), constant in wi (UsdPreviewSurface's diffuse lobe
+is c(wo)·k(wi) with k averaging 1, see bsdfs/preview_surface.py), and F = c(wo)·E exactly. The
+residual f − g (specular lobes and the diffuse lobe's wi-dependent part) of the same point uses MIS (light samples shared with the control variate,
 plus N BSDF samples, only on rows whose BSDF has a specular lobe). Rows whose light has no exact
 F (a textured rect, a dome without irradiance) fall back to MIS over the whole BSDF.
 With N = 1 an α based on v̄ is undefined: α = 1 is used (the reader warned once).
@@ -28,9 +30,15 @@ from .mis import mis_parts
 def diffuse_cv_inputs(q: DirectQuery, lights, trace, N, u):
     """Shared by the control variate and the ratio estimator: F (n,3), exact (n,), light samples."""
     E, exact = lights.irradiance(q.light, q.ctx)
-    F = q.bsdf.diffuse_constant() * E * lights.diffuse_scale[q.light][:, None]
+    F = q.control * E * lights.diffuse_scale[q.light][:, None]
     ls, rays = light_samples(q, lights, trace, N, u)
     return F, exact, ls, rays
+
+
+def residual_rows(bsdf) -> np.ndarray:
+    """(n,) rows whose BSDF differs from its control lobe (f ≠ g): they need BSDF samples."""
+    fn = getattr(bsdf, "has_residual", None)
+    return fn() if fn is not None else np.ones(len(bsdf), dtype=bool)
 
 
 def specular_and_fallback(q, lights, trace, N, u, heuristic, exact, ls):
@@ -38,7 +46,7 @@ def specular_and_fallback(q, lights, trace, N, u, heuristic, exact, ls):
 
     BSDF samples are drawn only on rows that need them: a specular lobe, or no exact F.
     """
-    need = q.bsdf.has_specular() | ~exact
+    need = residual_rows(q.bsdf) | ~exact
     if not np.any(need):
         return np.zeros((q.n, 3)), np.zeros((q.n, 3)), 0
     full, spec, rays, _ = mis_parts(q, lights, trace, N, u, heuristic, bsdf_rows=need, ls=ls)

@@ -445,6 +445,7 @@ class PathIntegrator:
             light, pmf = light[rows], pmf[rows]
         if not rows.size:
             return
+        control = bsdf.diffuse_constant(wo_l)
         tok = self.est_token[light]
         N = np.where(primary[rows], self.est_samples[light], 1)
         alpha = self.est_alpha[light]
@@ -460,7 +461,7 @@ class PathIntegrator:
             r = rows[g]
             token = ESTIMATOR_TOKENS[tok[g[0]]]
             est = REGISTRY[token]
-            q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r])
+            q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r])
             Nk = int(N[g[0]])
             res = est.estimate(q, lights, self._visible, Nk, DirectRandom.draw(rng, g.size, Nk),
                                ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from renderer.geometry import cross, dot, norm, normalize
+from renderer.geometry import dot, norm
 from renderer.lights.base import LightLiSample
 
 # Relative tolerance used when deciding whether a transform is a similarity (uniform scale)
@@ -101,15 +101,12 @@ def polar_decomposition_rotation(m3: np.ndarray) -> np.ndarray:
 __all__ = [
     "SHAPE_RTOL",
     "area_to_solid_angle",
-    "cross",
     "direction_and_distance",
     "dot",
     "emission_normal",
     "far_distance",
     "invalid_sample",
     "linear_part",
-    "norm",
-    "normalize",
     "polar_decomposition_rotation",
     "ray_plane",
     "translation",

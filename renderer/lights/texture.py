@@ -23,7 +23,10 @@ from renderer.errors import StageError
 def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file") -> np.ndarray:
     """Read an image as linear float RGB (H, W, 3) float64 (row 0 = top of the image).
 
-    One-channel images are replicated to grey, extra channels (alpha) are ignored.
+    One-channel images are replicated to grey, extra channels (alpha) are ignored. UsdLux has no
+    colour-space input for light textures, so illum applies UsdUVTexture's 'auto' rule: 8-bit
+    files (PNG, JPEG, ...) are sRGB-encoded and decoded to linear; float, half and 16-bit
+    files are taken as linear.
     Raises StageError (naming the prim, the attribute and the file) when the file cannot be
     read, or when texels are NaN, infinite or negative (with their count).
     """
@@ -46,6 +49,8 @@ def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file
         rgb = px[:, :, :3]
     else:
         rgb = np.repeat(px[:, :, :1], 3, axis=2)
+    if spec.format.basetype in (oiio.UINT8, oiio.INT8):
+        rgb = srgb_to_linear(rgb)
     bad = ~np.isfinite(rgb) | (rgb < 0.0)
     nbad = int(bad.any(axis=2).sum())
     if nbad:
@@ -55,6 +60,12 @@ def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file
             attribute=attribute,
         )
     return np.ascontiguousarray(rgb)
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """The sRGB decoding curve (IEC 61966-2-1), element-wise on values in [0, 1]."""
+    v = np.asarray(v, dtype=np.float64)
+    return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
 def _search(cdf: np.ndarray, start: np.ndarray, ncells: np.ndarray, u: np.ndarray) -> np.ndarray:

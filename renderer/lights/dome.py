@@ -1,0 +1,216 @@
+"""UsdLuxDomeLight / DomeLight_1: radiance at infinity from every direction.
+
+Orientation (OpenEXR lat-long, USD-NOTES section 1): for texel column x and row y (row 0 = top)
+of a W x H image, u = (x + 0.5) / W, v = (y + 0.5) / H,
+
+    lon = pi - 2 pi u,  lat = pi/2 - pi v,
+    dir_local = (sin lon cos lat, sin lat, cos lon cos lat),
+
+so +Y (local) is the top row, +Z the image centre, +X the column at u = 1/4, -X at u = 3/4 and
+-Z the left/right edge. dir_world = R dir_local with R the rotation of ``light_to_world``
+(its orthogonal polar factor; the reader has already folded the poleAxis / up-axis fix in).
+
+Lookup is **nearest texel** (no filtering), and importance sampling is exact for it: texels are
+picked with probability proportional to lum(texel) * Omega_texel, where
+Omega_texel = (2 pi / W) (cos theta_top - cos theta_bottom) is the texel's exact solid angle
+(theta = pi v from the +Y pole), and the direction is then drawn *uniformly in solid angle*
+inside the texel (phi linear in the column, cos theta linear in the row). Hence
+
+    pdf_w = pmf / Omega_texel = lum(texel) / sum_j lum_j Omega_j  (proportional to lum(Le)),
+
+which is pbrt's lum * sin(theta) weighting made exact (no sin theta mismatch inside a row).
+A dome without texture is sampled uniformly over the sphere (pdf 1 / 4 pi).
+
+``texture:format``: 'latlong' is accepted at any size; 'automatic' is accepted when the image
+is 2:1 (treated as lat-long), otherwise StageError; other formats (mirroredBall, angular,
+cubeMapVerticalCross) raise StageError. Texels that are NaN, infinite or negative raise
+StageError with their count. ``normalize`` is ignored for domes (UsdLux).
+
+phi() (for power-based light selection) follows pbrt's infinite lights: the power through a
+disk of the scene's radius R, pi R^2 * integral over the sphere of lum(Le) d omega
+(= 4 pi^2 R^2 lum(L) for a constant dome).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from renderer.color import luminance
+from renderer.description import LightDesc
+from renderer.errors import StageError
+from renderer.lights._common import far_distance, invalid_sample, linear_part, polar_decomposition_rotation
+from renderer.lights.base import LightLiSample, ShadingContext
+from renderer.lights.radiometry import emitted_radiance
+from renderer.lights.texture import ImageSet, load_texture_rgb
+from renderer.sampling import INV_4PI, sample_uniform_sphere
+
+
+def latlong_texel_solid_angles(h: int, w: int) -> np.ndarray:
+    """(h,) exact solid angle of one texel in each row of an h x w lat-long image."""
+    z = np.cos(np.pi * np.arange(h + 1) / h)
+    return (2.0 * np.pi / w) * (z[:-1] - z[1:])
+
+
+def direction_to_texel(d_local: np.ndarray, h: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest texel (row, col) (n,) int64 of local unit directions (n, 3) in h x w images."""
+    theta = np.arctan2(np.hypot(d_local[:, 0], d_local[:, 2]), d_local[:, 1])  # from +Y, [0, pi]
+    lon = np.arctan2(d_local[:, 0], d_local[:, 2])  # (-pi, pi]
+    u = (np.pi - lon) / (2.0 * np.pi)  # [0, 1)
+    row = np.clip(np.floor(theta / np.pi * h).astype(np.int64), 0, h - 1)
+    col = np.floor(u * w).astype(np.int64) % w
+    return row, col
+
+
+def texel_to_direction(u: np.ndarray, cos_theta: np.ndarray) -> np.ndarray:
+    """Local unit direction (n, 3) from the horizontal texture coordinate u and cos(theta)."""
+    lon = np.pi - 2.0 * np.pi * u
+    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
+    return np.stack([np.sin(lon) * sin_t, cos_theta, np.cos(lon) * sin_t], axis=1)
+
+
+class DomeLight:
+    """All dome lights as structure-of-arrays.
+
+    rot: (count, 3, 3) local-to-world rotation; L: (count, 3) radiance multiplier (nits);
+    tex: (count,) int64 image index or -1 (constant dome).
+    """
+
+    name = "dome"
+    infinite = True
+
+    def __init__(self, paths, rot, L, tex, images: ImageSet, scene_center, scene_radius):
+        self.paths = list(paths)
+        self.count = len(self.paths)
+        self.rot = rot
+        self.L = L
+        self.tex = tex
+        self.images = images
+        self.delta = np.zeros(self.count, dtype=bool)
+        self.scene_center = np.asarray(scene_center, dtype=np.float64).reshape(3)
+        self.scene_radius = float(scene_radius)
+        self.warnings: list[str] = []
+        # Integral of the texture over the sphere (RGB), per light.
+        integ = np.tile(np.full(3, 4.0 * np.pi), (self.count, 1))
+        for i in np.nonzero(tex >= 0)[0]:
+            j = tex[i]
+            h, w = int(images.height[j]), int(images.width[j])
+            o = int(images.offset[j])
+            texels = images.texels[o : o + h * w].reshape(h, w, 3)
+            integ[i] = np.einsum("hwc,h->c", texels, latlong_texel_solid_angles(h, w))
+        self.radiance_integral = integ * L  # (count, 3): integral of Le over the sphere
+
+    @staticmethod
+    def world_area(desc: LightDesc) -> float:
+        """Domes have no area (normalize is ignored); returns 1."""
+        return 1.0
+
+    @staticmethod
+    def load_latlong(desc: LightDesc) -> np.ndarray:
+        """Read and check the dome's lat-long texture -> (H, W, 3)."""
+        fmt = desc.texture_format or "automatic"
+        if fmt not in ("automatic", "latlong"):
+            raise StageError(
+                f"DomeLight texture:format '{fmt}' is not supported (use 'latlong' or 'automatic' "
+                f"with a 2:1 lat-long image)",
+                prim=desc.path,
+                attribute="inputs:texture:format",
+            )
+        img = load_texture_rgb(desc.texture_file, desc.path)
+        h, w = img.shape[:2]
+        if fmt == "automatic" and w != 2 * h:
+            raise StageError(
+                f"cannot infer the layout of '{desc.texture_file}' ({w}x{h}): texture:format "
+                f"'automatic' needs a 2:1 lat-long image; author texture:format = 'latlong'",
+                prim=desc.path,
+                attribute="inputs:texture:file",
+            )
+        return img
+
+    @classmethod
+    def build(cls, descs: list[LightDesc], scene_center=(0.0, 0.0, 0.0), scene_radius: float = 1.0) -> "DomeLight":
+        k = len(descs)
+        rot = np.tile(np.eye(3), (k, 1, 1))
+        L = np.zeros((k, 3))
+        tex = np.full(k, -1, dtype=np.int64)
+        images, weights = [], []
+        for i, d in enumerate(descs):
+            rot[i] = polar_decomposition_rotation(linear_part(d.light_to_world))
+            L[i] = emitted_radiance(d, 1.0)
+            if d.texture_file:
+                img = cls.load_latlong(d)
+                h, w = img.shape[:2]
+                tex[i] = len(images)
+                images.append(img)
+                weights.append(luminance(img) * latlong_texel_solid_angles(h, w)[:, None])
+        return cls([d.path for d in descs], rot, L, tex, ImageSet.build(images, weights), scene_center, scene_radius)
+
+    # ----------------------------------------------------------------------------------
+    def _to_local(self, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return np.einsum("nji,nj->ni", self.rot[idx], w)  # R^T w
+
+    def _to_world(self, idx: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.einsum("nij,nj->ni", self.rot[idx], v)
+
+    def _texel_of(self, idx: np.ndarray, w_world: np.ndarray):
+        img = np.maximum(self.tex[idx], 0)
+        h = self.images.height[img]
+        wd = self.images.width[img]
+        row, col = direction_to_texel(self._to_local(idx, w_world), h, wd)
+        return img, row, col, h, wd
+
+    def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
+        """Texel-luminance importance sampling (textured) or uniform sphere (constant). u (n, 2)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        n_rows = idx.size
+        if n_rows == 0:
+            return invalid_sample(0)
+        wi = sample_uniform_sphere(u)
+        pdf = np.full(n_rows, INV_4PI)
+        L = self.L[idx].copy()
+        textured = self.tex[idx] >= 0
+        if textured.any():
+            rows = np.nonzero(textured)[0]
+            i = idx[rows]
+            img = self.tex[i]
+            r, c, s, t, pmf = self.images.sample(img, u[rows])
+            h = self.images.height[img]
+            w = self.images.width[img]
+            z_top = np.cos(np.pi * r / h)
+            z_bot = np.cos(np.pi * (r + 1) / h)
+            cos_t = z_top + t * (z_bot - z_top)
+            d_local = texel_to_direction((c + s) / w, cos_t)
+            wi[rows] = self._to_world(i, d_local)
+            omega = (2.0 * np.pi / w) * (z_top - z_bot)
+            pdf[rows] = np.divide(pmf, omega, out=np.zeros(rows.size), where=omega > 0.0)
+            L[rows] *= self.images.lookup(img, r, c)
+        far = far_distance(ctx.p, self.scene_center, self.scene_radius)
+        L = np.where((pdf > 0.0)[:, None], L, 0.0)
+        return LightLiSample(L=L, wi=wi, pdf=pdf, dist=np.full(n_rows, np.inf), p_light=ctx.p + wi * far[:, None])
+
+    def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
+        """Solid-angle pdf (n,) of sample_li producing wi."""
+        idx = np.asarray(idx, dtype=np.int64)
+        pdf = np.full(idx.size, INV_4PI)
+        textured = self.tex[idx] >= 0
+        if textured.any():
+            rows = np.nonzero(textured)[0]
+            i = idx[rows]
+            img, r, c, h, w = self._texel_of(i, wi[rows])
+            omega = (2.0 * np.pi / w) * (np.cos(np.pi * r / h) - np.cos(np.pi * (r + 1) / h))
+            pdf[rows] = np.divide(self.images.pmf(img, r, c), omega, out=np.zeros(rows.size), where=omega > 0.0)
+        return pdf
+
+    def le_escaped(self, idx: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Radiance (n, 3) arriving along -d for rays of direction d escaping the scene."""
+        idx = np.asarray(idx, dtype=np.int64)
+        L = self.L[idx].copy()
+        textured = self.tex[idx] >= 0
+        if textured.any():
+            rows = np.nonzero(textured)[0]
+            img, r, c, _, _ = self._texel_of(idx[rows], d[rows])
+            L[rows] *= self.images.lookup(img, r, c)
+        return L
+
+    def phi(self) -> np.ndarray:
+        """(count,) pi R^2 * lum(integral of Le over the sphere), R the scene radius."""
+        return np.pi * self.scene_radius**2 * luminance(self.radiance_integral)

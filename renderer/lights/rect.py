@@ -1,0 +1,282 @@
+"""UsdLuxRectLight: a one-sided emitting rectangle (parallelogram under shear).
+
+Geometry: centred in the local XY plane, ``width`` along local X, ``height`` along local Y,
+emitting along local -Z only. The world shape is c + a * ex + b * ey with a, b in [-1/2, 1/2],
+where ex, ey are the transformed edge vectors (any affine transform; a shear makes a
+parallelogram). The emitting side is the world image of local -Z as a *normal* (cofactor
+transform), so mirrored transforms keep emitting toward the image of the -Z half-space.
+Seen from behind (or from within its plane) the light gives L = 0 and sample_li fails (pdf 0).
+
+Sampling (decided from the (light, point) pair only, so pdf_li always matches):
+* textured rect: texel luminance importance sampling (``Distribution``-style, area measure,
+  converted to solid angle: pdf_w = pmf * H * W / A * d^2 / |cos theta_l|);
+* untextured rectangle with solid angle >= 1e-4 sr and not grazing: uniform spherical-rectangle
+  sampling, pdf_w = 1 / Omega (see ``spherical_rect``);
+* otherwise (tiny, grazing, or sheared): uniform area sampling, pdf_w = d^2 / (A |cos theta_l|).
+
+Texture orientation: the UsdLux doc puts the "texture min coordinates at (+X, +Y), max at
+(-X, -Y)". illum reads "min coordinates" as uv = (0, 0), with uv in the OpenGL convention
+(v up: v = 0 is the *bottom* row of the image, OIIO row H-1). So
+
+    local x = width * (1/2 - u),   local y = height * (1/2 - v),
+    image column = floor(u * W),    image row (0 = top) = floor((1 - v) * H)
+
+i.e. the image's bottom-left texel sits at the (+X, +Y) corner and its top-right texel at
+(-X, -Y). (hdEmbree instead puts the top-left texel at (-X, +Y): the same picture rotated by
+180 degrees in the light's plane.) Lookup is nearest-texel, which makes the texel sampling pdf
+exactly proportional to the texel luminance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from renderer.color import luminance
+from renderer.description import LightDesc
+from renderer.lights import spherical_rect
+from renderer.lights._common import (
+    SHAPE_RTOL,
+    area_to_solid_angle,
+    direction_and_distance,
+    dot,
+    emission_normal,
+    invalid_sample,
+    linear_part,
+    ray_plane,
+    translation,
+)
+from renderer.lights.base import LightLiSample, ShadingContext
+from renderer.lights.radiometry import emitted_radiance
+from renderer.lights.texture import ImageSet, load_texture_rgb
+
+
+def rect_edges(desc: LightDesc) -> tuple[np.ndarray, np.ndarray]:
+    """World edge vectors (ex, ey) (3,) each: the images of (width, 0, 0) and (0, height, 0)."""
+    m3 = linear_part(desc.light_to_world)
+    return m3 @ np.array([float(desc.width), 0.0, 0.0]), m3 @ np.array([0.0, float(desc.height), 0.0])
+
+
+def uv_to_ab(uv: np.ndarray) -> np.ndarray:
+    """Texture uv (n, 2) -> edge parameters (a, b) (n, 2) in [-1/2, 1/2] (see module doc)."""
+    return 0.5 - uv
+
+
+def ab_to_uv(ab: np.ndarray) -> np.ndarray:
+    return 0.5 - ab
+
+
+class RectLight:
+    """All rect lights of a scene as structure-of-arrays.
+
+    center, ex, ey, n: (count, 3) world centre, edge vectors and emitting normal (unit);
+    ex_dual, ey_dual: (count, 3) with (p - center) . ex_dual = a (the ex coordinate);
+    area: (count,) world area |ex x ey|; L: (count, 3) emitted radiance (nits, Rec.709);
+    is_rectangle: (count,) bool (False when sheared); tex: (count,) int64 image index or -1.
+    """
+
+    name = "rect"
+    infinite = False
+
+    def __init__(self, paths, center, ex, ey, n, L, tex, images: ImageSet):
+        self.paths = list(paths)
+        self.count = len(self.paths)
+        self.center = center
+        self.ex = ex
+        self.ey = ey
+        self.n = n
+        self.L = L
+        self.tex = tex
+        self.images = images
+        self.area = np.linalg.norm(np.cross(ex, ey), axis=1) if self.count else np.zeros(0)
+        gxx = np.einsum("ij,ij->i", ex, ex)
+        gyy = np.einsum("ij,ij->i", ey, ey)
+        gxy = np.einsum("ij,ij->i", ex, ey)
+        det = gxx * gyy - gxy * gxy
+        det = np.where(det > 0.0, det, 1.0)
+        self.ex_dual = (gyy[:, None] * ex - gxy[:, None] * ey) / det[:, None]
+        self.ey_dual = (gxx[:, None] * ey - gxy[:, None] * ex) / det[:, None]
+        self.is_rectangle = np.abs(gxy) <= SHAPE_RTOL * np.sqrt(gxx * gyy)
+        self.delta = np.zeros(self.count, dtype=bool)
+        self.warnings: list[str] = []
+
+    # ----------------------------------------------------------------------------------
+    # Build
+    # ----------------------------------------------------------------------------------
+    @staticmethod
+    def world_area(desc: LightDesc) -> float:
+        """World-space area |ex x ey| (scene units^2), including the transform's scale/shear."""
+        ex, ey = rect_edges(desc)
+        return float(np.linalg.norm(np.cross(ex, ey)))
+
+    @classmethod
+    def build(cls, descs: list[LightDesc], scene_center=None, scene_radius: float = 1.0) -> "RectLight":
+        k = len(descs)
+        center = np.zeros((k, 3))
+        ex = np.zeros((k, 3))
+        ey = np.zeros((k, 3))
+        n = np.zeros((k, 3))
+        L = np.zeros((k, 3))
+        tex = np.full(k, -1, dtype=np.int64)
+        images, weights = [], []
+        for i, d in enumerate(descs):
+            center[i] = translation(d.light_to_world)
+            ex[i], ey[i] = rect_edges(d)
+            n[i] = emission_normal(ex[i], ey[i], linear_part(d.light_to_world))
+            L[i] = emitted_radiance(d, cls.world_area(d))
+            if d.texture_file:
+                img = load_texture_rgb(d.texture_file, d.path)
+                tex[i] = len(images)
+                images.append(img)
+                weights.append(luminance(img))
+        return cls([d.path for d in descs], center, ex, ey, n, L, tex, ImageSet.build(images, weights))
+
+    # ----------------------------------------------------------------------------------
+    # Geometry helpers
+    # ----------------------------------------------------------------------------------
+    def _ab(self, idx: np.ndarray, q: np.ndarray) -> np.ndarray:
+        rel = q - self.center[idx]
+        return np.stack([dot(rel, self.ex_dual[idx]), dot(rel, self.ey_dual[idx])], axis=1)
+
+    def _point(self, idx: np.ndarray, ab: np.ndarray) -> np.ndarray:
+        return self.center[idx] + ab[:, 0:1] * self.ex[idx] + ab[:, 1:2] * self.ey[idx]
+
+    def _texel_rc(self, idx: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        img = np.maximum(self.tex[idx], 0)
+        h = self.images.height[img] if self.images.count else np.ones(idx.size, dtype=np.int64)
+        w = self.images.width[img] if self.images.count else np.ones(idx.size, dtype=np.int64)
+        col = np.clip(np.floor(uv[:, 0] * w).astype(np.int64), 0, w - 1)
+        row = np.clip(np.floor((1.0 - uv[:, 1]) * h).astype(np.int64), 0, h - 1)
+        return row, col
+
+    def _radiance_at(self, idx: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Front-side radiance (n, 3) at world points q on the light (texture applied)."""
+        L = self.L[idx].copy()
+        textured = self.tex[idx] >= 0
+        if textured.any():
+            rows = np.nonzero(textured)[0]
+            i = idx[rows]
+            uv = ab_to_uv(self._ab(i, q[rows]))
+            r, c = self._texel_rc(i, uv)
+            L[rows] *= self.images.lookup(self.tex[i], r, c)
+        return L
+
+    def _strategy(self, idx: np.ndarray, p: np.ndarray):
+        """Per-row sampling strategy: (use_spherical (n,) bool, SphericalRect setup or None)."""
+        cand = (self.tex[idx] < 0) & self.is_rectangle[idx]
+        use = np.zeros(idx.size, dtype=bool)
+        sr = None
+        if cand.any():
+            corner = self.center[idx] - 0.5 * self.ex[idx] - 0.5 * self.ey[idx]
+            sr = spherical_rect.setup(p, corner, self.ex[idx], self.ey[idx])
+            use = cand & sr.usable
+        return use, sr
+
+    def _front(self, idx: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return dot(p - self.center[idx], self.n[idx]) > 0.0
+
+    # ----------------------------------------------------------------------------------
+    # LightKind protocol
+    # ----------------------------------------------------------------------------------
+    def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
+        """Sample a point on light idx (n,) seen from ctx.p; u (n, 2). Fails (pdf 0) from behind."""
+        idx = np.asarray(idx, dtype=np.int64)
+        p = ctx.p
+        n_rows = idx.size
+        if n_rows == 0:
+            return invalid_sample(0)
+        use_sph, sr = self._strategy(idx, p)
+        textured = self.tex[idx] >= 0
+
+        # Area sampling (also the default for rows that use another strategy, overwritten below).
+        ab = u - 0.5
+        pdf_area = np.divide(1.0, self.area[idx], out=np.zeros(n_rows), where=self.area[idx] > 0.0)
+        if textured.any():
+            rows = np.nonzero(textured)[0]
+            i = idx[rows]
+            img = self.tex[i]
+            row, col, s, t, pmf = self.images.sample(img, u[rows])
+            h = self.images.height[img]
+            w = self.images.width[img]
+            uv = np.stack([(col + s) / w, 1.0 - (row + t) / h], axis=1)
+            ab[rows] = uv_to_ab(uv)
+            pdf_area[rows] = np.divide(pmf * (h * w), self.area[i], out=np.zeros(rows.size), where=self.area[i] > 0.0)
+        p_l = self._point(idx, ab)
+        if use_sph.any():
+            rows = np.nonzero(use_sph)[0]
+            sub = spherical_rect.SphericalRect(
+                **{f: getattr(sr, f)[rows] for f in sr.__dataclass_fields__}
+            )
+            p_l[rows] = spherical_rect.sample(sub, u[rows])
+        wi, dist = direction_and_distance(p, p_l)
+        cos_l = -dot(wi, self.n[idx])
+        pdf = area_to_solid_angle(pdf_area, dist, cos_l)
+        if use_sph.any():
+            pdf = np.where(use_sph, np.divide(1.0, sr.solid_angle, out=np.zeros(n_rows), where=use_sph), pdf)
+        ok = self._front(idx, p) & (cos_l > 0.0) & (dist > 0.0) & (pdf > 0.0)
+        pdf = np.where(ok, pdf, 0.0)
+        L = np.where(ok[:, None], self._radiance_at(idx, p_l), 0.0)
+        return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
+
+    def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
+        """Solid-angle pdf (n,) of sample_li(idx, ctx) producing wi; 0 if wi misses the front."""
+        idx = np.asarray(idx, dtype=np.int64)
+        p = ctx.p
+        if idx.size == 0:
+            return np.zeros(0)
+        t, ab, hit = self._hit(idx, p, wi)
+        cos_l = -dot(wi, self.n[idx])
+        hit &= self._front(idx, p) & (cos_l > 0.0)
+        pdf_area = np.divide(1.0, self.area[idx], out=np.zeros(idx.size), where=self.area[idx] > 0.0)
+        textured = self.tex[idx] >= 0
+        if textured.any():
+            rows = np.nonzero(textured)[0]
+            i = idx[rows]
+            img = self.tex[i]
+            r, c = self._texel_rc(i, ab_to_uv(ab[rows]))
+            texel_count = self.images.height[img] * self.images.width[img]
+            pdf_area[rows] = np.divide(
+                self.images.pmf(img, r, c) * texel_count, self.area[i], out=np.zeros(rows.size), where=self.area[i] > 0.0
+            )
+        pdf = area_to_solid_angle(pdf_area, np.where(hit, t, 0.0), cos_l)
+        use_sph, sr = self._strategy(idx, p)
+        if use_sph.any():
+            pdf = np.where(use_sph, np.divide(1.0, sr.solid_angle, out=np.zeros(idx.size), where=use_sph), pdf)
+        return np.where(hit, pdf, 0.0)
+
+    def _hit(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray):
+        t, ok = ray_plane(o, d, self.center[idx], self.n[idx])
+        q = o + np.where(ok, t, 0.0)[:, None] * d
+        ab = self._ab(idx, q)
+        hit = ok & (t > 0.0) & (np.abs(ab[:, 0]) <= 0.5) & (np.abs(ab[:, 1]) <= 0.5)
+        return np.where(hit, t, np.inf), ab, hit
+
+    def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """Hit distance (n,) of rays o + t d with the (two-sided) shape, inf where none."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if idx.size == 0:
+            return np.zeros(0)
+        return self._hit(idx, o, d)[0]
+
+    def le(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """Radiance (n, 3) leaving p_light toward -wi: L (times texture) on the front, 0 behind."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if idx.size == 0:
+            return np.zeros((0, 3))
+        front = -dot(wi, self.n[idx]) > 0.0
+        return np.where(front[:, None], self._radiance_at(idx, p_light), 0.0)
+
+    def phi(self) -> np.ndarray:
+        """(count,) luminance power pi * A * lum(L * mean texture) (one-sided Lambertian)."""
+        rgb = self.L.copy()
+        t = self.tex >= 0
+        if t.any():
+            rgb[t] *= self.images.mean_rgb[self.tex[t]]
+        return np.pi * self.area * luminance(rgb)
+
+    def proxy_triangles(self) -> tuple[np.ndarray, np.ndarray]:
+        """The exact two triangles of each parallelogram: ((2 count, 3, 3), owner (2 count,))."""
+        c, hx, hy = self.center, 0.5 * self.ex, 0.5 * self.ey
+        p00, p10, p11, p01 = c - hx - hy, c + hx - hy, c + hx + hy, c - hx + hy
+        tris = np.stack([np.stack([p00, p10, p11], axis=1), np.stack([p00, p11, p01], axis=1)], axis=1)
+        owner = np.repeat(np.arange(self.count, dtype=np.int64), 2)
+        return tris.reshape(-1, 3, 3), owner

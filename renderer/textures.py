@@ -1,0 +1,297 @@
+"""Image textures for UsdUVTexture: load once with OpenImageIO, look up bilinearly, vectorised.
+
+Conventions
+-----------
+* **st orientation**: USD's st = (0, 0) is the *bottom-left* corner of the image and t grows
+  upward, while OIIO's row 0 is the top row. Images are flipped once at load, so internally
+  row 0 is the bottom row and texel (i, j) covers s in [i/W, (i+1)/W), t in [j/H, (j+1)/H).
+* **Filtering**: bilinear between the four nearest texel centres (texel centres at
+  ((i + 0.5)/W, (j + 0.5)/H)). No mipmapping, so strongly minified textures alias (a limitation).
+* **Wrap modes**, per axis: 'black' (texels outside the image are (0, 0, 0, 0)), 'clamp' (edge
+  texels extend), 'repeat' (periodic), 'mirror' (mirrored repeat, period 2W: ... 1 0 | 0 1 ... W-1 |
+  W-1 ... 0 | 0 ...). 'useMetadata' is resolved by the USD reader before it gets here.
+* **Channels** (UsdUVTexture spec): 1 channel -> (v, v, v, 1); 2 channels -> (v, v, v, a);
+  3 -> (r, g, b, 1); 4 or more -> the first four. Colour is read as stored (unassociated alpha:
+  OIIO's automatic premultiplication of PNG/TIFF colour by alpha is turned off), so an alpha
+  channel used as opacity does not also darken the colour.
+* **Colour space**: texels are decoded from sRGB to linear (the IEC 61966-2-1 piecewise curve,
+  RGB only, never alpha) when ``sourceColorSpace`` is 'sRGB', or when it is 'auto' and the file
+  stores integer data (8- or 16-bit, or any other integer type); float and half files are taken
+  as linear under 'auto', and 'raw' never decodes. (hdStorm's 'auto' looks at the file's
+  declared colour space; ours is the simpler, documented rule.)
+* **Output**: ``out = texel * scale + bias`` (per RGBA channel, after decoding). Where the file
+  could not be read, ``fallback`` is returned as is (no scale / bias).
+* **Bad texels**: non-finite texel values (NaN, +-inf) are replaced by 0 at load; the count is
+  reported once per file in ``TextureCache.warnings``.
+* **Errors**: a file that does not exist raises ``renderer.errors.StageError`` naming it (unless
+  the cache was built with ``missing='fallback'``); a file that exists but OIIO cannot read gives
+  a warning and the fallback value.
+
+Memory: decoded images are kept as float32 (H, W, 4); lookups compute in float64.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Iterable, Optional
+
+import numpy as np
+
+from renderer.description import TextureDesc
+from renderer.errors import StageError
+
+WRAP_MODES = ("black", "clamp", "repeat", "mirror")
+COLOR_SPACES = ("raw", "sRGB", "auto")
+OUTPUT_CHANNELS = {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,), "rgba": (0, 1, 2, 3)}
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """The sRGB electro-optical transfer function (IEC 61966-2-1), elementwise on any shape."""
+    v = np.asarray(v)
+    lo = v / 12.92
+    hi = ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4
+    return np.where(v <= 0.04045, lo, hi)
+
+
+def output_channels(output: str) -> tuple[int, ...]:
+    """Channel indices (into RGBA) of a UsdUVTexture output name."""
+    try:
+        return OUTPUT_CHANNELS[output]
+    except KeyError:
+        raise StageError(f"unknown UsdUVTexture output {output!r}") from None
+
+
+@dataclass(frozen=True)
+class LoadedImage:
+    """A decoded-from-file image: pixels (H, W, 4) float32, row 0 = bottom (USD t = 0), raw values
+    (not colour-decoded); is_integer: the file stores integer data; nonfinite: texels fixed at load."""
+
+    path: str
+    pixels: np.ndarray
+    is_integer: bool
+    channels: int
+    nonfinite: int
+
+    @property
+    def width(self) -> int:
+        return self.pixels.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.pixels.shape[0]
+
+
+def _expand_channels(px: np.ndarray) -> np.ndarray:
+    """(H, W, C) -> (H, W, 4) RGBA per the UsdUVTexture channel rules."""
+    h, w, c = px.shape
+    out = np.ones((h, w, 4), dtype=np.float32)
+    if c == 1:
+        out[..., 0:3] = px[..., 0:1]
+    elif c == 2:
+        out[..., 0:3] = px[..., 0:1]
+        out[..., 3] = px[..., 1]
+    elif c == 3:
+        out[..., 0:3] = px
+    else:
+        out[...] = px[..., 0:4]
+    return out
+
+
+def load_image(path: str) -> tuple[Optional[LoadedImage], str]:
+    """Read ``path`` with OpenImageIO -> (LoadedImage or None, error message or '')."""
+    import OpenImageIO as oiio
+
+    # Keep colour channels as stored ("straight"): without this OIIO premultiplies the colour of
+    # PNG/TIFF files with alpha on read, darkening colours wherever alpha < 1.
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    buf = oiio.ImageBuf(path, 0, 0, config)
+    if buf.has_error:
+        return None, buf.geterror()
+    spec = buf.spec()
+    if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+        return None, "image has no pixels"
+    px = buf.get_pixels(oiio.FLOAT)
+    if buf.has_error:
+        return None, buf.geterror()
+    px = np.asarray(px, dtype=np.float32)
+    if px.ndim == 4:  # (depth, H, W, C) for volume files: take the first slice
+        px = px[0]
+    if px.ndim == 2:
+        px = px[:, :, None]
+    bad = ~np.isfinite(px)
+    nonfinite = int(bad.any(axis=2).sum())
+    if nonfinite:
+        px = np.where(bad, np.float32(0.0), px)
+    base = spec.format.basetype
+    is_integer = base not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
+    # Flip so that row 0 is the bottom row (USD t = 0).
+    pixels = np.ascontiguousarray(_expand_channels(px)[::-1])
+    return LoadedImage(path, pixels, bool(is_integer), int(spec.nchannels), nonfinite), ""
+
+
+def _wrap(i: np.ndarray, n: int, mode: str) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """Integer texel coordinates i (m,) -> (indices in [0, n), inside mask or None)."""
+    if mode == "repeat":
+        return np.mod(i, n), None
+    if mode == "clamp":
+        return np.clip(i, 0, n - 1), None
+    if mode == "mirror":
+        m = np.mod(i, 2 * n)
+        return np.where(m >= n, 2 * n - 1 - m, m), None
+    if mode == "black":
+        inside = (i >= 0) & (i < n)
+        return np.clip(i, 0, n - 1), inside
+    raise StageError(f"unknown texture wrap mode {mode!r}")
+
+
+def bilinear(pixels: np.ndarray, st: np.ndarray, wrap_s: str, wrap_t: str) -> np.ndarray:
+    """Bilinear lookup of pixels (H, W, C) (row 0 = t bottom) at st (n, 2) -> (n, C) float64.
+
+    st must be finite. Texel centres are at ((i + 0.5)/W, (j + 0.5)/H).
+    """
+    h, w, c = pixels.shape
+    # Keep coordinates where float64 -> int64 conversion is exact and harmless.
+    x = np.clip(st[:, 0], -1.0e9, 1.0e9) * w - 0.5
+    y = np.clip(st[:, 1], -1.0e9, 1.0e9) * h - 0.5
+    x0f = np.floor(x)
+    y0f = np.floor(y)
+    fx = (x - x0f)[:, None]
+    fy = (y - y0f)[:, None]
+    x0 = x0f.astype(np.int64)
+    y0 = y0f.astype(np.int64)
+    ix0, in_x0 = _wrap(x0, w, wrap_s)
+    ix1, in_x1 = _wrap(x0 + 1, w, wrap_s)
+    iy0, in_y0 = _wrap(y0, h, wrap_t)
+    iy1, in_y1 = _wrap(y0 + 1, h, wrap_t)
+    wx0, wx1 = 1.0 - fx, fx
+    wy0, wy1 = 1.0 - fy, fy
+    # 'black': a texel outside the image contributes 0 (its weight is zeroed).
+    if in_x0 is not None:
+        wx0 = wx0 * in_x0[:, None]
+        wx1 = wx1 * in_x1[:, None]
+    if in_y0 is not None:
+        wy0 = wy0 * in_y0[:, None]
+        wy1 = wy1 * in_y1[:, None]
+    out = pixels[iy0, ix0].astype(np.float64) * (wx0 * wy0)
+    out += pixels[iy0, ix1] * (wx1 * wy0)
+    out += pixels[iy1, ix0] * (wx0 * wy1)
+    out += pixels[iy1, ix1] * (wx1 * wy1)
+    return out
+
+
+class TextureCache:
+    """Loads every image file once and answers vectorised UsdUVTexture lookups.
+
+    missing: 'error' (default) raises StageError for a file that does not exist; 'fallback'
+        records a warning and returns the texture's fallback value instead.
+    warnings: human-readable messages (unreadable files, non-finite texels), each said once.
+
+    Build-time use: ``add(tex)`` for every TextureDesc (``MaterialTable.build`` does this); after
+    that, ``lookup`` only reads, so one cache can be shared by render threads.
+    """
+
+    def __init__(self, missing: str = "error"):
+        if missing not in ("error", "fallback"):
+            raise ValueError("missing must be 'error' or 'fallback'")
+        self.missing = missing
+        self.warnings: list[str] = []
+        self._files: dict[str, Optional[LoadedImage]] = {}
+        self._decoded: dict[tuple[str, bool], np.ndarray] = {}
+
+    # ----------------------------------------------------------------------------------
+    # Loading
+    # ----------------------------------------------------------------------------------
+    def _load_file(self, path: str) -> Optional[LoadedImage]:
+        if path in self._files:
+            return self._files[path]
+        img: Optional[LoadedImage] = None
+        if not path or not os.path.isfile(path):
+            if self.missing == "error":
+                raise StageError("texture file not found", file=path or "<empty asset path>")
+            self.warnings.append(f"{path or '<empty asset path>'}: texture file not found; using fallback")
+        else:
+            img, err = load_image(path)
+            if img is None:
+                self.warnings.append(f"{path}: cannot read texture ({err.strip()}); using fallback")
+            elif img.nonfinite:
+                self.warnings.append(
+                    f"{path}: {img.nonfinite} texel(s) with non-finite values replaced by 0"
+                )
+        self._files[path] = img
+        return img
+
+    @staticmethod
+    def decodes_srgb(tex: TextureDesc, img: LoadedImage) -> bool:
+        """Whether texels of ``img`` are sRGB-decoded for this texture's sourceColorSpace."""
+        cs = tex.source_color_space
+        if cs == "sRGB":
+            return True
+        if cs == "raw":
+            return False
+        if cs == "auto":
+            return img.is_integer
+        raise StageError(f"unknown sourceColorSpace {cs!r}", file=tex.file)
+
+    def add(self, tex: TextureDesc) -> None:
+        """Load (once) and decode the image of ``tex``; validate its wrap modes and output."""
+        for mode in (tex.wrap_s, tex.wrap_t):
+            if mode not in WRAP_MODES:
+                raise StageError(f"unknown texture wrap mode {mode!r}", file=tex.file)
+        output_channels(tex.output)
+        img = self._load_file(tex.file)
+        if img is None:
+            return
+        key = (tex.file, self.decodes_srgb(tex, img))
+        if key not in self._decoded:
+            px = img.pixels
+            if key[1]:
+                px = px.copy()
+                px[..., 0:3] = srgb_to_linear(px[..., 0:3]).astype(np.float32)
+            px.setflags(write=False)
+            self._decoded[key] = px
+
+    def add_all(self, textures: Iterable[TextureDesc]) -> None:
+        for tex in textures:
+            self.add(tex)
+
+    def image(self, tex: TextureDesc) -> Optional[np.ndarray]:
+        """The decoded (H, W, 4) float32 pixels used for ``tex`` (row 0 = bottom), or None when
+        the file could not be loaded."""
+        if tex.file not in self._files:
+            self.add(tex)
+        img = self._files[tex.file]
+        if img is None:
+            return None
+        key = (tex.file, self.decodes_srgb(tex, img))
+        if key not in self._decoded:
+            self.add(tex)
+        return self._decoded[key]
+
+    # ----------------------------------------------------------------------------------
+    # Lookup
+    # ----------------------------------------------------------------------------------
+    def lookup(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
+        """RGBA (n, 4) float64 of ``tex`` at st (n, 2): bilinear texel * scale + bias.
+
+        Rows whose st is not finite, and every row when the file failed to load, get ``fallback``.
+        """
+        st = np.asarray(st, dtype=np.float64).reshape(-1, 2)
+        n = st.shape[0]
+        fallback = np.asarray(tex.fallback, dtype=np.float64)
+        px = self.image(tex)
+        if px is None or n == 0:
+            return np.broadcast_to(fallback, (n, 4)).copy()
+        good = np.isfinite(st).all(axis=1)
+        all_good = bool(good.all())
+        st_use = st if all_good else np.where(good[:, None], st, 0.0)
+        texel = bilinear(px, st_use, tex.wrap_s, tex.wrap_t)
+        out = texel * np.asarray(tex.scale, dtype=np.float64) + np.asarray(tex.bias, dtype=np.float64)
+        if not all_good:
+            out[~good] = fallback
+        return out
+
+    def lookup_output(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
+        """The connected output only: (n, 3) for 'rgb', (n, 1) for 'r' / 'g' / 'b' / 'a'."""
+        return self.lookup(tex, st)[:, list(output_channels(tex.output))]
