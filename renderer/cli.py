@@ -149,6 +149,10 @@ def cmd_render(a) -> int:
     return 0
 
 
+# Modules exposing register_cli(subparsers): each adds its subcommand(s) with set_defaults(func=...).
+_SUBCOMMAND_MODULES = ("renderer.preconvolve", "renderer.bench", "service.cli")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="illum", description="USD-native path tracer")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
@@ -164,6 +168,18 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true")
     r.add_argument("--debug", action="store_true", help="show tracebacks")
     r.set_defaults(func=cmd_render)
+
+    # Other tools register their own subcommands (each module owns its flags and handler).
+    import importlib
+
+    for module in _SUBCOMMAND_MODULES:
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as e:
+            if e.name != module:
+                raise
+            continue
+        mod.register_cli(sub)
     return p
 
 
