@@ -122,7 +122,8 @@ def light_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRando
     cos_i = np.abs(wi_l[:, 2])
     above = (wi_l[:, 2] > 0.0) & (dot(ls.wi, ctx.n) > 0.0)
     valid = ls.pdf > 0.0
-    fd, fs, p_b = split_integrand(q.bsdf, q.wo_l[r], wi_l, (cos_i * above)[:, None] * ls.L, lights, light,
+    bsdf = q.bsdf if N == 1 else q.bsdf.take(r)
+    fd, fs, p_b = split_integrand(bsdf, q.wo_l[r], wi_l, (cos_i * above)[:, None] * ls.L, lights, light,
                                   control=q.control[r])
     v = np.zeros(r.size)
     rays = 0
