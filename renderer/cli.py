@@ -166,7 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--preview", metavar="OUT.png", help="also write an sRGB PNG preview")
     r.add_argument("--stats", metavar="OUT.json", help="write render statistics as JSON")
     r.add_argument("--quiet", action="store_true")
-    r.add_argument("--debug", action="store_true", help="show tracebacks")
+    # SUPPRESS: an unset subcommand flag must not overwrite `illum --debug render ...`.
+    r.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     r.set_defaults(func=cmd_render)
 
     # Other tools register their own subcommands (each module owns its flags and handler).

@@ -228,7 +228,8 @@ class PathIntegrator:
                 if self.finite.size:
                     self._add_light_hits(L, path, beta, o, d, t_geo, unsampled)
                 if self.infinite.size:
-                    escaped = ~hits.hit & np.isinf(tmax) & unsampled
+                    # The environment is at infinity: a camera ray sees it whatever its far clip.
+                    escaped = ~hits.hit & unsampled
                     if np.any(escaped):
                         self._add_escaped(L, path, beta, d, escaped)
 

@@ -1,0 +1,158 @@
+"""`illum render` end to end as a user runs it: real stages, real files, exit codes and messages."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from renderer.film import read_exr
+from tests.stage_builders import quad_light_stage
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+STAGES = sorted(f for f in os.listdir(os.path.join(ROOT, "stages")) if f.endswith(".usda"))
+
+
+def illum(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "renderer.cli", *map(str, args)], capture_output=True,
+                          text=True, cwd=cwd or ROOT, timeout=600)
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_every_stage_renders(tmp_path, stage):
+    out = tmp_path / "o.exr"
+    stats = tmp_path / "s.json"
+    r = illum("render", os.path.join(ROOT, "stages", stage), "-o", out, "--res", 48, 32, "--spp", 2,
+              "--preview", tmp_path / "o.png", "--stats", stats, "--quiet")
+    assert r.returncode == 0, r.stderr
+    img, attrs = read_exr(str(out))
+    assert img.shape == (32, 48, 3)
+    assert np.all(np.isfinite(img))
+    assert img.max() > 0.0, "a stage in stages/ renders black"
+    assert attrs["illum:spp"] == 2
+    assert "illum:version" in attrs and "illum:seed" in attrs and "worldToCamera" in attrs
+    s = json.loads(stats.read_text())
+    for key in ("resolution", "spp", "wall_seconds", "seconds", "rays", "mrays_per_second",
+                "samples_per_second", "nonfinite_dropped", "skipped", "lights"):
+        assert key in s
+    for phase in ("load", "build", "render", "write"):
+        assert phase in s["seconds"]
+    assert (tmp_path / "o.png").exists()
+
+
+def test_progress_lines_when_not_a_tty(tmp_path):
+    stage = tmp_path / "q.usda"
+    quad_light_stage(stage)
+    r = illum("render", stage, "-o", tmp_path / "o.exr", "--spp", 4)
+    assert r.returncode == 0, r.stderr
+    lines = [l for l in r.stdout.splitlines() if l.startswith("ALF_PROGRESS")]
+    assert lines[-1] == "ALF_PROGRESS 100%" and len(lines) >= 2
+
+
+def test_product_name_is_the_default_output(tmp_path):
+    from pxr import Usd, UsdRender
+
+    stage_path = tmp_path / "q.usda"
+    stage = quad_light_stage(stage_path)
+    prod = UsdRender.Product.Define(stage, "/Render/Beauty")
+    prod.CreateProductNameAttr("beauty_from_product.exr")
+    UsdRender.Settings(stage.GetPrimAtPath("/Render/Settings")).CreateProductsRel().SetTargets(["/Render/Beauty"])
+    stage.GetRootLayer().Save()
+    r = illum("render", stage_path, "--spp", 1, "--quiet", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "beauty_from_product.exr").exists()
+
+
+# ---------------------------------------------------------------------------------- errors
+def _error(r, *needles):
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    msg = r.stderr.strip()
+    assert "Traceback" not in msg
+    assert len(msg.splitlines()) == 1, msg
+    for n in needles:
+        assert n in msg, msg
+    return msg
+
+
+def test_missing_stage(tmp_path):
+    _error(illum("render", tmp_path / "nope.usda", "-o", tmp_path / "o.exr"), "nope.usda")
+
+
+def test_malformed_stage(tmp_path):
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\ndef Xform \"World\" {\n  float x = \n")
+    _error(illum("render", bad, "-o", tmp_path / "o.exr"), "bad.usda")
+
+
+def test_stage_without_camera(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    p = tmp_path / "nocam.usda"
+    stage = Usd.Stage.CreateNew(str(p))
+    UsdGeom.Sphere.Define(stage, "/World/Ball")
+    stage.GetRootLayer().Save()
+    msg = _error(illum("render", p, "-o", tmp_path / "o.exr"), "nocam.usda")
+    assert "camera" in msg.lower()
+
+
+def test_nan_light_intensity_names_prim_and_attribute(tmp_path):
+    from pxr import UsdLux
+
+    p = tmp_path / "nan.usda"
+    stage = quad_light_stage(p)
+    UsdLux.RectLight(stage.GetPrimAtPath("/World/Light")).GetIntensityAttr().Set(math.nan)
+    stage.GetRootLayer().Save()
+    _error(illum("render", p, "-o", tmp_path / "o.exr"), "/World/Light", "intensity")
+
+
+def test_negative_radius_names_prim_and_attribute(tmp_path):
+    from pxr import UsdLux
+
+    p = tmp_path / "neg.usda"
+    stage = quad_light_stage(p, light_kind="sphere")
+    UsdLux.SphereLight(stage.GetPrimAtPath("/World/Light")).GetRadiusAttr().Set(-1.0)
+    stage.GetRootLayer().Save()
+    _error(illum("render", p, "-o", tmp_path / "o.exr"), "/World/Light", "radius")
+
+
+def test_missing_texture_names_the_file(tmp_path):
+    from pxr import Sdf, UsdShade
+
+    p = tmp_path / "tex.usda"
+    stage = quad_light_stage(p)
+    sh = UsdShade.Shader.Define(stage, "/World/Looks/Grey/Tex")
+    sh.CreateIdAttr("UsdUVTexture")
+    sh.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("missing_checker.png")
+    pbr = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Grey/PBR"))
+    pbr.GetInput("diffuseColor").ConnectToSource(sh.ConnectableAPI(), "rgb")
+    stage.GetRootLayer().Save()
+    _error(illum("render", p, "-o", tmp_path / "o.exr"), "missing_checker.png")
+
+
+@pytest.mark.parametrize("res", [("20000", "10"), ("9000", "9000"), ("0", "5")])
+def test_absurd_resolution(tmp_path, res):
+    stage = tmp_path / "q.usda"
+    quad_light_stage(stage)
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--res", *res), "resolution")
+
+
+def test_unknown_estimator_token(tmp_path):
+    stage = tmp_path / "q.usda"
+    quad_light_stage(stage)
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "/World/Light", "illum:estimator")
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "/World/Nope=mis"), "/World/Nope")
+
+
+def test_debug_shows_a_traceback(tmp_path):
+    r = illum("--debug", "render", tmp_path / "nope.usda", "-o", tmp_path / "o.exr")
+    assert r.returncode != 0 and "Traceback" in r.stderr
+
+
+def test_no_half_written_output_on_error(tmp_path):
+    stage = tmp_path / "q.usda"
+    quad_light_stage(stage)
+    illum("render", stage, "-o", tmp_path / "out" / "o.exr", "--res", "20000", "10")
+    assert not (tmp_path / "out").exists() or not os.listdir(tmp_path / "out")

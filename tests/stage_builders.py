@@ -1,0 +1,96 @@
+"""Small real .usda stages written with pxr for integration tests."""
+
+from __future__ import annotations
+
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade
+
+
+def new_stage(path: str, up: str = "Y") -> Usd.Stage:
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, up)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    return stage
+
+
+def add_camera(stage, path="/World/Camera", pos=(0, 0, 5), focal=35.0, aperture=36.0):
+    cam = UsdGeom.Camera.Define(stage, path)
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateHorizontalApertureAttr(aperture)
+    cam.CreateVerticalApertureAttr(aperture)
+    cam.AddTranslateOp().Set(Gf.Vec3d(*pos))
+    return cam
+
+
+def add_settings(stage, res=(32, 32), camera="/World/Camera"):
+    s = UsdRender.Settings.Define(stage, "/Render/Settings")
+    s.CreateResolutionAttr(Gf.Vec2i(*res))
+    s.CreateCameraRel().SetTargets([camera])
+    stage.SetMetadata("renderSettingsPrimPath", "/Render/Settings")
+    return s
+
+
+def preview_material(stage, path, diffuse=(0.5, 0.5, 0.5), roughness=0.5, specular_workflow=False,
+                     specular=(0, 0, 0), metallic=0.0):
+    mat = UsdShade.Material.Define(stage, path)
+    sh = UsdShade.Shader.Define(stage, path + "/PBR")
+    sh.CreateIdAttr("UsdPreviewSurface")
+    sh.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*diffuse))
+    sh.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(roughness)
+    sh.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(metallic)
+    if specular_workflow:
+        sh.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
+        sh.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*specular))
+    mat.CreateSurfaceOutput().ConnectToSource(sh.ConnectableAPI(), "surface")
+    return mat
+
+
+def bind(prim, mat):
+    api = UsdShade.MaterialBindingAPI.Apply(prim)
+    api.Bind(mat)
+
+
+def furnace_stage(path, L=2.0, rho=1.0, res=(24, 24)):
+    """A white (rho) sphere inside a constant dome of radiance L: every pixel converges to L for rho = 1."""
+    stage = new_stage(path)
+    add_camera(stage, pos=(0, 0, 4))
+    add_settings(stage, res)
+    sphere = UsdGeom.Sphere.Define(stage, "/World/Ball")
+    sphere.CreateRadiusAttr(1.0)
+    bind(sphere.GetPrim(), preview_material(stage, "/World/Looks/White", diffuse=(rho, rho, rho)))
+    dome = UsdLux.DomeLight.Define(stage, "/World/Dome")
+    dome.CreateIntensityAttr(L)
+    stage.GetRootLayer().Save()
+    return stage
+
+
+def quad_light_stage(path, res=(16, 16), intensity=5.0, light_kind="rect", **light_attrs):
+    """A grey floor lit from above by one light; the camera looks down at it."""
+    stage = new_stage(path)
+    cam = add_camera(stage, pos=(0, 0, 0))
+    cam.AddRotateXOp().Set(0.0)
+    xf = UsdGeom.Xformable(cam)
+    xf.ClearXformOpOrder()
+    xf.AddTranslateOp().Set(Gf.Vec3d(0, 6, 0))
+    xf.AddRotateXOp().Set(-90.0)
+    add_settings(stage, res)
+    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
+    floor.CreatePointsAttr([(-5, 0, -5), (5, 0, -5), (5, 0, 5), (-5, 0, 5)])
+    floor.CreateFaceVertexCountsAttr([4])
+    floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
+    floor.CreateSubdivisionSchemeAttr("none")
+    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5)))
+    if light_kind == "rect":
+        light = UsdLux.RectLight.Define(stage, "/World/Light")
+        light.CreateWidthAttr(light_attrs.get("width", 1.0))
+        light.CreateHeightAttr(light_attrs.get("height", 1.0))
+    elif light_kind == "sphere":
+        light = UsdLux.SphereLight.Define(stage, "/World/Light")
+        light.CreateRadiusAttr(light_attrs.get("radius", 0.5))
+    else:
+        raise ValueError(light_kind)
+    light.CreateIntensityAttr(intensity)
+    lx = UsdGeom.Xformable(light)
+    lx.AddTranslateOp().Set(Gf.Vec3d(0, 3, 0))
+    lx.AddRotateXOp().Set(-90.0)
+    stage.GetRootLayer().Save()
+    return stage
