@@ -98,11 +98,19 @@ class Scene:
     warnings: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     build_seconds: float = 0.0
+    # Light linking (UsdLux collection:lightLink / collection:shadowLink), resolved per light:
+    # illuminates: (count, meshes) bool or None when every light lights everything;
+    # shadow_accel: (count,) int index into shadow_accels (-1: the full scene BVH).
+    illuminates: np.ndarray | None = None
+    shadow_group: np.ndarray | None = None
+    shadow_accels: list = field(default_factory=list)
 
     def close(self) -> None:
         self.accel.close()
         if self.light_accel is not None:
             self.light_accel.close()
+        for a in self.shadow_accels:
+            a.close()
 
 
 # Brute-force exact light intersection is cheaper than a proxy BVH for a handful of lights.
@@ -151,8 +159,11 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         skipped.append("no lights: next-event estimation disabled")
     if not np.any(lights.is_infinite) if lights.count else True:
         skipped.append("no dome or distant light: escaped rays do no environment work")
+    illuminates, shadow_group, shadow_accels = build_linking(lights, geo, threads)
+    if illuminates is None and not shadow_accels:
+        skipped.append("no light linking: one shared BVH for every shadow ray, no per-light masks")
     sampler_name = light_sampler if light_sampler not in ("", "auto") else (desc.settings.light_sampler or "auto")
-    sampler = make_light_sampler(sampler_name, lights.phi() if lights.count else np.zeros(0))
+    sampler = make_light_sampler(sampler_name, lights)
     scene = Scene(
         desc=desc,
         geometry=geo,
@@ -166,6 +177,52 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         radius=radius,
         warnings=warnings,
         skipped=skipped,
+        illuminates=illuminates,
+        shadow_group=shadow_group,
+        shadow_accels=shadow_accels,
     )
     scene.build_seconds = time.perf_counter() - t0
     return scene
+
+
+def build_linking(lights, geo: GeometryTables, threads: int | None):
+    """Resolve UsdLux light linking into render-side tables.
+
+    lightLink: ``illuminates[light, mesh]`` is False where the light's collection excludes the
+    mesh (None when no light restricts anything -- the common case costs nothing).
+    shadowLink: geometry a light's shadowLink excludes casts no shadow from that light, so each
+    distinct excluded set gets its own BVH without those meshes; ``shadow_group[light]`` picks it
+    (-1: the full scene). Lights sharing an excluded set share the BVH.
+    """
+    descs = getattr(lights, "descs", [])
+    n_mesh = len(geo.mesh_paths)
+    index_of: dict[str, list[int]] = {}
+    for i, path in enumerate(geo.mesh_paths):
+        index_of.setdefault(path, []).append(i)
+
+    def mesh_mask(paths) -> np.ndarray:
+        mask = np.zeros(n_mesh, dtype=bool)
+        for p in paths:
+            mask[index_of.get(p, [])] = True
+        return mask
+
+    illuminates = None
+    if any(d.light_link_excludes for d in descs):
+        illuminates = np.ones((len(descs), n_mesh), dtype=bool)
+        for i, d in enumerate(descs):
+            if d.light_link_excludes:
+                illuminates[i] = ~mesh_mask(d.light_link_excludes)
+    shadow_group = np.full(len(descs), -1, dtype=np.int64)
+    accels: list[Accel] = []
+    groups: dict[frozenset, int] = {}
+    for i, d in enumerate(descs):
+        ex = d.shadow_link_excludes
+        if not ex:
+            continue
+        key = frozenset(ex)
+        if key not in groups:
+            casts = ~mesh_mask(key)[geo.mesh]  # per triangle
+            groups[key] = len(accels)
+            accels.append(Accel(geo.vertices[casts], threads=threads))
+        shadow_group[i] = groups[key]
+    return illuminates, (shadow_group if accels else None), accels

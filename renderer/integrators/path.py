@@ -281,7 +281,7 @@ class PathIntegrator:
 
                 # ---- direct lighting, per light, by its estimator --------------------------
                 if self.has_lights:
-                    self._direct(L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary=depth == 0)
+                    self._direct(L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary=depth == 0, mesh=si.mesh)
 
                 # With no emissive geometry, a ray whose next vertex cannot scatter finds nothing.
                 if not scene.materials.has_emission and np.all(depth + 1 >= opt.max_depth):
@@ -421,15 +421,24 @@ class PathIntegrator:
             Le = self.lights.le_escaped(np.full(rows.size, li, dtype=np.int64), d[rows])
             np.add.at(L, path[rows], beta[rows] * Le)
 
-    def _visible(self, p, ng, wi, dist, eps) -> np.ndarray:
-        """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf)."""
+    def _visible(self, p, ng, wi, dist, eps, accel=None) -> np.ndarray:
+        """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf).
+
+        accel: the BVH to test (a light's shadowLink BVH), default the whole scene.
+        """
         o = offset_origin(p, ng, wi, eps)
         # Stop short of the light's surface by a relative margin and the origin offset.
         t_max = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - eps, np.inf)
         self.rays.add(shadow=p.shape[0])
-        return ~self.scene.accel.occluded(o, wi, t_max)
+        return ~(accel or self.scene.accel).occluded(o, wi, t_max)
 
-    def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary) -> None:
+    def _tracer_for(self, shadow_group: int):
+        if shadow_group < 0:
+            return self._visible
+        accel = self.scene.shadow_accels[shadow_group]
+        return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel)
+
+    def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary, mesh) -> None:
         """Direct lighting at n shading points: lights picked by the lighting service, each
         estimated by its own estimator with its own sample count (see the module docstring)."""
         n = path.size
@@ -444,6 +453,10 @@ class PathIntegrator:
             light, pmf = sampler.sample(ctx, rng.random(n))
             rows = np.nonzero(pmf > 0.0)[0]
             light, pmf = light[rows], pmf[rows]
+        if self.scene.illuminates is not None:
+            # lightLink: a light never illuminates geometry its collection excludes.
+            linked = self.scene.illuminates[light, mesh[rows]]
+            rows, light, pmf = rows[linked], light[linked], pmf[linked]
         if not rows.size:
             return
         control = bsdf.diffuse_constant(wo_l)
@@ -456,7 +469,8 @@ class PathIntegrator:
         self.rule_counts["alpha_one_fallback"] += int(fallback.sum())
         alpha = np.where(N < 2, ALPHA_ONE, alpha)
         heur = self.est_heuristic[light]
-        key = ((tok * 8 + alpha) * 4 + heur) * 4096 + np.minimum(N, 4095)
+        group = self.scene.shadow_group[light] + 1 if self.scene.shadow_group is not None else np.zeros_like(light)
+        key = (((tok * 8 + alpha) * 4 + heur) * 4096 + np.minimum(N, 4095)) * (len(self.scene.shadow_accels) + 1) + group
         for k in np.unique(key):
             g = np.nonzero(key == k)[0]
             r = rows[g]
@@ -464,7 +478,7 @@ class PathIntegrator:
             est = REGISTRY[token]
             q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r])
             Nk = int(N[g[0]])
-            res = est.estimate(q, lights, self._visible, Nk, DirectRandom.draw(rng, g.size, Nk),
+            res = est.estimate(q, lights, self._tracer_for(int(group[g[0]]) - 1), Nk, DirectRandom.draw(rng, g.size, Nk),
                                ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])
             contrib = beta[r] * safe_div(res.Ld, pmf[g])
             np.add.at(L, path[r], contrib)
