@@ -18,9 +18,10 @@ EXHAUSTIVE_MAX_LIGHTS = 8
 __all__ = ["SAMPLERS", "make_light_sampler", "ExhaustiveLightSampler", "PowerLightSampler", "UniformLightSampler"]
 
 
-def make_light_sampler(name: str, phi: np.ndarray):
-    """Build the named sampler over light powers phi (count,). 'auto' picks by light count:
+def make_light_sampler(name: str, lights):
+    """Build the named sampler over a LightSet. 'auto' picks by light count:
     exhaustive up to EXHAUSTIVE_MAX_LIGHTS lights, power beyond."""
+    phi = lights.phi() if lights.count else np.zeros(0)
     if name in ("", "auto"):
         name = "exhaustive" if np.asarray(phi).size <= EXHAUSTIVE_MAX_LIGHTS else "power"
     if name not in SAMPLERS:
