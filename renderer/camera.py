@@ -14,7 +14,7 @@ import numpy as np
 
 from .description import CameraDesc
 from .errors import SettingsError
-from .geometry import normalize, transform_points, transform_vectors
+from .geometry import normalize
 from .sampling import sample_uniform_disk_concentric
 
 MAX_SIDE = 16384
@@ -144,10 +144,13 @@ class Camera:
             inv_cos = 1.0 / np.maximum(-d_cam[:, 2], 1e-12)
             tmin = self.near * inv_cos
             tmax = self.far * inv_cos
-        o = transform_points(self.camera_to_world, o_cam)
-        d = normalize(transform_vectors(self.camera_to_world, d_cam))
+        M = self.camera_to_world
+        # Column multiply-adds: much faster than (n,3) @ (3,3) on a transposed view for large n.
+        d_w = d_cam[:, 0:1] * M[:3, 0] + d_cam[:, 1:2] * M[:3, 1] + d_cam[:, 2:3] * M[:3, 2]
+        o = o_cam[:, 0:1] * M[:3, 0] + o_cam[:, 1:2] * M[:3, 1] + o_cam[:, 2:3] * M[:3, 2] + M[:3, 3]
         # World scale in the camera matrix changes distances: rescale the clip distances.
-        scale = np.linalg.norm(transform_vectors(self.camera_to_world, d_cam), axis=1)
+        scale = np.sqrt(np.einsum("ij,ij->i", d_w, d_w))
+        d = d_w / scale[:, None]
         return CameraRays(o=o, d=d, tmax=tmax * scale, tmin=tmin * scale)
 
     def world_to_camera(self) -> np.ndarray:

@@ -476,7 +476,11 @@ class PathIntegrator:
             r = rows[g]
             token = ESTIMATOR_TOKENS[tok[g[0]]]
             est = REGISTRY[token]
-            q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r])
+            if r.size == n and np.all(r == np.arange(n)):
+                # One group covering every point in order (e.g. a single light): no row copies.
+                q = DirectQuery(ctx, s, t, wo_l, bsdf, light[g], eps, control)
+            else:
+                q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r])
             Nk = int(N[g[0]])
             res = est.estimate(q, lights, self._tracer_for(int(group[g[0]]) - 1), Nk, DirectRandom.draw(rng, g.size, Nk),
                                ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])
