@@ -26,6 +26,13 @@ is 2:1 (treated as lat-long), otherwise StageError; other formats (mirroredBall,
 cubeMapVerticalCross) raise StageError. Texels that are NaN, infinite or negative raise
 StageError with their count. ``normalize`` is ignored for domes (UsdLux).
 
+irradiance_lookup() gives the control variate's F for textured domes: the unshadowed irradiance
+E(n) = Σ_t L_t ∫_t max(0, n·ω) dω of exactly these nearest-texel radiances and texel solid
+angles, precomputed on a lat-long table and interpolated (renderer/preconvolve.py). The table is
+the authored ``illum:dome:irradiance`` map when its recorded source hash matches the texture
+(a stale or approximate map is replaced with a warning), else computed at load (64 x 32, exact)
+and cached on disk by the texture's content hash.
+
 phi() (for power-based light selection) follows pbrt's infinite lights: the power through a
 disk of the scene's radius R, pi R^2 * integral over the sphere of lum(Le) d omega
 (= 4 pi^2 R^2 lum(L) for a constant dome).
@@ -78,7 +85,7 @@ class DomeLight:
     name = "dome"
     infinite = True
 
-    def __init__(self, paths, rot, L, tex, images: ImageSet, scene_center, scene_radius):
+    def __init__(self, paths, rot, L, tex, images: ImageSet, scene_center, scene_radius, irradiance=None):
         self.paths = list(paths)
         self.count = len(self.paths)
         self.rot = rot
@@ -89,6 +96,8 @@ class DomeLight:
         self.scene_center = np.asarray(scene_center, dtype=np.float64).reshape(3)
         self.scene_radius = float(scene_radius)
         self.warnings: list[str] = []
+        # Per light: renderer.preconvolve.IrradianceTable of its texture (None for constant domes).
+        self.irradiance = list(irradiance) if irradiance is not None else [None] * self.count
         # Integral of the texture over the sphere (RGB), per light.
         integ = np.tile(np.full(3, 4.0 * np.pi), (self.count, 1))
         for i in np.nonzero(tex >= 0)[0]:
@@ -133,6 +142,7 @@ class DomeLight:
         L = np.zeros((k, 3))
         tex = np.full(k, -1, dtype=np.int64)
         images, weights = [], []
+        tables, warnings = [None] * k, []
         for i, d in enumerate(descs):
             rot[i] = polar_decomposition_rotation(linear_part(d.light_to_world))
             L[i] = emitted_radiance(d, 1.0)
@@ -142,7 +152,20 @@ class DomeLight:
                 tex[i] = len(images)
                 images.append(img)
                 weights.append(luminance(img) * latlong_texel_solid_angles(h, w)[:, None])
-        return cls([d.path for d in descs], rot, L, tex, ImageSet.build(images, weights), scene_center, scene_radius)
+                tables[i], warns = cls._irradiance_table(d, img)
+                warnings.extend(warns)
+        obj = cls([d.path for d in descs], rot, L, tex, ImageSet.build(images, weights), scene_center, scene_radius,
+                  irradiance=tables)
+        obj.warnings.extend(warnings)
+        return obj
+
+    @staticmethod
+    def _irradiance_table(desc: LightDesc, img: np.ndarray):
+        """(IrradianceTable, warnings) for a textured dome: the authored illum:dome:irradiance
+        when fresh, else computed from these very texels (cached on disk by content hash)."""
+        from renderer.preconvolve import dome_irradiance_table
+
+        return dome_irradiance_table(desc.texture_file, img, desc.estimator.dome_irradiance, prim=desc.path)
 
     # ----------------------------------------------------------------------------------
     def _to_local(self, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -210,6 +233,28 @@ class DomeLight:
             img, r, c, _, _ = self._texel_of(idx[rows], d[rows])
             L[rows] *= self.images.lookup(img, r, c)
         return L
+
+    def irradiance_lookup(self, idx: np.ndarray, n_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unshadowed irradiance from textured domes: (E (m, 3), ok (m,) bool).
+
+        idx (m,) local light indices, n_world (m, 3) unit shading normals (world). E = L · T(R^T n)
+        with T the light's IrradianceTable (exact E = Σ_t texel_t ∫_t max(0, n·ω) dω at the
+        table's texel centres, interpolated in between; see renderer/preconvolve.py) and L the
+        radiance multiplier (intensity, exposure, colour). ok is False for constant domes
+        (irradiance.py handles them: E = π L) and True wherever a table exists.
+        """
+        idx = np.asarray(idx, dtype=np.int64)
+        E = np.zeros((idx.size, 3))
+        ok = np.zeros(idx.size, dtype=bool)
+        for i in np.unique(idx):
+            table = self.irradiance[i]
+            if table is None:
+                continue
+            rows = np.nonzero(idx == i)[0]
+            n_local = np.asarray(n_world[rows], dtype=np.float64) @ self.rot[i]  # R^T n, row vectors
+            E[rows] = table.lookup(n_local) * self.L[i]
+            ok[rows] = True
+        return E, ok
 
     def phi(self) -> np.ndarray:
         """(count,) pi R^2 * lum(integral of Le over the sphere), R the scene radius."""
