@@ -21,6 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
 @dataclass
 class Film:
     """width x height film with a data window (x0, y0, x1, y1) in pixels (half-open).
@@ -36,6 +39,7 @@ class Film:
     count: np.ndarray = field(init=False)
     nonfinite_dropped: int = 0
     negative_samples: int = 0
+    overflow_clamped: int = 0
 
     def __post_init__(self):
         if self.window is None:
@@ -91,9 +95,16 @@ class Film:
         self.negative_samples += other.negative_samples
 
     def mean(self) -> np.ndarray:
-        """(h, w, 3) float32 per-pixel mean of the data window (0 where no samples yet)."""
+        """(h, w, 3) float32 per-pixel mean of the data window (0 where no samples yet).
+
+        Means beyond the float32 range are clamped to its limit (``overflow_clamped`` counts
+        them): the EXR cannot hold them, and Inf must never reach a file.
+        """
         n = np.maximum(self.count, 1)[:, :, None]
-        return (self.sum / n).astype(np.float32)
+        m = self.sum / n
+        big = np.abs(m) > _F32_MAX
+        self.overflow_clamped = int(big.any(axis=2).sum())
+        return np.clip(m, -_F32_MAX, _F32_MAX).astype(np.float32)
 
     def variance_of_mean(self) -> np.ndarray:
         """(h, w, 3) unbiased estimate of the variance of each pixel's mean."""

@@ -170,9 +170,10 @@ def bsdf_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom
         ctx = q.ctx.take(rk)
         light = q.light[rk]
         ok = (bs.pdf > 0.0) & (dot(wi, ctx.n) > 0.0) & (bs.wi[:, 2] > 0.0)
-        # Which samples reach the light, and at what distance / radiance.
-        o = offset_origin(ctx.p, ctx.n, wi, q.eps[rk])
-        t_l, Le = light_along(lights, light, o, wi)
+        # Which samples reach the light, and at what distance / radiance. Lights are not in the
+        # BVH, so they are intersected from p itself: the distance and pdf_li then refer to the
+        # same point the shadow ray starts from (offsetting here biased MIS by offset/distance).
+        t_l, Le = light_along(lights, light, ctx.p, wi)
         hit = ok & np.any(Le > 0.0, axis=1)
         cos_i = np.abs(bs.wi[:, 2])
         fdk, fsk, _ = split_integrand(bsdf, q.wo_l[rk], bs.wi, (cos_i * hit)[:, None] * Le, lights, light,

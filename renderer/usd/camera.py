@@ -31,16 +31,20 @@ def read_camera(prim: Usd.Prim, ctx: ReadContext) -> CameraDesc:
     if not (math.isfinite(near) and math.isfinite(far)) or near < 0.0 or far <= near:
         raise ctx.error(f"clipping range ({near:g}, {far:g}) must satisfy 0 <= near < far", prim, "clippingRange")
 
+    # -inf or a huge exposure would give a silently black or infinite image.
+    exposure = num("exposure")
+    if abs(exposure) > 128.0:
+        raise ctx.error(f"exposure {exposure:g} is outside [-128, 128] stops", prim, "exposure")
     if hasattr(cam, "ComputeLinearExposureScale"):
         exposure_scale = float(cam.ComputeLinearExposureScale(ctx.time))
     else:  # older usd-core: only the plain exposure attribute exists
         exposure_scale = 2.0 ** num("exposure")
-    if not math.isfinite(exposure_scale) or exposure_scale < 0.0:
+    if not math.isfinite(exposure_scale) or exposure_scale <= 0.0:
         raise ctx.error(f"linear exposure scale is {exposure_scale:g}", prim, "exposure")
 
     return CameraDesc(
         path=str(prim.GetPath()),
-        camera_to_world=ctx.local_to_world(prim),
+        camera_to_world=ctx.finite_world(prim),
         projection=projection,
         focal_length=num("focalLength", positive=True) * TENTHS,
         horizontal_aperture=num("horizontalAperture", positive=True) * TENTHS,

@@ -99,6 +99,14 @@ class ReadContext:
         """(4, 4) column-vector world matrix of ``prim`` at the read time."""
         return gf_matrix_to_np(self.xform_cache.GetLocalToWorldTransform(prim))
 
+    def finite_world(self, prim: Usd.Prim, limit: float = 1e30) -> np.ndarray:
+        """World matrix that must be finite and of sane magnitude (a light or a camera with a
+        NaN transform would otherwise vanish silently or render black)."""
+        m = self.local_to_world(prim)
+        if not np.all(np.isfinite(m)) or np.abs(m).max() > limit:
+            raise self.error("world transform is not finite (or exceeds 1e30)", prim, "xformOpOrder")
+        return m
+
     def relative_transform(self, prim: Usd.Prim, ancestor: Usd.Prim) -> np.ndarray:
         """(4, 4) column-vector transform from ``prim``'s local space to ``ancestor``'s."""
         m, _reset = self.xform_cache.ComputeRelativeTransform(prim, ancestor)

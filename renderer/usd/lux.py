@@ -45,6 +45,12 @@ def _kind_of(prim: Usd.Prim) -> str | None:
     return None
 
 
+def _exposure(prim, ctx: ReadContext, value: float) -> float:
+    if abs(value) > 128.0:
+        raise ctx.error(f"exposure {value:g} is outside [-128, 128] stops", prim, "inputs:exposure")
+    return value
+
+
 def read_light(prim: Usd.Prim, ctx: ReadContext) -> LightDesc | None:
     """One light prim (already known to have LightAPI and to be visible) -> LightDesc.
 
@@ -72,7 +78,9 @@ def read_light(prim: Usd.Prim, ctx: ReadContext) -> LightDesc | None:
 
     fields: dict = {
         "intensity": num("inputs:intensity", min_value=0.0),
-        "exposure": num("inputs:exposure"),  # negative exposure is a legitimate dimming
+        # Negative exposure is a legitimate dimming; beyond ±128 stops 2^exposure leaves the
+        # float32 range the film stores, so it can only be a mistake.
+        "exposure": _exposure(prim, ctx, num("inputs:exposure")),
         "color": ctx.finite_tuple(prim, "inputs:color", ctx.get(prim, "inputs:color")),
         "enable_color_temperature": flag("inputs:enableColorTemperature"),
         "color_temperature": num("inputs:colorTemperature", min_value=0.0),
@@ -128,7 +136,7 @@ def read_light(prim: Usd.Prim, ctx: ReadContext) -> LightDesc | None:
     if filters and filters.GetTargets():
         ctx.warn("light-filters", f"{path}: light filters are not supported yet and are ignored")
 
-    to_world = ctx.local_to_world(prim)
+    to_world = ctx.finite_world(prim)
     if kind == "dome" and _pole_is_z(prim, ctx):
         to_world = to_world @ POLE_Z_FROM_Y
 
