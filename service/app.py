@@ -1,0 +1,411 @@
+"""The FastAPI application: REST API, Prometheus metrics and the web page.
+
+The server process only validates requests, reads and writes the job store, and serves files.
+It never renders: workers (service.worker) do, in their own processes, supervised by
+service.supervisor. See service/README.md for the API reference.
+
+Errors share one shape: ``{"detail": ..., "message": "one line naming the field"}``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import hmac
+import os
+import tempfile
+import time
+from collections import Counter
+from typing import Literal, Optional
+
+from fastapi import Depends, FastAPI, Header, HTTPException, Path, Query, Request, Response
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from . import API_VERSION
+from .config import ServiceConfig
+from .models import JobCreate, request_hash, validate_settings
+from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
+                    resolve_upload, upload_name)
+from .store import STATES, IdempotencyConflict, Job, JobStore
+from .supervisor import Supervisor
+from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON
+
+__all__ = ["create_app"]
+
+STATIC_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
+JOB_ID = r"^[0-9a-f]{16}$"
+MEDIA = {"png": "image/png", "exr": "image/x-exr"}
+
+
+class BodyTooLarge(HTTPException):
+    """Raised from inside the body stream: FastAPI passes HTTPExceptions through untouched."""
+
+    def __init__(self, limit: int):
+        super().__init__(413, f"request body exceeds the server limit of {limit} bytes")
+
+
+class _Limits:
+    """Pure ASGI middleware: caps request bodies (by Content-Length up front, and by counting
+    streamed bytes for chunked bodies) and counts responses for /metrics."""
+
+    def __init__(self, app, config: ServiceConfig, counters: Counter):
+        self.app = app
+        self.config = config
+        self.counters = counters
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        lim = self.config.limits
+        limit = lim.max_upload_bytes if scope["path"] == "/uploads" else lim.max_json_bytes
+        status_box = [500]
+
+        async def counting_send(message):
+            if message["type"] == "http.response.start":
+                status_box[0] = message["status"]
+            await send(message)
+
+        headers = dict(scope.get("headers") or [])
+        declared = headers.get(b"content-length")
+        try:
+            if declared is not None and int(declared) > limit:
+                resp = JSONResponse({"detail": f"request body exceeds the server limit of {limit} bytes",
+                                     "message": f"body: {int(declared)} bytes exceed the limit of {limit}"},
+                                    status_code=413)
+                await resp(scope, receive, counting_send)
+                return
+        except ValueError:
+            resp = JSONResponse({"detail": "bad Content-Length", "message": "bad Content-Length"}, status_code=400)
+            await resp(scope, receive, counting_send)
+            return
+        seen = [0]
+
+        async def limited_receive():
+            message = await receive()
+            if message["type"] == "http.request":
+                seen[0] += len(message.get("body", b""))
+                if seen[0] > limit:
+                    raise BodyTooLarge(limit)
+            return message
+
+        try:
+            await self.app(scope, limited_receive, counting_send)
+        finally:
+            self.counters[(scope.get("method", ""), status_box[0])] += 1
+
+
+def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
+    """Build the application. ``start_workers=False`` runs the API alone (workers started
+    elsewhere, or none)."""
+    os.makedirs(config.jobs_dir, exist_ok=True)
+    os.makedirs(config.uploads_dir, exist_ok=True)
+    if not os.path.isdir(config.stage_root):
+        raise ValueError(f"stage root {config.stage_root!r} is not a directory")
+    store = JobStore(config.db_path)
+    supervisor = Supervisor(config, store)
+    counters: Counter = Counter()
+    started = time.time()
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        if start_workers:
+            supervisor.start()
+        try:
+            yield
+        finally:
+            if start_workers:
+                await run_in_threadpool(supervisor.stop)
+
+    app = FastAPI(
+        title="illum render service",
+        version=API_VERSION,
+        description=("Submit USD renders and dome preconvolutions, follow their progress, fetch progressive "
+                     "and final images. Jobs live in SQLite (WAL); workers render in separate processes. "
+                     "When the server runs with ILLUM_TOKEN set, POST and DELETE endpoints need "
+                     "`Authorization: Bearer <token>`."),
+        lifespan=lifespan,
+    )
+    app.state.config = config
+    app.state.store = store
+    app.state.supervisor = supervisor
+    app.add_middleware(_Limits, config=config, counters=counters)
+
+    # ---------------------------------------------------------------- errors
+    @app.exception_handler(InputError)
+    async def _input_error(request: Request, exc: InputError):
+        loc = ["body", *exc.field.split(".")] if exc.field else ["body"]
+        return JSONResponse({"detail": [{"loc": loc, "msg": exc.message, "type": "value_error"}],
+                             "message": str(exc)}, status_code=exc.status)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(request: Request, exc: RequestValidationError):
+        errors = exc.errors()
+        parts = []
+        for e in errors:
+            loc = [str(p) for p in e.get("loc", ()) if p not in ("body",)]
+            parts.append(f"{'.'.join(loc)}: {e.get('msg')}" if loc else str(e.get("msg")))
+        clean = [{"loc": list(e.get("loc", ())), "msg": e.get("msg"), "type": e.get("type")} for e in errors]
+        return JSONResponse({"detail": clean, "message": "; ".join(parts)}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)  # also the router's own 404/405
+    async def _http_error(request: Request, exc: StarletteHTTPException):
+        return JSONResponse({"detail": exc.detail, "message": str(exc.detail)}, status_code=exc.status_code,
+                            headers=getattr(exc, "headers", None))
+
+    # ---------------------------------------------------------------- helpers
+    def require_token(authorization: Optional[str] = Header(None, description="Bearer token when ILLUM_TOKEN is set")):
+        if not config.token:
+            return
+        scheme, _, value = (authorization or "").partition(" ")
+        if scheme.lower() != "bearer" or not hmac.compare_digest(value.strip().encode(), config.token.encode()):
+            raise HTTPException(401, "this server requires a bearer token (Authorization: Bearer <ILLUM_TOKEN>)",
+                                headers={"WWW-Authenticate": "Bearer"})
+
+    auth = [Depends(require_token)]
+
+    def job_or_404(job_id: str) -> Job:
+        job = store.get(job_id)
+        if job is None:
+            raise HTTPException(404, f"no job {job_id}")
+        return job
+
+    def job_json(job: Job) -> dict:
+        out = job.public()
+        d = config.job_dir(job.id)
+        has = {fmt: any(os.path.exists(os.path.join(d, n)) for n in names)
+               for fmt, names in (("png", (FINAL_PNG, PREVIEW_PNG)), ("exr", (FINAL_EXR, PREVIEW_EXR)))}
+        out["links"] = {"self": f"/jobs/{job.id}", "log": f"/jobs/{job.id}/log",
+                        "image_png": f"/jobs/{job.id}/image?format=png" if has["png"] else None,
+                        "image_exr": f"/jobs/{job.id}/image?format=exr" if has["exr"] else None}
+        return out
+
+    # ---------------------------------------------------------------- pages
+    @app.get("/", include_in_schema=False)
+    def index():
+        # The page loads only its own script and style, and previews as blob: URLs.
+        return FileResponse(os.path.join(STATIC_DIR, "index.html"), headers={
+            "Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff",
+            "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; object-src 'none'; "
+                                       "base-uri 'none'; frame-ancestors 'none'"})
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon():
+        return Response(status_code=204)
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+    # ---------------------------------------------------------------- service
+    @app.get("/health", summary="Liveness, workers and queue depth")
+    def health():
+        counts = store.counts()["states"]
+        workers = store.workers()
+        alive = supervisor.alive() if start_workers else None
+        status = "ok" if (not start_workers or not supervisor.slots or alive) else "degraded"
+        return {"status": status, "version": API_VERSION, "backend": config.backend,
+                "uptime_seconds": time.time() - started,
+                "workers": {"configured": len(supervisor.slots) if start_workers else 0, "alive": alive,
+                            "registered": [{"id": w["id"], "pid": w["pid"], "host": w["host"], "job": w["job_id"]}
+                                           for w in workers]},
+                "jobs": counts, "auth": bool(config.token)}
+
+    @app.get("/metrics", summary="Prometheus metrics (text exposition format 0.0.4)",
+             response_class=PlainTextResponse)
+    def metrics():
+        c = store.counts()
+        workers = store.workers()
+        lines = []
+
+        def metric(name, kind, help_, samples):
+            lines.append(f"# HELP {name} {help_}")
+            lines.append(f"# TYPE {name} {kind}")
+            for labels, value in samples:
+                lab = ",".join(f'{k}="{v}"' for k, v in labels.items())
+                lines.append(f"{name}{{{lab}}} {value}" if lab else f"{name} {value}")
+
+        metric("illum_jobs", "gauge", "Jobs by state (deleted jobs excluded).",
+               [({"state": s}, c["states"][s]) for s in STATES])
+        metric("illum_jobs_created_total", "counter", "Jobs ever created.", [({}, c["created_total"])])
+        metric("illum_job_attempts_total", "counter", "Attempts started over all stored jobs.",
+               [({}, c["attempts_total"])])
+        metric("illum_samples_per_second", "gauge", "Camera samples per second over running jobs.",
+               [({}, f"{c['samples_per_second']:.6g}")])
+        metric("illum_samples_succeeded_total", "counter", "Samples per pixel delivered by succeeded jobs.",
+               [({}, c["spp_succeeded_total"])])
+        metric("illum_workers", "gauge", "Registered workers.", [({"backend": config.backend}, len(workers))])
+        metric("illum_workers_busy", "gauge", "Workers holding a job.",
+               [({}, sum(1 for w in workers if w["job_id"]))])
+        metric("illum_http_requests_total", "counter", "HTTP responses by method and status.",
+               [({"method": m, "code": s}, n) for (m, s), n in sorted(counters.items())])
+        metric("illum_uptime_seconds", "gauge", "Seconds since the server started.",
+               [({}, f"{time.time() - started:.3f}")])
+        return PlainTextResponse("\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8")
+
+    @app.get("/stages", summary="Stages (or, for kind=preconvolve, environment maps) under the stage root")
+    def stages(kind: Literal["render", "preconvolve"] = "render"):
+        exts = STAGE_EXTENSIONS if kind == "render" else IMAGE_EXTENSIONS
+        return {"kind": kind, "stages": list_stages(config.stage_root, exts)}
+
+    # ---------------------------------------------------------------- uploads
+    @app.post("/uploads", status_code=201, dependencies=auth,
+              summary="Upload a .usda/.usdc/.usdz stage as the raw request body",
+              description=("Send the file as the body (`Content-Type: application/octet-stream`) with "
+                           "`?filename=shot.usdz`. Answers an `upload` id to pass in `POST /jobs`. The size is "
+                           "capped (413). Only self-contained files make sense: references to other files "
+                           "resolve next to the stored upload, i.e. not at all; prefer .usdz."))
+    async def upload(request: Request, filename: str = Query(..., min_length=1, max_length=255)):
+        probe = upload_name("0" * 64, filename)  # validates the name before reading the body
+        del probe
+        hasher = hashlib.sha256()
+        head = b""
+        size = 0
+        fd, tmp = tempfile.mkstemp(prefix=".upload-", dir=config.uploads_dir)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                async for chunk in request.stream():
+                    if not chunk:
+                        continue
+                    size += len(chunk)
+                    if size > config.limits.max_upload_bytes:
+                        raise BodyTooLarge(config.limits.max_upload_bytes)
+                    if len(head) < 16:
+                        head = (head + chunk)[:16]
+                    hasher.update(chunk)
+                    await run_in_threadpool(fh.write, chunk)  # keep the event loop free
+            if size == 0:
+                raise InputError(400, "body", "the upload is empty")
+            check_magic(head, filename)
+            upload_id = upload_name(hasher.hexdigest(), filename)
+            os.replace(tmp, os.path.join(config.uploads_dir, upload_id))
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        return {"upload": upload_id, "size": size, "sha256": hasher.hexdigest()}
+
+    # ---------------------------------------------------------------- jobs
+    @app.post("/jobs", status_code=201, dependencies=auth, summary="Create a job",
+              responses={200: {"description": "idempotent replay: the job created earlier with this key"},
+                         400: {"description": "bad stage path or upload id"},
+                         409: {"description": "idempotency key reused with a different request"},
+                         413: {"description": "body too large"},
+                         422: {"description": "invalid or over-limit settings (the field is named)"}})
+    def create_job(body: JobCreate, response: Response,
+                   idempotency_key: Optional[str] = Header(None, alias="Idempotency-Key", max_length=255)):
+        key = body.idempotency_key or idempotency_key
+        if (body.stage is None) == (body.upload is None):
+            raise InputError(422, "stage", "give exactly one of 'stage' (a path under the stage root) and 'upload'")
+        if body.upload is not None:
+            if body.kind != "render":
+                raise InputError(422, "upload", "only render jobs take uploaded stages")
+            path, name = resolve_upload(config.uploads_dir, body.upload)
+        else:
+            exts = STAGE_EXTENSIONS if body.kind == "render" else IMAGE_EXTENSIONS
+            path, name = resolve_in_root(config.stage_root, body.stage, exts)
+        settings = validate_settings(body.kind, body.settings, config.limits)
+        max_attempts = body.max_attempts or config.max_attempts
+        digest = request_hash(body.kind, name, settings, body.priority, max_attempts)
+        try:
+            job, created = store.create(kind=body.kind, stage=path, stage_name=name, settings=settings,
+                                        priority=body.priority, max_attempts=max_attempts,
+                                        idempotency_key=key, request_hash=digest)
+        except IdempotencyConflict as e:
+            raise HTTPException(409, str(e)) from None
+        response.headers["Location"] = f"/jobs/{job.id}"
+        if not created:
+            response.status_code = 200
+            response.headers["Idempotent-Replayed"] = "true"
+        return job_json(job)
+
+    @app.get("/jobs", summary="List jobs, newest first")
+    def list_jobs(state: Optional[list[Literal["queued", "running", "succeeded", "failed", "canceled"]]] = Query(None),
+                  limit: int = Query(200, ge=1, le=1000), offset: int = Query(0, ge=0)):
+        jobs, total = store.list_jobs(states=state, limit=limit, offset=offset)
+        return {"jobs": [job_json(j) for j in jobs], "count": len(jobs), "total": total}
+
+    @app.get("/jobs/{job_id}", summary="One job: state, progress %, spp, samples/s, ETA, error, attempts")
+    def get_job(job_id: str = Path(..., pattern=JOB_ID)):
+        return job_json(job_or_404(job_id))
+
+    @app.get("/jobs/{job_id}/image", summary="The final image, else the latest progressive snapshot",
+             responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
+                        404: {"description": "no image yet"}})
+    def job_image(job_id: str = Path(..., pattern=JOB_ID), format: Literal["png", "exr"] = "png",
+                  t: Optional[str] = Query(None, description="ignored; lets pages defeat caches")):
+        job = job_or_404(job_id)
+        d = config.job_dir(job.id)
+        final, preview = (FINAL_PNG, PREVIEW_PNG) if format == "png" else (FINAL_EXR, PREVIEW_EXR)
+        for name, kind in ((final, "final"), (preview, "preview")):
+            try:
+                fh = open(os.path.join(d, name), "rb")
+            except FileNotFoundError:
+                continue
+            # Open once and read from that descriptor: the preview is replaced (renamed over)
+            # every few seconds, and a stat-then-open would race with that.
+            headers = {"Cache-Control": "no-store", "X-Illum-Image": kind,
+                       "X-Illum-Spp": str(job.row.get("spp_done") or 0), "X-Illum-State": job.state,
+                       "Content-Disposition": f'inline; filename="{job.id}.{format}"'}
+            size = os.fstat(fh.fileno()).st_size
+            if size <= 64 * 1024 * 1024:
+                with fh:
+                    return Response(fh.read(), media_type=MEDIA[format], headers=headers)
+            headers["Content-Length"] = str(size)
+            return StreamingResponse(_iter_file(fh), media_type=MEDIA[format], headers=headers)
+        raise HTTPException(404, f"job {job.id} has no image yet (state {job.state})")
+
+    @app.get("/jobs/{job_id}/log", summary="The job's log (attempts, progress, errors)",
+             response_class=PlainTextResponse)
+    def job_log(job_id: str = Path(..., pattern=JOB_ID), tail: int = Query(0, ge=0, le=100_000,
+                                                                          description="last N lines; 0 = all")):
+        job = job_or_404(job_id)
+        path = os.path.join(config.job_dir(job.id), JOB_LOG)
+        try:
+            with open(path, "rb") as fh:
+                fh.seek(0, os.SEEK_END)
+                n = fh.tell()
+                fh.seek(max(0, n - 4 * 1024 * 1024))  # the last 4 MiB at most
+                text = fh.read().decode("utf-8", errors="replace")
+        except FileNotFoundError:
+            text = ""
+        if tail:
+            text = "".join(text.splitlines(keepends=True)[-tail:])
+        return PlainTextResponse(text, headers={"Cache-Control": "no-store"})
+
+    @app.get("/jobs/{job_id}/stats", summary="Render statistics of a succeeded render job (JSON)")
+    def job_stats(job_id: str = Path(..., pattern=JOB_ID)):
+        job = job_or_404(job_id)
+        path = os.path.join(config.job_dir(job.id), STATS_JSON)
+        if not os.path.exists(path):
+            raise HTTPException(404, f"job {job.id} has no statistics (state {job.state})")
+        return FileResponse(path, media_type="application/json")
+
+    @app.post("/jobs/{job_id}/cancel", dependencies=auth, summary="Cancel a queued or running job",
+              responses={409: {"description": "the job already finished"}})
+    def cancel_job(job_id: str = Path(..., pattern=JOB_ID)):
+        job = store.cancel(job_id, grace=config.cancel_grace)
+        if job is None:
+            raise HTTPException(404, f"no job {job_id}")
+        if job.state in ("succeeded", "failed"):
+            raise HTTPException(409, f"job {job_id} already {job.state}")
+        return job_json(job)
+
+    @app.delete("/jobs/{job_id}", status_code=204, dependencies=auth,
+                summary="Delete a job and its files (a running job is canceled first)")
+    def delete_job(job_id: str = Path(..., pattern=JOB_ID)):
+        if not store.delete(job_id, grace=config.cancel_grace):
+            raise HTTPException(404, f"no job {job_id}")
+        return Response(status_code=204)
+
+    return app
+
+
+def _iter_file(fh, chunk: int = 256 * 1024):
+    with fh:
+        while True:
+            data = fh.read(chunk)
+            if not data:
+                break
+            yield data
+

@@ -1,0 +1,232 @@
+// illum service page: polls the REST API; no framework, no build step.
+// Everything user-supplied (stage names, errors, logs) is written with textContent, never as HTML.
+"use strict";
+
+const POLL_MS = 1000;
+const $ = (id) => document.getElementById(id);
+let selected = location.hash.slice(1) || null;
+let lastPreviewKey = null;   // spp/state of the preview on screen, to fetch only when it changes
+let previewUrl = null;       // object URL of the image on screen
+let previewBusy = false;
+let jobsCache = new Map();
+
+function token() { return localStorage.getItem("illumToken") || ""; }
+
+async function api(method, path, body) {
+  const headers = {};
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  if (token()) headers["Authorization"] = "Bearer " + token();
+  const r = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+  let data = null;
+  const ct = r.headers.get("content-type") || "";
+  if (ct.includes("application/json")) data = await r.json();
+  if (!r.ok) {
+    if (r.status === 401) $("token-row").hidden = false;
+    const msg = (data && (data.message || JSON.stringify(data.detail))) || r.statusText;
+    throw new Error(msg + " (HTTP " + r.status + ")");
+  }
+  return data;
+}
+
+function say(text, isError) {
+  const m = $("message");
+  m.textContent = text;
+  m.className = isError ? "error" : "";
+}
+
+function fmtEta(s) {
+  if (s === null || s === undefined) return "–";
+  if (s < 90) return Math.round(s) + " s";
+  if (s < 5400) return Math.round(s / 60) + " min";
+  return (s / 3600).toFixed(1) + " h";
+}
+
+function cell(tr, text, cls) {
+  const td = document.createElement("td");
+  if (cls) td.className = cls;
+  td.textContent = text;
+  tr.appendChild(td);
+  return td;
+}
+
+function renderJobs(jobs) {
+  const body = $("jobs-body");
+  body.textContent = "";
+  $("jobs-empty").hidden = jobs.length > 0;
+  jobsCache = new Map(jobs.map((j) => [j.id, j]));
+  for (const j of jobs) {
+    const tr = document.createElement("tr");
+    tr.dataset.id = j.id;
+    tr.dataset.state = j.state;
+    if (j.id === selected) tr.classList.add("selected");
+    cell(tr, j.id.slice(0, 8));
+    cell(tr, j.stage, "stage").title = j.stage;
+    const st = cell(tr, "");
+    const badge = document.createElement("span");
+    badge.className = "state " + j.state;
+    badge.textContent = j.state;
+    st.appendChild(badge);
+    const pc = cell(tr, "");
+    const bar = document.createElement("div");
+    bar.className = "bar";
+    bar.title = (j.progress || 0).toFixed(0) + "%";
+    const fill = document.createElement("div");
+    fill.style.width = Math.min(100, j.progress || 0) + "%";
+    bar.appendChild(fill);
+    pc.appendChild(bar);
+    cell(tr, String(j.spp_done || 0));
+    cell(tr, j.samples_per_second ? (j.samples_per_second / 1000).toFixed(1) : "–");
+    cell(tr, j.state === "running" ? fmtEta(j.eta_seconds) : "–");
+    cell(tr, j.attempts + "/" + j.max_attempts);
+    tr.addEventListener("click", () => select(j.id));
+    body.appendChild(tr);
+  }
+}
+
+function select(id) {
+  selected = id;
+  lastPreviewKey = null;
+  history.replaceState(null, "", "#" + id);
+  for (const tr of $("jobs-body").children) tr.classList.toggle("selected", tr.dataset.id === id);
+  showSelected();
+}
+
+function showSelected() {
+  const j = selected ? jobsCache.get(selected) : null;
+  $("sel-id").textContent = j ? j.id : "";
+  $("sel-state").textContent = j ? j.state + (j.state === "running" && j.worker ? " on " + j.worker : "") : "–";
+  $("sel-spp").textContent = j ? String(j.spp_done || 0) + (j.spp_target ? " / " + j.spp_target : "") : "–";
+  $("sel-progress").textContent = j ? (j.progress || 0).toFixed(1) + "%" +
+    (j.state === "running" && j.eta_seconds != null ? ", ETA " + fmtEta(j.eta_seconds) : "") : "–";
+  $("sel-error").textContent = j && j.error ? j.error : "–";
+  $("cancel-btn").disabled = !j || !(j.state === "queued" || j.state === "running");
+  $("log-link").hidden = !j;
+  $("exr-link").hidden = !(j && j.links && j.links.image_exr);
+  if (j) {
+    $("log-link").href = "/jobs/" + j.id + "/log";
+    $("exr-link").href = "/jobs/" + j.id + "/image?format=exr";
+  }
+  if (!j) {
+    $("preview").hidden = true;
+    $("preview-none").hidden = false;
+    return;
+  }
+  const key = j.id + ":" + j.state + ":" + j.spp_done + ":" + (j.links && j.links.image_png ? 1 : 0);
+  if (j.links && j.links.image_png && key !== lastPreviewKey) refreshPreview(j, key);
+}
+
+async function refreshPreview(j, key) {
+  if (previewBusy) return;
+  previewBusy = true;
+  try {
+    // A new query string each time: the preview file is replaced in place as the render refines.
+    const r = await fetch("/jobs/" + j.id + "/image?format=png&t=" + Date.now(), { cache: "no-store" });
+    if (!r.ok || j.id !== selected) return;
+    const blob = await r.blob();
+    const url = URL.createObjectURL(blob);
+    const img = $("preview");
+    img.onload = () => { if (previewUrl && previewUrl !== url) URL.revokeObjectURL(previewUrl); previewUrl = url; };
+    img.src = url;
+    img.dataset.spp = r.headers.get("X-Illum-Spp") || "";
+    img.dataset.kind = r.headers.get("X-Illum-Image") || "";
+    img.hidden = false;
+    $("preview-none").hidden = true;
+    lastPreviewKey = key;
+  } catch (e) {
+    /* the next poll retries */
+  } finally {
+    previewBusy = false;
+  }
+}
+
+async function refreshLog() {
+  if (!selected) { $("log").textContent = ""; return; }
+  try {
+    const r = await fetch("/jobs/" + selected + "/log?tail=40", { cache: "no-store" });
+    if (r.ok) $("log").textContent = await r.text();
+  } catch (e) { /* retry next time */ }
+}
+
+async function poll() {
+  try {
+    const data = await api("GET", "/jobs?limit=100");
+    renderJobs(data.jobs);
+    showSelected();
+  } catch (e) {
+    $("health").textContent = "server unreachable: " + e.message;
+  }
+}
+
+async function pollHealth() {
+  try {
+    const h = await api("GET", "/health");
+    const w = h.workers;
+    $("health").textContent = h.status + " · " + (w.alive ?? 0) + "/" + w.configured + " " + h.backend +
+      " workers · " + h.jobs.queued + " queued, " + h.jobs.running + " running";
+    if (h.auth) $("token-row").hidden = false;
+  } catch (e) {
+    $("health").textContent = "server unreachable";
+  }
+}
+
+async function loadStages() {
+  const data = await api("GET", "/stages");
+  const sel = $("stage");
+  sel.textContent = "";
+  for (const s of data.stages) {
+    const o = document.createElement("option");
+    o.value = s;
+    o.textContent = s;
+    sel.appendChild(o);
+  }
+}
+
+function numberOrNull(id) {
+  const v = $(id).value.trim();
+  return v === "" ? null : Number(v);
+}
+
+$("submit-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  const settings = {};
+  const spp = numberOrNull("spp"), tb = numberOrNull("time-budget");
+  const w = numberOrNull("res-w"), h = numberOrNull("res-h");
+  if (spp !== null) settings.spp = spp;
+  if (tb !== null && tb > 0) settings.time_budget = tb;
+  if (w !== null || h !== null) settings.resolution = [w, h];
+  if ($("light-sampler").value !== "auto") settings.light_sampler = $("light-sampler").value;
+  if ($("estimator").value) settings.estimator = $("estimator").value;
+  const body = { kind: "render", stage: $("stage").value, settings, priority: numberOrNull("priority") ?? 50 };
+  $("submit-btn").disabled = true;
+  try {
+    const job = await api("POST", "/jobs", body);
+    say("Submitted job " + job.id + " (" + job.state + ")", false);
+    await poll();
+    select(job.id);
+  } catch (e) {
+    say(e.message, true);
+  } finally {
+    $("submit-btn").disabled = false;
+  }
+});
+
+$("cancel-btn").addEventListener("click", async () => {
+  if (!selected) return;
+  try {
+    const job = await api("POST", "/jobs/" + selected + "/cancel");
+    say("Canceled job " + job.id, false);
+    await poll();
+  } catch (e) {
+    say(e.message, true);
+  }
+});
+
+$("token").value = token();
+$("token").addEventListener("change", () => localStorage.setItem("illumToken", $("token").value.trim()));
+
+loadStages().catch((e) => say("cannot list stages: " + e.message, true));
+poll();
+pollHealth();
+setInterval(poll, POLL_MS);
+setInterval(pollHealth, 3000);
+setInterval(refreshLog, 2000);

@@ -1,0 +1,444 @@
+"""SQLite job store: the single source of truth for jobs, shared by the server and its workers.
+
+Every process (the server, each worker) opens its own short-lived connections to one database
+file in WAL mode, so readers never block the writer and a crash of any process (``kill -9``)
+leaves a consistent database: each state change is one transaction.
+
+State machine::
+
+    queued ──claim──► running ──► succeeded | failed | canceled
+      ▲                  │
+      └──── reaper ──────┘   (stale heartbeat and attempts < max_attempts)
+
+* ``claim`` is one ``UPDATE … WHERE id = (SELECT … ORDER BY priority DESC, seq) RETURNING``, so
+  two workers can never take the same job.
+* Workers heartbeat with ``UPDATE … WHERE id=? AND worker=? AND state='running'``. A rowcount of
+  0 means the job was canceled, deleted or handed to another worker: the worker must stop.
+* Every write a worker makes is guarded the same way, so a worker that lost its job can never
+  overwrite what the reaper or a user decided.
+* Deleting a job hides it at once (``deleted_at``); the row and its directory are removed by
+  ``collect_deleted`` once no worker holds it, so a worker never writes into a removed dir.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import socket
+import sqlite3
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any, Iterator, Optional
+
+__all__ = ["JobStore", "Job", "STATES", "TERMINAL_STATES", "KINDS"]
+
+STATES = ("queued", "running", "succeeded", "failed", "canceled")
+TERMINAL_STATES = ("succeeded", "failed", "canceled")
+KINDS = ("render", "preconvolve")
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS jobs (
+    seq                 INTEGER PRIMARY KEY AUTOINCREMENT,
+    id                  TEXT NOT NULL UNIQUE,
+    kind                TEXT NOT NULL CHECK (kind IN ('render', 'preconvolve')),
+    state               TEXT NOT NULL CHECK (state IN ('queued', 'running', 'succeeded', 'failed', 'canceled')),
+    priority            INTEGER NOT NULL CHECK (priority BETWEEN 0 AND 100),
+    stage               TEXT NOT NULL,      -- resolved absolute path the worker opens
+    stage_name          TEXT NOT NULL,      -- what users see: path relative to the stage root, or upload:NAME
+    settings            TEXT NOT NULL,      -- JSON, validated at submission
+    idempotency_key     TEXT UNIQUE,
+    request_hash        TEXT,               -- detects an idempotency key reused with another body
+    created_at          REAL NOT NULL,
+    updated_at          REAL NOT NULL,
+    started_at          REAL,
+    finished_at         REAL,
+    worker              TEXT,
+    heartbeat_at        REAL,
+    attempts            INTEGER NOT NULL DEFAULT 0,
+    max_attempts        INTEGER NOT NULL CHECK (max_attempts >= 1),
+    progress            REAL NOT NULL DEFAULT 0,   -- percent, 0..100
+    spp_done            INTEGER NOT NULL DEFAULT 0,
+    spp_target          INTEGER,
+    samples_per_second  REAL,
+    eta_seconds         REAL,
+    render_seconds      REAL NOT NULL DEFAULT 0,
+    error               TEXT,
+    result              TEXT,               -- JSON summary written on success
+    cancel_requested_at REAL,
+    deleted_at          REAL
+);
+CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, priority DESC, seq);
+CREATE TABLE IF NOT EXISTS workers (
+    id            TEXT PRIMARY KEY,
+    host          TEXT NOT NULL,
+    pid           INTEGER NOT NULL,
+    backend       TEXT NOT NULL,
+    job_id        TEXT,
+    started_at    REAL NOT NULL,
+    heartbeat_at  REAL NOT NULL,
+    stop_deadline REAL              -- set on cancel: the supervisor kills the process after it
+);
+"""
+
+# Columns the API exposes (internal bookkeeping such as request_hash stays private).
+_PUBLIC = ("id", "kind", "state", "priority", "stage_name", "settings", "idempotency_key", "created_at",
+           "updated_at", "started_at", "finished_at", "worker", "heartbeat_at", "attempts", "max_attempts",
+           "progress", "spp_done", "spp_target", "samples_per_second", "eta_seconds", "render_seconds",
+           "error", "result", "cancel_requested_at")
+
+# Columns a worker may set while it owns a job (names are interpolated into SQL: keep this closed).
+_PROGRESS_FIELDS = frozenset({"progress", "spp_done", "spp_target", "samples_per_second", "eta_seconds",
+                              "render_seconds"})
+
+
+@dataclass(frozen=True)
+class Job:
+    """One row of ``jobs`` as plain values (settings/result decoded from JSON)."""
+
+    id: str
+    kind: str
+    state: str
+    priority: int
+    stage: str
+    stage_name: str
+    settings: dict
+    attempts: int
+    max_attempts: int
+    worker: Optional[str]
+    row: dict
+
+    @staticmethod
+    def from_row(row: sqlite3.Row) -> "Job":
+        d = dict(row)
+        d["settings"] = json.loads(d["settings"]) if d.get("settings") else {}
+        d["result"] = json.loads(d["result"]) if d.get("result") else None
+        return Job(id=d["id"], kind=d["kind"], state=d["state"], priority=d["priority"], stage=d["stage"],
+                   stage_name=d["stage_name"], settings=d["settings"], attempts=d["attempts"],
+                   max_attempts=d["max_attempts"], worker=d["worker"], row=d)
+
+    def public(self) -> dict:
+        """The API representation (see service/README.md)."""
+        out = {k: self.row.get(k) for k in _PUBLIC}
+        out["stage"] = out.pop("stage_name")
+        return out
+
+
+class IdempotencyConflict(Exception):
+    """The idempotency key already names a job created from a different request body."""
+
+    def __init__(self, job: Job):
+        self.job = job
+        super().__init__(f"idempotency key {job.row.get('idempotency_key')!r} was used for job {job.id} "
+                         "with a different request")
+
+
+class JobStore:
+    """All job-state transitions, as single SQLite transactions.
+
+    path: the database file. Connections are opened per operation (cheap for SQLite) so the
+    store is safe to share between threads and across fork/spawn.
+    """
+
+    def __init__(self, path: str, busy_timeout_ms: int = 10_000):
+        self.path = os.path.abspath(path)
+        self.busy_timeout_ms = int(busy_timeout_ms)
+        os.makedirs(os.path.dirname(self.path), exist_ok=True)
+        with self.connect() as db:
+            # WAL persists in the file; setting it once per open is harmless and makes a fresh
+            # database WAL before the schema is written.
+            mode = db.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if mode.lower() != "wal":
+                raise RuntimeError(f"{self.path}: SQLite refused WAL mode (got {mode!r}); "
+                                   "is the data directory on a network filesystem?")
+            db.executescript(_SCHEMA)
+            db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+
+    # ------------------------------------------------------------------ connections
+    @contextlib.contextmanager
+    def connect(self) -> Iterator[sqlite3.Connection]:
+        """A connection in autocommit mode (each statement is its own transaction unless
+        ``transaction()`` is used); always closed."""
+        db = sqlite3.connect(self.path, timeout=self.busy_timeout_ms / 1000.0, isolation_level=None)
+        try:
+            db.row_factory = sqlite3.Row
+            db.execute(f"PRAGMA busy_timeout={self.busy_timeout_ms}")
+            # NORMAL is durable across process crashes in WAL mode (only an OS crash can lose the
+            # last transactions), which is the failure model here.
+            db.execute("PRAGMA synchronous=NORMAL")
+            db.execute("PRAGMA foreign_keys=ON")
+            yield db
+        finally:
+            db.close()
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """BEGIN IMMEDIATE … COMMIT: takes the write lock up front so read-then-write sequences
+        cannot interleave with another writer."""
+        with self.connect() as db:
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                yield db
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+            db.execute("COMMIT")
+
+    # ------------------------------------------------------------------ submission
+    def create(self, *, kind: str, stage: str, stage_name: str, settings: dict, priority: int,
+               max_attempts: int, idempotency_key: str | None = None,
+               request_hash: str | None = None) -> tuple[Job, bool]:
+        """Insert a queued job. Returns (job, created): with an idempotency key already used for
+        the same request, the existing job and False; for a different request it raises
+        IdempotencyConflict."""
+        now = time.time()
+        job_id = uuid.uuid4().hex[:16]
+        with self.transaction() as db:
+            if idempotency_key is not None:
+                row = db.execute("SELECT * FROM jobs WHERE idempotency_key=?", (idempotency_key,)).fetchone()
+                if row is not None:
+                    job = Job.from_row(row)
+                    if row["request_hash"] != request_hash:
+                        raise IdempotencyConflict(job)
+                    return job, False
+            db.execute(
+                """INSERT INTO jobs (id, kind, state, priority, stage, stage_name, settings, idempotency_key,
+                                     request_hash, created_at, updated_at, max_attempts, spp_target)
+                   VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)""",
+                (job_id, kind, int(priority), stage, stage_name, json.dumps(settings, sort_keys=True),
+                 idempotency_key, request_hash, now, now, int(max_attempts), settings.get("spp")))
+            row = db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
+        return Job.from_row(row), True
+
+    # ------------------------------------------------------------------ queries
+    def get(self, job_id: str, include_deleted: bool = False) -> Job | None:
+        with self.connect() as db:
+            row = db.execute("SELECT * FROM jobs WHERE id=?" + ("" if include_deleted else " AND deleted_at IS NULL"),
+                             (job_id,)).fetchone()
+        return Job.from_row(row) if row is not None else None
+
+    def list_jobs(self, states: list[str] | None = None, limit: int = 200, offset: int = 0) -> tuple[list[Job], int]:
+        """Newest first. Returns (jobs, total matching)."""
+        where = "deleted_at IS NULL"
+        args: list[Any] = []
+        if states:
+            where += f" AND state IN ({','.join('?' * len(states))})"
+            args += list(states)
+        with self.connect() as db:
+            total = db.execute(f"SELECT COUNT(*) FROM jobs WHERE {where}", args).fetchone()[0]
+            rows = db.execute(f"SELECT * FROM jobs WHERE {where} ORDER BY seq DESC LIMIT ? OFFSET ?",
+                              args + [int(limit), int(offset)]).fetchall()
+        return [Job.from_row(r) for r in rows], int(total)
+
+    def counts(self) -> dict:
+        """Jobs per state (visible ones), plus totals for metrics."""
+        with self.connect() as db:
+            rows = db.execute("SELECT state, COUNT(*) FROM jobs WHERE deleted_at IS NULL GROUP BY state").fetchall()
+            attempts = db.execute("SELECT COALESCE(SUM(attempts), 0) FROM jobs").fetchone()[0]
+            sps = db.execute("SELECT COALESCE(SUM(samples_per_second), 0) FROM jobs WHERE state='running'").fetchone()[0]
+            seq = db.execute("SELECT seq FROM sqlite_sequence WHERE name='jobs'").fetchone()
+            spp = db.execute("SELECT COALESCE(SUM(spp_done), 0) FROM jobs WHERE state='succeeded'").fetchone()[0]
+        out = {s: 0 for s in STATES}
+        out.update({r[0]: int(r[1]) for r in rows})
+        return {"states": out, "attempts_total": int(attempts), "samples_per_second": float(sps),
+                "created_total": int(seq[0]) if seq else 0, "spp_succeeded_total": int(spp)}
+
+    # ------------------------------------------------------------------ user actions
+    def cancel(self, job_id: str, grace: float) -> Job | None:
+        """Cancel a queued or running job (idempotent for canceled ones). A running job's worker
+        sees rowcount 0 at its next heartbeat and stops; ``grace`` seconds later the supervisor
+        kills it if it has not let go. Returns the job after the change, None if unknown."""
+        now = time.time()
+        with self.transaction() as db:
+            row = db.execute("SELECT * FROM jobs WHERE id=? AND deleted_at IS NULL", (job_id,)).fetchone()
+            if row is None:
+                return None
+            if row["state"] in ("queued", "running"):
+                db.execute("""UPDATE jobs SET state='canceled', cancel_requested_at=?, finished_at=?, updated_at=?,
+                              eta_seconds=NULL, samples_per_second=NULL WHERE id=?""", (now, now, now, job_id))
+                db.execute("UPDATE workers SET stop_deadline=? WHERE job_id=?", (now + grace, job_id))
+            row = db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
+        return Job.from_row(row)
+
+    def delete(self, job_id: str, grace: float) -> bool:
+        """Hide a job at once (canceling it if active); ``collect_deleted`` removes it later."""
+        now = time.time()
+        with self.transaction() as db:
+            row = db.execute("SELECT state FROM jobs WHERE id=? AND deleted_at IS NULL", (job_id,)).fetchone()
+            if row is None:
+                return False
+            db.execute("""UPDATE jobs SET deleted_at=?, updated_at=?,
+                          state=CASE WHEN state IN ('queued','running') THEN 'canceled' ELSE state END,
+                          finished_at=COALESCE(finished_at, ?) WHERE id=?""", (now, now, now, job_id))
+            db.execute("UPDATE workers SET stop_deadline=? WHERE job_id=?", (now + grace, job_id))
+        return True
+
+    def collect_deleted(self) -> list[str]:
+        """Remove deleted rows no worker holds any more; returns their ids (caller removes dirs)."""
+        with self.transaction() as db:
+            rows = db.execute("""SELECT id FROM jobs WHERE deleted_at IS NOT NULL
+                                 AND id NOT IN (SELECT job_id FROM workers WHERE job_id IS NOT NULL)""").fetchall()
+            ids = [r[0] for r in rows]
+            db.executemany("DELETE FROM jobs WHERE id=?", [(i,) for i in ids])
+        return ids
+
+    # ------------------------------------------------------------------ workers
+    def register_worker(self, worker_id: str, pid: int, backend: str) -> None:
+        now = time.time()
+        with self.connect() as db:
+            db.execute("""INSERT INTO workers (id, host, pid, backend, started_at, heartbeat_at) VALUES (?, ?, ?, ?, ?, ?)
+                          ON CONFLICT(id) DO UPDATE SET pid=excluded.pid, heartbeat_at=excluded.heartbeat_at,
+                          job_id=NULL, stop_deadline=NULL""",
+                       (worker_id, socket.gethostname(), int(pid), backend, now, now))
+
+    def unregister_worker(self, worker_id: str) -> None:
+        with self.connect() as db:
+            db.execute("DELETE FROM workers WHERE id=?", (worker_id,))
+
+    def workers(self) -> list[dict]:
+        with self.connect() as db:
+            return [dict(r) for r in db.execute("SELECT * FROM workers ORDER BY id").fetchall()]
+
+    def worker_heartbeat(self, worker_id: str) -> bool:
+        """Idle heartbeat; False if the worker row is gone (the reaper declared it dead)."""
+        with self.connect() as db:
+            cur = db.execute("UPDATE workers SET heartbeat_at=? WHERE id=?", (time.time(), worker_id))
+            return cur.rowcount == 1
+
+    def claim(self, worker_id: str) -> Job | None:
+        """Atomically take the highest-priority, oldest queued job (or None)."""
+        now = time.time()
+        with self.connect() as db:
+            # A read first: idle workers poll often, and a read takes no write lock.
+            if db.execute("SELECT 1 FROM jobs WHERE state='queued' AND deleted_at IS NULL LIMIT 1").fetchone() is None:
+                return None
+        with self.transaction() as db:
+            row = db.execute(
+                """UPDATE jobs SET state='running', worker=?, heartbeat_at=?, updated_at=?,
+                       started_at=COALESCE(started_at, ?), attempts=attempts+1, eta_seconds=NULL,
+                       samples_per_second=NULL
+                   WHERE id=(SELECT id FROM jobs WHERE state='queued' AND deleted_at IS NULL
+                             ORDER BY priority DESC, seq LIMIT 1)
+                   RETURNING *""", (worker_id, now, now, now)).fetchone()
+            if row is None:
+                return None
+            db.execute("UPDATE workers SET job_id=?, heartbeat_at=?, stop_deadline=NULL WHERE id=?",
+                       (row["id"], now, worker_id))
+        return Job.from_row(row)
+
+    def heartbeat(self, job_id: str, worker_id: str) -> bool:
+        """True while the worker still owns the running job; False means stop now."""
+        now = time.time()
+        with self.connect() as db:
+            cur = db.execute("""UPDATE jobs SET heartbeat_at=? WHERE id=? AND worker=? AND state='running'
+                                AND deleted_at IS NULL""", (now, job_id, worker_id))
+            db.execute("UPDATE workers SET heartbeat_at=? WHERE id=?", (now, worker_id))
+            return cur.rowcount == 1
+
+    def progress(self, job_id: str, worker_id: str, **fields) -> bool:
+        """Update progress columns of a job this worker owns (progress, spp_done, spp_target,
+        samples_per_second, eta_seconds, render_seconds)."""
+        bad = set(fields) - _PROGRESS_FIELDS
+        if bad:
+            raise ValueError(f"not progress fields: {sorted(bad)}")
+        now = time.time()
+        sets = ", ".join(f"{k}=?" for k in fields)
+        with self.connect() as db:
+            cur = db.execute(f"""UPDATE jobs SET {sets}, heartbeat_at=?, updated_at=? WHERE id=? AND worker=?
+                                 AND state='running'""", (*fields.values(), now, now, job_id, worker_id))
+            return cur.rowcount == 1
+
+    def finish(self, job_id: str, worker_id: str, state: str, *, error: str | None = None,
+               result: dict | None = None, **fields) -> bool:
+        """End an attempt: succeeded/failed, or back to queued (a retryable error, or a graceful
+        worker shutdown with ``refund_attempt``). Only the owning worker can do it."""
+        refund = bool(fields.pop("refund_attempt", False))
+        bad = set(fields) - _PROGRESS_FIELDS
+        if bad:
+            raise ValueError(f"not progress fields: {sorted(bad)}")
+        if state not in ("succeeded", "failed", "queued"):
+            raise ValueError(f"a worker cannot move a job to {state!r}")
+        now = time.time()
+        requeue = state == "queued"
+        sets = {
+            "state": state,
+            "updated_at": now,
+            "finished_at": None if requeue else now,
+            "eta_seconds": None,
+            **fields,
+        }
+        assign = [f"{k}=?" for k in sets]
+        args = list(sets.values())
+        # A success clears the error text of earlier attempts; otherwise keep the last reason.
+        assign.append("error=?" if state == "succeeded" else "error=COALESCE(?, error)")
+        args.append(None if state == "succeeded" else error)
+        if result is not None:
+            assign.append("result=?")
+            args.append(json.dumps(result))
+        if requeue:
+            assign += ["worker=NULL", "samples_per_second=NULL"]
+        if refund:
+            assign.append("attempts=MAX(attempts-1, 0)")
+        with self.transaction() as db:
+            cur = db.execute(f"UPDATE jobs SET {', '.join(assign)} WHERE id=? AND worker=? AND state='running'",
+                             (*args, job_id, worker_id))
+            db.execute("UPDATE workers SET job_id=NULL, stop_deadline=NULL WHERE id=?", (worker_id,))
+            return cur.rowcount == 1
+
+    def release(self, worker_id: str) -> None:
+        """The worker holds no job any more (after a cancel or a lost job)."""
+        with self.connect() as db:
+            db.execute("UPDATE workers SET job_id=NULL, stop_deadline=NULL WHERE id=?", (worker_id,))
+
+    def workers_past_deadline(self) -> list[dict]:
+        """Workers that were told to drop a canceled job and have not done so in time."""
+        with self.connect() as db:
+            rows = db.execute("""SELECT * FROM workers WHERE stop_deadline IS NOT NULL AND stop_deadline < ?
+                                 AND job_id IS NOT NULL""", (time.time(),)).fetchall()
+        return [dict(r) for r in rows]
+
+    def worker_lost(self, worker_id: str, reason: str) -> list[str]:
+        """A worker process is known dead: make its running job stale at once (the reaper then
+        requeues or fails it), remember why, and drop the worker row. Returns the job ids."""
+        now = time.time()
+        with self.transaction() as db:
+            rows = db.execute("SELECT id FROM jobs WHERE worker=? AND state='running'", (worker_id,)).fetchall()
+            ids = [r[0] for r in rows]
+            for job_id in ids:
+                db.execute("UPDATE jobs SET heartbeat_at=0, error=?, updated_at=? WHERE id=?", (reason, now, job_id))
+            db.execute("DELETE FROM workers WHERE id=?", (worker_id,))
+        return ids
+
+    # ------------------------------------------------------------------ reaper
+    def reap(self, stale_after: float) -> list[tuple[str, str]]:
+        """Requeue running jobs whose heartbeat is older than ``stale_after`` seconds, or fail
+        them once attempts >= max_attempts. Also drops worker rows that stopped heartbeating.
+        Returns [(job id, new state)]."""
+        now = time.time()
+        cutoff = now - stale_after
+        changed = []
+        with self.transaction() as db:
+            rows = db.execute("""SELECT id, attempts, max_attempts, error, heartbeat_at FROM jobs
+                                 WHERE state='running' AND heartbeat_at < ?""", (cutoff,)).fetchall()
+            for r in rows:
+                if r["attempts"] >= r["max_attempts"]:
+                    why = r["error"] or f"worker lost: no heartbeat for {stale_after:g} s"
+                    err = f"{why} (attempt {r['attempts']} of {r['max_attempts']}; giving up)"
+                    db.execute("""UPDATE jobs SET state='failed', error=?, finished_at=?, updated_at=?,
+                                  eta_seconds=NULL, samples_per_second=NULL WHERE id=?""", (err, now, now, r["id"]))
+                    changed.append((r["id"], "failed"))
+                else:
+                    db.execute("""UPDATE jobs SET state='queued', worker=NULL, updated_at=?, eta_seconds=NULL,
+                                  samples_per_second=NULL WHERE id=?""", (now, r["id"]))
+                    changed.append((r["id"], "queued"))
+                db.execute("UPDATE workers SET job_id=NULL, stop_deadline=NULL WHERE job_id=?", (r["id"],))
+            db.execute("DELETE FROM workers WHERE heartbeat_at < ?", (cutoff,))
+        return changed
+
+    def integrity(self) -> str:
+        """``PRAGMA integrity_check`` result ('ok' when the file is sound)."""
+        with self.connect() as db:
+            return db.execute("PRAGMA integrity_check").fetchone()[0]

@@ -1,0 +1,562 @@
+"""Worker process: claims jobs from the store and runs them, one at a time.
+
+Run as ``python -m service.worker --data DIR --id W1 ...`` (the supervisor does this; it can
+also be started by hand on the same host to add capacity). Rendering happens here, never in
+the server process.
+
+Per job:
+* a heartbeat thread refreshes the job's heartbeat every ``--heartbeat-interval`` seconds; a
+  rowcount of 0 (canceled, deleted or reassigned by the reaper) sets the stop flag, which the
+  renderer's ``cancel`` callback returns between passes;
+* progress (percent, spp, samples/s, ETA) goes to the store about twice a second;
+* every ``--snapshot-interval`` seconds (and right after the first pass) the film is written as
+  ``preview.exr`` + ``preview.png`` and checkpointed (``Film.save_state``), so a worker killed
+  with ``kill -9`` resumes from there when the reaper requeues the job;
+* an IllumError fails the job with its one-line message (a user error: retrying cannot help);
+  any other exception requeues it until ``max_attempts``, then fails it with the error text;
+* SIGTERM (server shutdown) checkpoints the running job and requeues it without counting the
+  attempt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import logging
+import os
+import signal
+import sqlite3
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Optional
+
+from .models import render_options
+from .store import Job, JobStore
+
+__all__ = ["WorkerContext", "run_job", "main"]
+
+log = logging.getLogger("illum.worker")
+
+# File names inside a job directory (the API serves them; see service/app.py).
+PREVIEW_EXR, PREVIEW_PNG = "preview.exr", "preview.png"
+FINAL_EXR, FINAL_PNG, STATS_JSON = "final.exr", "final.png", "stats.json"
+CHECKPOINT, CHECKPOINT_META = "checkpoint.npz", "checkpoint.json"
+JOB_LOG = "job.log"
+PROGRESS_DB_INTERVAL = 0.5  # seconds between progress writes to the store
+
+
+@dataclass
+class WorkerContext:
+    """What a worker knows beyond the job row."""
+
+    store: JobStore
+    worker_id: str
+    data_dir: str
+    heartbeat_interval: float = 0.5
+    snapshot_interval: float = 2.0
+    threads: Optional[int] = None
+    max_time: Optional[float] = None
+    max_side: int = 8192
+    max_pixels: int = 8192 * 8192
+    backend: str = "local"
+    ray_address: Optional[str] = None
+    ray_actors: Optional[int] = None
+    ray_drivers: int = 1                                   # workers sharing the cluster (pool sizing)
+    parent_pid: Optional[int] = None
+    scene_cache: dict = field(default_factory=dict)       # keeps the last scene + BVH resident
+    resolution_cache: dict = field(default_factory=dict)
+    shutdown: threading.Event = field(default_factory=threading.Event)
+    ray_pool: object = None
+    current_stop: Optional[threading.Event] = None       # the running job's stop flag (for SIGTERM)
+
+    def job_dir(self, job_id: str) -> str:
+        return os.path.join(self.data_dir, "jobs", job_id)
+
+
+class JobLog:
+    """Appends timestamped lines to the job's log file (served by GET /jobs/{id}/log)."""
+
+    def __init__(self, path: str, worker_id: str):
+        self.path = path
+        self.worker_id = worker_id
+
+    def __call__(self, message: str) -> None:
+        stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime())
+        line = f"{stamp} [{self.worker_id}] {message}\n"
+        try:
+            with open(self.path, "a", encoding="utf-8") as fh:
+                fh.write(line)
+        except OSError:  # the job directory was removed (job deleted): nothing to log to
+            pass
+
+
+class _Heartbeat(threading.Thread):
+    """Refreshes the job's heartbeat; sets ``stop`` when the store says the job is no longer
+    ours (canceled, deleted, reassigned). Also exits the process if the server died (the parent
+    pid changed), so orphans never keep rendering unsupervised."""
+
+    def __init__(self, ctx: WorkerContext, job_id: str, stop: threading.Event):
+        super().__init__(name=f"heartbeat-{job_id}", daemon=True)
+        self.ctx = ctx
+        self.job_id = job_id
+        self.stop = stop
+        self.lost = False
+        self._done = threading.Event()
+
+    def run(self) -> None:
+        while not self._done.wait(self.ctx.heartbeat_interval):
+            _exit_if_orphaned(self.ctx)
+            try:
+                ok = self.ctx.store.heartbeat(self.job_id, self.ctx.worker_id)
+            except sqlite3.Error as e:  # busy beyond the timeout: try again next beat
+                log.warning("heartbeat failed: %s", e)
+                continue
+            if not ok:
+                self.lost = True
+                self.stop.set()
+                return
+
+    def close(self) -> None:
+        self._done.set()
+        self.join()
+
+
+def _exit_if_orphaned(ctx: WorkerContext) -> None:
+    if ctx.parent_pid is not None and os.getppid() != ctx.parent_pid:
+        # The server is gone. Our job's heartbeat goes stale and the next server's reaper
+        # requeues it; it resumes from the last checkpoint.
+        os._exit(3)
+
+
+# ------------------------------------------------------------------------------ job running
+class _Canceled(Exception):
+    """Raised internally when a job stops without finishing (cancel, loss, shutdown)."""
+
+
+def run_job(ctx: WorkerContext, job: Job) -> str:
+    """Run one claimed job to its end. Returns the outcome: succeeded, failed, requeued,
+    canceled (stopped because the job was no longer ours) or shutdown (requeued on SIGTERM)."""
+    from renderer.errors import IllumError
+
+    jobdir = ctx.job_dir(job.id)
+    os.makedirs(jobdir, exist_ok=True)
+    jlog = JobLog(os.path.join(jobdir, JOB_LOG), ctx.worker_id)
+    jlog(f"attempt {job.attempts} of {job.max_attempts} on worker {ctx.worker_id} (pid {os.getpid()}, "
+         f"backend {ctx.backend}): {job.kind} {job.stage_name}")
+    stop = threading.Event()
+    ctx.current_stop = stop
+    if ctx.shutdown.is_set():  # SIGTERM arrived between the claim and here
+        stop.set()
+    hb = _Heartbeat(ctx, job.id, stop)
+    hb.start()
+    try:
+        try:
+            if job.kind == "render":
+                result = _run_render(ctx, job, stop, jlog)
+            elif job.kind == "preconvolve":
+                result = _run_preconvolve(ctx, job, jlog)
+            else:
+                raise IllumError(f"unknown job kind {job.kind!r}")
+        except _Canceled:
+            return _stopped(ctx, job, hb, jlog)
+        except IllumError as e:
+            msg = _clean(str(e), job)
+            jlog(f"error: {msg}")
+            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            return "failed"
+        except Exception as e:  # an internal error: may be transient (disk, memory), so retry
+            msg = _clean(f"internal error: {type(e).__name__}: {e}", job)
+            jlog(msg + "\n" + traceback.format_exc())
+            if stop.is_set():
+                return _stopped(ctx, job, hb, jlog)
+            if job.attempts < job.max_attempts:
+                ctx.store.finish(job.id, ctx.worker_id, "queued", error=msg)
+                jlog(f"requeued (attempt {job.attempts} of {job.max_attempts})")
+                return "requeued"
+            ctx.store.finish(job.id, ctx.worker_id, "failed",
+                             error=f"{msg} (attempt {job.attempts} of {job.max_attempts}; giving up)")
+            return "failed"
+        if not ctx.store.finish(job.id, ctx.worker_id, "succeeded", result=result, progress=100.0,
+                                spp_done=int(result.get("spp", 0)), render_seconds=float(result.get("render_seconds", 0))):
+            jlog("finished, but the job was no longer ours (canceled or reassigned); result discarded")
+            return "canceled"
+        jlog(f"succeeded: {json.dumps(result, sort_keys=True)}")
+        return "succeeded"
+    finally:
+        hb.close()
+        ctx.current_stop = None
+
+
+def _stopped(ctx: WorkerContext, job: Job, hb: _Heartbeat, jlog: JobLog) -> str:
+    if ctx.shutdown.is_set() and not hb.lost:
+        ctx.store.finish(job.id, ctx.worker_id, "queued", refund_attempt=True)
+        jlog("worker shutting down: checkpointed and requeued")
+        return "shutdown"
+    ctx.store.release(ctx.worker_id)
+    jlog("stopped: the job was canceled, deleted or reassigned")
+    return "canceled"
+
+
+def _clean(message: str, job: Job) -> str:
+    """Errors name the stage as the user named it, not by the server's absolute path."""
+    return message.replace(job.stage, job.stage_name).strip().splitlines()[0] if message.strip() else message
+
+
+class _Checkpoint:
+    """checkpoint.npz (Film.save_state) + checkpoint.json (spp, render seconds, backend state)."""
+
+    def __init__(self, jobdir: str):
+        self.npz = os.path.join(jobdir, CHECKPOINT)
+        self.meta = os.path.join(jobdir, CHECKPOINT_META)
+
+    def load(self, jlog: JobLog):
+        """(film, meta dict) of the last checkpoint, or (None, {}) when there is none usable."""
+        from renderer.film import Film
+
+        if not (os.path.exists(self.npz) and os.path.exists(self.meta)):
+            return None, {}
+        try:
+            with open(self.meta, encoding="utf-8") as fh:
+                meta = json.load(fh)
+            film = Film.load_state(self.npz)
+        except (OSError, ValueError, KeyError) as e:
+            jlog(f"checkpoint unreadable ({e}); starting over")
+            return None, {}
+        return film, meta
+
+    def save(self, film, meta: dict) -> None:
+        # Film first, then the meta that describes it: a crash in between leaves a newer film
+        # with older meta, which only under-counts render time (never double-counts samples,
+        # since the sample count lives in the film itself).
+        film.save_state(self.npz)
+        tmp = self.meta + ".tmp"
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(meta, fh)
+        os.replace(tmp, self.meta)
+
+    def remove(self) -> None:
+        for p in (self.npz, self.meta):
+            try:
+                os.unlink(p)
+            except FileNotFoundError:
+                pass
+
+
+class _Tracker:
+    """The renderer's callbacks for one job: cancel (and render-start time), progress to the
+    store, snapshots (preview + checkpoint) to the job directory."""
+
+    def __init__(self, ctx: WorkerContext, job: Job, jobdir: str, stop: threading.Event, jlog: JobLog, *,
+                 target: int | None, budget: float | None, used_seconds: float, start_spp: int):
+        self.ctx, self.job, self.jobdir, self.stop, self.jlog = ctx, job, jobdir, stop, jlog
+        self.target = target
+        self.budget = budget                  # total budget of the job (all attempts)
+        self.used = used_seconds              # render seconds of earlier attempts
+        self.start_spp = start_spp
+        self.t0: float | None = None          # first cancel() call = start of this run's passes
+        self.t_created = time.monotonic()
+        self.last_db = 0.0
+        self.last_snap = -1e30                # the first pass is snapshotted at once (early preview)
+        self.snap_cost = 0.0                  # seconds the last snapshot took to write
+        self.last_logged_pct = -1
+        self.ckpt = _Checkpoint(jobdir)
+        self.state_extra: dict = {}           # backend state saved with the checkpoint (Ray blocks)
+        self.film = None
+        self.done = start_spp
+
+    # renderer callbacks -------------------------------------------------------------
+    def cancel(self) -> bool:
+        if self.t0 is None:  # the renderer asks before its first pass: load and build are done
+            self.t0 = time.monotonic()
+            self.jlog(f"rendering (scene ready after {self.t0 - self.t_created:.2f} s)")
+        return self.stop.is_set()
+
+    def progress(self, done: int, target, fraction: float) -> None:
+        self.done = done
+
+    def snapshot(self, film, done: int, extra: dict | None = None) -> None:
+        """Called after every pass (snapshot_interval=0); throttles its own writes."""
+        self.film = film
+        self.done = done
+        if extra is not None:
+            self.state_extra = extra
+        now = time.monotonic()
+        if self.t0 is None:
+            self.t0 = now
+        if now - self.last_db >= PROGRESS_DB_INTERVAL:
+            self.last_db = now
+            self._report(film, done, now)
+        if now - self.last_snap >= max(self.ctx.snapshot_interval, 10.0 * self.snap_cost):
+            self.last_snap = now
+            self.write_snapshot(film, done, now)
+            # Keep snapshot I/O under ~10 % of the time: a 4K checkpoint is hundreds of MB.
+            self.snap_cost = time.monotonic() - now
+
+    # helpers ------------------------------------------------------------------------
+    def elapsed(self, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        return 0.0 if self.t0 is None else now - self.t0
+
+    def fraction(self, done: int, now: float) -> float:
+        fr = []
+        if self.target:
+            fr.append(done / self.target)
+        if self.budget:
+            fr.append((self.used + self.elapsed(now)) / self.budget)
+        return min(1.0, max(fr)) if fr else 0.0
+
+    def _report(self, film, done: int, now: float) -> None:
+        el = max(self.elapsed(now), 1e-6)
+        h, w = film.shape
+        passes = max(done - self.start_spp, 0)
+        sps = passes * w * h / el
+        etas = []
+        if passes > 0 and self.target:
+            etas.append(max(self.target - done, 0) * el / passes)
+        if self.budget:
+            etas.append(max(self.budget - self.used - el, 0.0))
+        frac = self.fraction(done, now)
+        if not self.ctx.store.progress(self.job.id, self.ctx.worker_id, progress=round(100.0 * frac, 2),
+                                       spp_done=int(done), spp_target=self.target, samples_per_second=sps,
+                                       eta_seconds=min(etas) if etas else None,
+                                       render_seconds=self.used + el):
+            self.stop.set()
+        pct = int(frac * 100) // 10 * 10
+        if pct != self.last_logged_pct:
+            self.last_logged_pct = pct
+            self.jlog(f"progress {pct}% ({done} spp, {sps / 1e3:.1f} ksamples/s)")
+
+    def write_snapshot(self, film, done: int, now: float | None = None) -> None:
+        """Preview EXR + PNG, then the checkpoint, all written atomically."""
+        from renderer.film import write_exr, write_png
+
+        if self.stop.is_set() and not self.ctx.shutdown.is_set():
+            return  # canceled: do not write into a directory that may be going away
+        write_exr(os.path.join(self.jobdir, PREVIEW_EXR), film, {"illum:spp": int(done), "illum:jobId": self.job.id})
+        write_png(os.path.join(self.jobdir, PREVIEW_PNG), film)
+        self.ckpt.save(film, {"spp": int(done), "render_seconds": self.used + self.elapsed(now),
+                              "attempt": self.job.attempts, **self.state_extra})
+
+
+def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
+    """With no resolution override the stage's RenderSettings decide: hold them to the same
+    server limits as a request (an uploaded stage could ask for any size)."""
+    from renderer.errors import SettingsError
+
+    if opts.resolution is not None:
+        return
+    key = (job.stage, os.path.getmtime(job.stage), opts.settings, opts.camera, opts.frame, opts.purposes)
+    res = ctx.resolution_cache.get(key)
+    if res is None:
+        from renderer.usd import load_stage
+
+        desc = load_stage(job.stage, camera=opts.camera, settings=opts.settings, frame=opts.frame,
+                          purposes=opts.purposes)
+        res = tuple(int(v) for v in desc.settings.resolution)
+        ctx.resolution_cache.clear()
+        ctx.resolution_cache[key] = res
+    w, h = res
+    if w > ctx.max_side or h > ctx.max_side or w * h > ctx.max_pixels:
+        raise SettingsError(f"the stage asks for {w}x{h}, beyond this server's limit of {ctx.max_side} pixels "
+                            f"per side / {ctx.max_pixels} pixels; pass settings.resolution", attribute="resolution")
+
+
+def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLog) -> dict:
+    from renderer.render import render, write_outputs
+
+    jobdir = ctx.job_dir(job.id)
+    opts = render_options(job.settings, threads=ctx.threads)
+    opts.validate()
+    _check_stage_resolution(ctx, job, opts)
+    user_budget = opts.time_budget
+    total_budget = min(user_budget, ctx.max_time) if (user_budget and ctx.max_time) else (user_budget or ctx.max_time)
+    ckpt = _Checkpoint(jobdir)
+    resume, meta = ckpt.load(jlog)
+    used = float(meta.get("render_seconds", 0.0)) if resume is not None else 0.0
+    start_spp = int(resume.count.max()) if resume is not None and resume.count.size else 0
+    if resume is not None:
+        jlog(f"resuming from checkpoint: {start_spp} spp, {used:.1f} s rendered before")
+    if total_budget is not None:
+        # The budget covers all attempts; a resumed job renders at least one more pass.
+        opts.time_budget = max(total_budget - used, 1e-3)
+    tracker = _Tracker(ctx, job, jobdir, stop, jlog, target=opts.spp, budget=total_budget, used_seconds=used,
+                       start_spp=start_spp)
+
+    if ctx.backend == "ray":
+        from .ray_backend import get_pool
+
+        pool = get_pool(ctx)
+        result = pool.render(job.stage, opts, progress=tracker.progress, snapshot=tracker.snapshot,
+                             cancel=tracker.cancel, resume=resume, resume_state=meta if resume is not None else {},
+                             log=jlog)
+    else:
+        result = render(job.stage, opts, progress=tracker.progress, snapshot=tracker.snapshot,
+                        snapshot_interval=0.0, cancel=tracker.cancel, resume=resume,
+                        scene_cache=ctx.scene_cache)
+    if stop.is_set():
+        if ctx.shutdown.is_set() and result.film is not None:
+            tracker.write_snapshot(result.film, int(result.stats["spp"]))
+        raise _Canceled()
+
+    # Final outputs: the EXR carries the render metadata, minus the server's absolute paths.
+    result.metadata["illum:stage"] = job.stage_name
+    result.metadata["illum:jobId"] = job.id
+    result.stats["stage"] = job.stage_name
+    render_seconds = used + float(result.stats["seconds"]["render"])
+    result.stats["job"] = {"id": job.id, "attempts": job.attempts, "render_seconds_all_attempts": render_seconds,
+                           "resumed_from_spp": start_spp}
+    write_outputs(result, exr=os.path.join(jobdir, FINAL_EXR), png=os.path.join(jobdir, FINAL_PNG),
+                  stats_json=os.path.join(jobdir, STATS_JSON))
+    ckpt.remove()
+    for w in result.warnings:
+        jlog(f"warning: {_clean(w, job)}")
+    if opts.spp is not None and result.stats["spp"] < opts.spp:
+        jlog(f"warning: stopped at {result.stats['spp']} of {opts.spp} spp by the time budget")
+    s = result.stats
+    return {"spp": int(s["spp"]), "resolution": s["resolution"], "render_seconds": render_seconds,
+            "samples_per_second": float(s["samples_per_second"]), "warnings": [_clean(w, job) for w in result.warnings],
+            "files": [FINAL_EXR, FINAL_PNG, STATS_JSON], "resumed_from_spp": start_spp}
+
+
+def _run_preconvolve(ctx: WorkerContext, job: Job, jlog: JobLog) -> dict:
+    """Dome preconvolution (renderer.preconvolve). It has no cancel hook: a canceled one is
+    stopped by the supervisor after the cancel grace period."""
+    from renderer.errors import IllumError
+    from renderer.film import read_exr, write_png
+
+    try:
+        from renderer.preconvolve import preconvolve
+    except ModuleNotFoundError as e:
+        if e.name != "renderer.preconvolve":
+            raise
+        raise IllumError("this server has no dome preconvolution (renderer.preconvolve is missing)") from None
+    jobdir = ctx.job_dir(job.id)
+    out = os.path.join(jobdir, FINAL_EXR)
+    t0 = time.monotonic()
+    last = [0.0]
+
+    def progress(rows_done: int, rows_total: int) -> None:
+        now = time.monotonic()
+        if now - last[0] >= PROGRESS_DB_INTERVAL and rows_total:
+            last[0] = now
+            frac = rows_done / rows_total
+            el = now - t0
+            ctx.store.progress(job.id, ctx.worker_id, progress=round(100.0 * frac, 2), render_seconds=el,
+                               eta_seconds=el * (1 - frac) / frac if frac > 0 else None)
+
+    s = job.settings
+    preconvolve(job.stage, out, size=int(s["size"]), method=s["method"], sanitize=bool(s.get("sanitize")),
+                progress=progress)
+    seconds = time.monotonic() - t0
+    img, _ = read_exr(out)
+    write_png(os.path.join(jobdir, FINAL_PNG), img[:, :, :3])
+    jlog(f"preconvolved {job.stage_name} to {img.shape[1]}x{img.shape[0]} ({s['method']}) in {seconds:.2f} s")
+    return {"resolution": [int(img.shape[1]), int(img.shape[0])], "render_seconds": seconds,
+            "method": s["method"], "files": [FINAL_EXR, FINAL_PNG]}
+
+
+# ------------------------------------------------------------------------------ main loop
+def _set_parent_death_signal() -> None:
+    """Ask Linux to SIGKILL us when the process that spawned us dies (kill -9 of the server):
+    no orphan keeps rendering. Elsewhere the heartbeat's parent-pid check does the same."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL("libc.so.6", use_errno=True)
+            PR_SET_PDEATHSIG = 1
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except OSError:
+            pass
+
+
+def serve_forever(ctx: WorkerContext, poll_interval: float = 0.2, max_jobs: int | None = None) -> int:
+    """Claim and run jobs until SIGTERM/SIGINT (or ``max_jobs``). Returns an exit code."""
+    ctx.store.register_worker(ctx.worker_id, os.getpid(), ctx.backend)
+    done = 0
+    last_beat = 0.0
+    try:
+        while not ctx.shutdown.is_set():
+            _exit_if_orphaned(ctx)
+            try:
+                job = ctx.store.claim(ctx.worker_id)
+            except sqlite3.Error as e:
+                log.warning("claim failed: %s", e)
+                job = None
+            if job is None:
+                now = time.monotonic()
+                if now - last_beat >= ctx.heartbeat_interval:
+                    last_beat = now
+                    try:
+                        if not ctx.store.worker_heartbeat(ctx.worker_id):
+                            ctx.store.register_worker(ctx.worker_id, os.getpid(), ctx.backend)
+                    except sqlite3.Error as e:
+                        log.warning("heartbeat failed: %s", e)
+                ctx.shutdown.wait(poll_interval)
+                continue
+            outcome = run_job(ctx, job)
+            log.info("job %s: %s", job.id, outcome)
+            done += 1
+            if max_jobs is not None and done >= max_jobs:
+                break
+    finally:
+        try:
+            ctx.store.unregister_worker(ctx.worker_id)
+        except sqlite3.Error:
+            pass
+        if ctx.ray_pool is not None:
+            ctx.ray_pool.close()
+        for key, (desc, scene) in list(ctx.scene_cache.items()):
+            scene.close()
+        ctx.scene_cache.clear()
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m service.worker", description="illum render worker")
+    p.add_argument("--data", required=True, help="the server's data directory (holds jobs.db)")
+    p.add_argument("--id", required=True, help="worker id (unique per server)")
+    p.add_argument("--heartbeat-interval", type=float, default=0.5)
+    p.add_argument("--snapshot-interval", type=float, default=2.0)
+    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--max-time", type=float, default=None)
+    p.add_argument("--max-side", type=int, default=8192)
+    p.add_argument("--max-pixels", type=int, default=8192 * 8192)
+    p.add_argument("--backend", choices=("local", "ray"), default="local")
+    p.add_argument("--ray-address", default=None)
+    p.add_argument("--ray-actors", type=int, default=None)
+    p.add_argument("--ray-drivers", type=int, default=1, help="workers sharing the Ray cluster")
+    p.add_argument("--supervised", action="store_true", help="exit when the spawning process dies")
+    p.add_argument("--max-jobs", type=int, default=None, help=argparse.SUPPRESS)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {a.id} %(levelname)s %(message)s")
+    if a.supervised:
+        _set_parent_death_signal()
+    ctx = WorkerContext(store=JobStore(os.path.join(a.data, "jobs.db")), worker_id=a.id, data_dir=a.data,
+                        heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
+                        threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,
+                        backend=a.backend, ray_address=a.ray_address, ray_actors=a.ray_actors,
+                        ray_drivers=a.ray_drivers,
+                        parent_pid=os.getppid() if a.supervised else None)
+    def on_term(signum, frame):
+        # Graceful: stop the render between passes, checkpoint, requeue (see _stopped).
+        ctx.shutdown.set()
+        stop = ctx.current_stop
+        if stop is not None:
+            stop.set()
+
+    signal.signal(signal.SIGTERM, on_term)
+    signal.signal(signal.SIGINT, on_term)
+    _exit_if_orphaned(ctx)
+    log.info("worker %s started (pid %d, backend %s)", a.id, os.getpid(), a.backend)
+    return serve_forever(ctx, max_jobs=a.max_jobs)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
