@@ -38,6 +38,18 @@ class LambertBSDF:
         """(n, 3) the whole BSDF is the diffuse lobe."""
         return self.f(wo, wi)
 
+    def f_parts(self, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f (n, 3), f_diffuse (n, 3), pdf (n,)) in one call (same interface as
+        PreviewSurfaceBSDF.f_parts); f and f_diffuse are equal but distinct arrays."""
+        up = self._both_up(wo, wi)
+        f = np.where(up[:, None], self.albedo * INV_PI, 0.0)
+        return f, f.copy(), np.where(up, wi[:, 2] * INV_PI, 0.0)
+
+    def bind_wo(self, wo: np.ndarray) -> "LambertBSDF":
+        """No-op (Lambert has no wo-dependent terms worth caching); returns self. Same interface
+        as PreviewSurfaceBSDF.bind_wo."""
+        return self
+
     def f_specular(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n, 3) zeros: Lambert has no non-diffuse lobe."""
         return np.zeros((wo.shape[0], 3))

@@ -73,9 +73,19 @@ pdf() is the exact mixture P_d cos_i / pi + P_s G1(wo) D(h) / (4 cos_o), so MIS 
 
 Implementation
 --------------
-f, pdf, f_pdf (both in one pass) and sample_f run as numba kernels (``_preview_kernels.py``,
-single-threaded, GIL released); ``reference_f_pdf`` / ``reference_sample_f`` and the per-lobe
-methods are the numpy versions the tests hold the kernels to.
+f, pdf, f_pdf, f_parts, f_diffuse, f_specular, diffuse_constant, lobe_probabilities and sample_f
+run as numba kernels (``_preview_kernels.py``, single-threaded, GIL released);
+``reference_f_pdf`` / ``reference_sample_f`` and the per-lobe samplers are the numpy versions the
+tests hold the kernels to. The per-point parameters are packed in one (n, K) array (``_P``), so
+``take`` is a single gather; ``rho_d``, ``f0`` and ``alpha`` are views into it.
+
+wo terms: everything a vertex asks of the BSDF needs E(wo) (a table lookup) and the lobe
+probability. ``bind_wo(wo)`` computes them once and stores them with the cosine they belong
+to; every later call (on this BSDF or on ``take(rows)`` of it, which carries them along) whose
+wo has the same wo.z on a row reuses them. The check is per row and by value, so results never
+depend on whether or with what a BSDF was bound: binding only saves work. A caller that needs
+f, f_diffuse and pdf for the same (wo, wi) should call ``f_parts`` (one pass) rather than three
+methods.
 
 Not modelled: clearcoat, normal maps, displacement, occlusion, refraction (opacity is handled as
 presence by the material table), multiple scattering between microfacets: the single-scattering
@@ -116,19 +126,31 @@ class PreviewSurfaceBSDF:
     f0: (n, 3) specular reflectance at normal incidence in [0, 1];
     alpha: (n,) GGX width, >= ALPHA_MIN.
     Use ``from_params`` (or ``renderer.materials.make_bsdf``) to build one from UsdPreviewSurface
-    inputs.
+    inputs. At a path vertex: ``bsdf.bind_wo(wo)`` once (optional, saves the E(wo) work of every
+    later call), then ``f_parts`` for light samples and ``sample_f`` for BSDF samples.
     """
 
     def __init__(self, rho_d: np.ndarray, f0: np.ndarray, alpha: np.ndarray):
-        self.rho_d = np.ascontiguousarray(rho_d, dtype=np.float64)
-        self.f0 = np.ascontiguousarray(f0, dtype=np.float64)
-        self.alpha = np.maximum(np.asarray(alpha, dtype=np.float64), ALPHA_MIN)
+        rho_d = np.asarray(rho_d, dtype=np.float64)
+        alpha = np.maximum(np.asarray(alpha, dtype=np.float64), ALPHA_MIN)
+        P = np.empty((alpha.shape[0], kernels.K))
+        P[:, kernels.RHO : kernels.RHO + 3] = rho_d
+        P[:, kernels.F0 : kernels.F0 + 3] = np.asarray(f0, dtype=np.float64)
+        P[:, kernels.ALPHA] = alpha
         self._tables = albedo_tables()
-        # Per-point constants of the diffuse lobe: k_d = rho_d / (pi (1 - E_avg)).
-        one_minus_avg = 1.0 - self._tables.albedo_avg(self.f0, self.alpha)
-        ok = one_minus_avg > 1e-9
-        self._k_d = np.where(ok, self.rho_d * INV_PI / np.where(ok, one_minus_avg, 1.0), 0.0)
-        self._inv_one_minus_avg = np.where(ok, 1.0 / np.where(ok, one_minus_avg, 1.0), 0.0)
+        # Per-point constants of the diffuse lobe: k_d = rho_d / (pi (1 - E_avg)), 1 / (1 - E_avg),
+        # and the table coordinate of alpha.
+        kernels.init_kernel(P, self._tables.a_avg, self._tables.b_avg)
+        self._set_packed(P)
+
+    def _set_packed(self, P: np.ndarray) -> None:
+        self._P = P
+        # Views into P (read-only by convention; the kernels read P).
+        self.rho_d = P[:, kernels.RHO : kernels.RHO + 3]
+        self.f0 = P[:, kernels.F0 : kernels.F0 + 3]
+        self.alpha = P[:, kernels.ALPHA]
+        self._k_d = P[:, kernels.KD : kernels.KD + 3]
+        self._inv_one_minus_avg = P[:, kernels.INV_OMA : kernels.INV_OMA + 3]
 
     # ----------------------------------------------------------------------------------
     # Construction
@@ -157,6 +179,22 @@ class PreviewSurfaceBSDF:
         ior: np.ndarray,
     ) -> "PreviewSurfaceBSDF":
         """UsdPreviewSurface inputs -> (rho_d, F0, alpha). Shapes: colours (n, 3), the rest (n,)."""
+        cols = [np.ascontiguousarray(diffuse_color, dtype=np.float64),
+                np.ascontiguousarray(specular_color, dtype=np.float64)]
+        rows = [np.ascontiguousarray(use_specular_workflow, dtype=bool),
+                np.ascontiguousarray(metallic, dtype=np.float64),
+                np.ascontiguousarray(roughness, dtype=np.float64),
+                np.ascontiguousarray(ior, dtype=np.float64)]
+        n = cols[0].shape[0] if cols[0].ndim == 2 else -1
+        if all(c.shape == (n, 3) for c in cols) and all(r.shape == (n,) for r in rows):
+            # One pass (numba) for the mapping below and the derived per-point constants.
+            out = cls.__new__(cls)
+            out._tables = albedo_tables()
+            P = np.empty((n, kernels.K))
+            kernels.inputs_kernel(*cols, *rows, P)
+            kernels.init_kernel(P, out._tables.a_avg, out._tables.b_avg)
+            out._set_packed(P)
+            return out
         diffuse = np.clip(np.asarray(diffuse_color, dtype=np.float64), 0.0, 1.0)
         spec = np.clip(np.asarray(specular_color, dtype=np.float64), 0.0, 1.0)
         m = np.clip(np.asarray(metallic, dtype=np.float64), 0.0, 1.0)[:, None]
@@ -173,15 +211,31 @@ class PreviewSurfaceBSDF:
         return self.alpha.shape[0]
 
     def take(self, rows: np.ndarray) -> "PreviewSurfaceBSDF":
-        """The BSDF of a subset of the shading points (rows: index array or boolean mask)."""
+        """The BSDF of a subset of the shading points (rows: index array or boolean mask).
+
+        Bound wo terms (``bind_wo``) come along with their rows."""
         out = PreviewSurfaceBSDF.__new__(PreviewSurfaceBSDF)
-        out.rho_d = self.rho_d[rows]
-        out.f0 = self.f0[rows]
-        out.alpha = self.alpha[rows]
         out._tables = self._tables
-        out._k_d = self._k_d[rows]
-        out._inv_one_minus_avg = self._inv_one_minus_avg[rows]
+        rows = np.asarray(rows)
+        # np.take on an index array: one gather of the packed rows (faster than P[rows]).
+        out._set_packed(self._P[rows] if rows.dtype == bool else np.take(self._P, rows, axis=0))
         return out
+
+    def bind_wo(self, wo: np.ndarray) -> "PreviewSurfaceBSDF":
+        """Precompute the wo terms (E(wo) table lookup, lobe probability) for wo (n, 3) and keep
+        them for later calls; returns self.
+
+        Optional, purely an optimisation: any later call whose wo has, on a row, the wo.z the
+        terms were computed from uses them instead of recomputing them (identical results);
+        other rows compute their own. ``take(rows)`` carries the bound terms of its rows, so
+        ``bsdf.take(r).f_parts(wo[r], wi)`` benefits too. Binding again replaces the terms.
+        Not to be called while another thread evaluates this same object.
+        """
+        wo = kernels.as_rows(wo, 3)
+        if wo.shape[0] != len(self):
+            raise ValueError(f"bind_wo: wo has {wo.shape[0]} rows, the BSDF {len(self)}")
+        kernels.bind_kernel(wo, self._P, self._tables.a, self._tables.b)
+        return self
 
     # ----------------------------------------------------------------------------------
     # Albedos and lobe weights
@@ -200,7 +254,10 @@ class PreviewSurfaceBSDF:
     def diffuse_constant(self, wo: np.ndarray) -> np.ndarray:
         """(n, 3) rho_d (1 - E(wo)) / pi: the constant-in-wi lobe whose hemispherical integral
         against cos equals the diffuse lobe's (its directional albedo / pi). 0 for wo.z <= 0."""
-        return self.rho_d * (1.0 - self.specular_albedo(wo)) * INV_PI * (wo[:, 2] > 0.0)[:, None]
+        wo = kernels.as_rows(wo, 3)
+        out = np.empty((wo.shape[0], 3))
+        kernels.wo_kernel(wo, self._P, self._tables.a, self._tables.b, out, np.empty(0))
+        return out
 
     def has_residual(self) -> np.ndarray:
         """(n,) bool: f differs from the control lobe diffuse_constant(wo). Always, because
@@ -228,7 +285,9 @@ class PreviewSurfaceBSDF:
 
     def lobe_probabilities(self, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P_diffuse (n,), P_specular (n,)) used by sample_f for this wo."""
-        _, _, p_d = self._wo_terms(wo)
+        wo = kernels.as_rows(wo, 3)
+        p_d = np.empty(wo.shape[0])
+        kernels.wo_kernel(wo, self._P, self._tables.a, self._tables.b, np.empty((0, 3)), p_d)
         return p_d, 1.0 - p_d
 
     # ----------------------------------------------------------------------------------
@@ -254,42 +313,46 @@ class PreviewSurfaceBSDF:
         okc = ok[:, None]
         return np.where(okc, f_d, 0.0), np.where(okc, f_s, 0.0), np.where(ok, pdf, 0.0)
 
-    def f_pdf(self, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(f (n, 3), pdf (n,)) in one pass (numba kernel): what MIS on a light sample needs."""
+    def _evaluate(self, wo, wi, f=False, fd=False, fs=False, pdf=False):
+        """Run the evaluation kernel; returns the wanted arrays (f, f_diffuse, f_specular, pdf)
+        in that order, an empty array in place of each one not wanted."""
         wo = kernels.as_rows(wo, 3)
         wi = kernels.as_rows(wi, 3)
         n = wo.shape[0]
-        f = np.zeros((n, 3))
-        pdf = np.zeros(n)
-        kernels.f_pdf_kernel(
-            wo, wi, self.rho_d, self.f0, self.alpha, self._k_d, self._tables.a, self._tables.b, f, pdf
-        )
+        out_f = np.empty((n if f else 0, 3))
+        out_fd = np.empty((n if fd else 0, 3))
+        out_fs = np.empty((n if fs else 0, 3))
+        out_pdf = np.empty(n if pdf else 0)
+        kernels.eval_kernel(wo, wi, self._P, self._tables.a, self._tables.b, out_f, out_fd, out_fs, out_pdf)
+        return out_f, out_fd, out_fs, out_pdf
+
+    def f_parts(self, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f (n, 3), f_diffuse (n, 3), pdf (n,)) in one pass: what a light sample's integrand
+        split (control lobe / residual) and its MIS weight need. Same values as f, f_diffuse
+        and pdf."""
+        f, fd, _, pdf = self._evaluate(wo, wi, f=True, fd=True, pdf=True)
+        return f, fd, pdf
+
+    def f_pdf(self, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f (n, 3), pdf (n,)) in one pass (numba kernel): what MIS on a light sample needs."""
+        f, _, _, pdf = self._evaluate(wo, wi, f=True, pdf=True)
         return f, pdf
 
     def f(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n, 3) f_diffuse + f_specular (no cosine)."""
-        return self.f_pdf(wo, wi)[0]
+        return self._evaluate(wo, wi, f=True)[0]
 
     def f_diffuse(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n, 3) rho_d / pi (1 - E(wo)) (1 - E(wi)) / (1 - E_avg); see the module docstring."""
-        cos_o, cos_i = wo[:, 2], wi[:, 2]
-        ok = ((cos_o > 0.0) & (cos_i > 0.0))[:, None]
-        c_o = 1.0 - self._tables.albedo(self.f0, cos_o, self.alpha)
-        c_i = 1.0 - self._tables.albedo(self.f0, cos_i, self.alpha)
-        return np.where(ok, self._k_d * c_o * c_i, 0.0)
+        return self._evaluate(wo, wi, fd=True)[1]
 
     def f_specular(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n, 3) F(wo.h) D(h) G2(wo, wi) / (4 cos_o cos_i)."""
-        cos_o, cos_i = wo[:, 2], wi[:, 2]
-        h, h_ok = half_vector(wo, wi)
-        ok = (cos_o > 0.0) & (cos_i > 0.0) & h_ok
-        dv = ggx_d(h[:, 2], self.alpha) * ggx_visibility(cos_o, cos_i, self.alpha)
-        f_s = fresnel_schlick(self.f0, np.einsum("ij,ij->i", wo, h)) * dv[:, None]
-        return np.where(ok[:, None], f_s, 0.0)
+        return self._evaluate(wo, wi, fs=True)[2]
 
     def pdf(self, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n,) solid-angle pdf of sample_f producing wi: P_d pdf_diffuse + P_s pdf_specular."""
-        return self.f_pdf(wo, wi)[1]
+        return self._evaluate(wo, wi, pdf=True)[3]
 
     def reference_f_pdf(self, wo: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """numpy version of ``f_pdf`` (readable reference for the numba kernel; tests compare)."""
@@ -350,10 +413,7 @@ class PreviewSurfaceBSDF:
         f = np.zeros((n, 3))
         pdf = np.zeros(n)
         lobe = np.zeros(n, dtype=np.int8)
-        kernels.sample_kernel(
-            wo, u_lobe, u, self.rho_d, self.f0, self.alpha, self._k_d,
-            self._tables.a, self._tables.b, wi, f, pdf, lobe,
-        )
+        kernels.sample_kernel(wo, u_lobe, u, self._P, self._tables.a, self._tables.b, wi, f, pdf, lobe)
         return BSDFSample(f=f, wi=wi, pdf=pdf, lobe=lobe)
 
     def reference_sample_f(self, wo: np.ndarray, u_lobe: np.ndarray, u: np.ndarray) -> BSDFSample:

@@ -42,6 +42,11 @@ def emission_normal(ex: np.ndarray, ey: np.ndarray, m3: np.ndarray) -> np.ndarra
     return -sign * c / length
 
 
+def as_points(a: np.ndarray, k: int = 3) -> np.ndarray:
+    """C-contiguous float64 (n, k) view (or copy, if needed) of a: the layout the kernels take."""
+    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1, k)
+
+
 def far_distance(p: np.ndarray, scene_center: np.ndarray, scene_radius: float) -> np.ndarray:
     """(n,) a distance from p that is outside the scene's bounding sphere in every direction."""
     r = max(float(scene_radius), 1e-30)
@@ -101,6 +106,7 @@ def polar_decomposition_rotation(m3: np.ndarray) -> np.ndarray:
 __all__ = [
     "SHAPE_RTOL",
     "area_to_solid_angle",
+    "as_points",
     "direction_and_distance",
     "dot",
     "emission_normal",

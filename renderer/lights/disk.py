@@ -31,6 +31,9 @@ Sampling strategy, decided from the (light, point) pair only:
 
 Exact solid-angle sampling of spherical ellipses (Guillen et al. 2017) would avoid the failed
 samples but needs elliptic integrals and a numerical inversion per sample; not worth it here.
+
+Implementation: sample_li, pdf_li, intersect and the strategy rule are fused numba kernels
+(``renderer.kernels.lights``): one pass per row, one spherical-rectangle setup per sample.
 """
 
 from __future__ import annotations
@@ -39,21 +42,18 @@ import numpy as np
 
 from renderer.color import luminance
 from renderer.description import LightDesc
-from renderer.geometry import norm
-from renderer.lights import spherical_rect
+from renderer.kernels import lights as kern
 from renderer.lights._common import (
-    area_to_solid_angle,
-    direction_and_distance,
+    as_points,
     dot,
     emission_normal,
     invalid_sample,
     linear_part,
-    ray_plane,
     translation,
 )
 from renderer.lights.base import LightLiSample, ShadingContext
 from renderer.lights.radiometry import emitted_radiance
-from renderer.sampling import sample_uniform_disk_concentric
+from renderer.lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 
 # Use solid-angle (bounding spherical rectangle) sampling when d_far > CLOSE_RATIO * d_near
 # (see the module docstring).
@@ -82,11 +82,12 @@ class DiskLight:
     def __init__(self, paths, center, e1, e2, n, L):
         self.paths = list(paths)
         self.count = len(self.paths)
-        self.center = center
-        self.e1 = e1
-        self.e2 = e2
-        self.n = n
-        self.L = L
+        # C-contiguous float64: the kernels index these tables directly.
+        self.center = as_points(center)
+        self.e1 = e1 = as_points(e1)
+        self.e2 = e2 = as_points(e2)
+        self.n = as_points(n)
+        self.L = as_points(L)
         self.s1 = np.linalg.norm(e1, axis=1) if self.count else np.zeros(0)
         self.s2 = np.linalg.norm(e2, axis=1) if self.count else np.zeros(0)
         self.area = np.pi * self.s1 * self.s2
@@ -125,90 +126,58 @@ class DiskLight:
         q2 = np.divide(dot(rel, self.u2[idx]), self.s2[idx], out=np.zeros(idx.size), where=self.s2[idx] > 0)
         return np.stack([q1, q2], axis=1)
 
-    def _front(self, idx, p):
-        return dot(p - self.center[idx], self.n[idx]) > 0.0
-
-    def _strategy(self, idx: np.ndarray, p: np.ndarray):
-        """(use_solid_angle (n,) bool, SphericalRect of the bounding rectangle)."""
-        rel = p - self.center[idx]
-        h = np.abs(dot(rel, self.n[idx]))
-        q = norm(np.concatenate([self._q(idx, p), np.zeros((idx.size, 1))], axis=1))
-        rho = np.sqrt(np.maximum(dot(rel, rel) - h * h, 0.0))  # in-plane distance to the centre
-        # Bounds of the distances from p to the ellipse: in-plane nearest >= s2 (|q| - 1),
-        # in-plane farthest <= rho + s1 (exact for circles).
-        near = self.s2[idx] * np.maximum(q - 1.0, 0.0)
-        far = rho + self.s1[idx]
-        d_near = np.sqrt(h * h + near * near)
-        d_far = np.sqrt(h * h + far * far)
-        close = d_far > CLOSE_RATIO * d_near
-        use = np.zeros(idx.size, dtype=bool)
-        sr = None
-        if close.any():
-            corner = self.center[idx] - self.e1[idx] - self.e2[idx]
-            sr = spherical_rect.setup(p, corner, 2.0 * self.e1[idx], 2.0 * self.e2[idx])
-            use = close & sr.usable & self._front(idx, p)
-        return use, sr
+    def _strategy(self, idx: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(use_solid_angle (n,) bool, solid angle (n,) of the bounding rectangle seen from p)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        use = np.empty(idx.size, dtype=bool)
+        solid = np.empty(idx.size)
+        kern.disk_strategy_kernel(
+            idx, as_points(p), self.center, self.e1, self.e2, self.n, self.u1, self.u2, self.s1, self.s2,
+            CLOSE_RATIO, MIN_SOLID_ANGLE, GRAZING_NZ2, use, solid,
+        )
+        return use, solid
 
     # ----------------------------------------------------------------------------------
     def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """Sample light idx (n,) from ctx.p with u (n, 2); fails (pdf 0) from behind and, in
         solid-angle mode, for the bounding-rectangle samples outside the ellipse."""
-        idx = np.asarray(idx, dtype=np.int64)
-        p = ctx.p
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         n_rows = idx.size
         if n_rows == 0:
             return invalid_sample(0)
-        q = sample_uniform_disk_concentric(u)
-        p_l = self.center[idx] + q[:, 0:1] * self.e1[idx] + q[:, 1:2] * self.e2[idx]
-        inside = np.ones(n_rows, dtype=bool)
-        use, sr = self._strategy(idx, p)
-        if use.any():
-            rows = np.nonzero(use)[0]
-            sub = spherical_rect.SphericalRect(**{f: getattr(sr, f)[rows] for f in sr.__dataclass_fields__})
-            x = spherical_rect.sample(sub, u[rows])
-            p_l[rows] = x
-            qq = self._q(idx[rows], x)
-            inside[rows] = (qq * qq).sum(axis=1) <= 1.0
-        wi, dist = direction_and_distance(p, p_l)
-        cos_l = -dot(wi, self.n[idx])
-        pdf_area = np.divide(1.0, self.area[idx], out=np.zeros(n_rows), where=self.area[idx] > 0.0)
-        pdf = area_to_solid_angle(pdf_area, dist, cos_l)
-        if use.any():
-            pdf = np.where(use, np.divide(1.0, sr.solid_angle, out=np.zeros(n_rows), where=use), pdf)
-        ok = inside & self._front(idx, p) & (cos_l > 0.0) & (dist > 0.0) & (pdf > 0.0)
-        pdf = np.where(ok, pdf, 0.0)
-        L = np.where(ok[:, None], self.L[idx], 0.0)
+        L = np.empty((n_rows, 3))
+        wi = np.empty((n_rows, 3))
+        pdf = np.empty(n_rows)
+        dist = np.empty(n_rows)
+        p_l = np.empty((n_rows, 3))
+        kern.disk_sample_kernel(
+            idx, as_points(ctx.p), as_points(u, 2), self.center, self.e1, self.e2, self.n, self.u1, self.u2,
+            self.s1, self.s2, self.area, self.L, CLOSE_RATIO, MIN_SOLID_ANGLE, GRAZING_NZ2,
+            L, wi, pdf, dist, p_l,
+        )
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
-
-    def _hit(self, idx, o, d):
-        t, ok = ray_plane(o, d, self.center[idx], self.n[idx])
-        x = o + np.where(ok, t, 0.0)[:, None] * d
-        q = self._q(idx, x)
-        hit = ok & (t > 0.0) & ((q * q).sum(axis=1) <= 1.0)
-        return np.where(hit, t, np.inf), hit
 
     def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (n,) of sample_li producing wi; 0 if wi misses the front face."""
-        idx = np.asarray(idx, dtype=np.int64)
-        p = ctx.p
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         if idx.size == 0:
             return np.zeros(0)
-        t, hit = self._hit(idx, p, wi)
-        cos_l = -dot(wi, self.n[idx])
-        hit &= self._front(idx, p) & (cos_l > 0.0)
-        pdf_area = np.divide(1.0, self.area[idx], out=np.zeros(idx.size), where=self.area[idx] > 0.0)
-        pdf = area_to_solid_angle(pdf_area, np.where(hit, t, 0.0), cos_l)
-        use, sr = self._strategy(idx, p)
-        if use.any():
-            pdf = np.where(use, np.divide(1.0, sr.solid_angle, out=np.zeros(idx.size), where=use), pdf)
-        return np.where(hit, pdf, 0.0)
+        pdf = np.empty(idx.size)
+        kern.disk_pdf_kernel(
+            idx, as_points(ctx.p), as_points(wi), self.center, self.e1, self.e2, self.n, self.u1, self.u2,
+            self.s1, self.s2, self.area, CLOSE_RATIO, MIN_SOLID_ANGLE, GRAZING_NZ2, pdf,
+        )
+        return pdf
 
     def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Hit distance (n,) with the (two-sided) ellipse, inf where none."""
-        idx = np.asarray(idx, dtype=np.int64)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         if idx.size == 0:
             return np.zeros(0)
-        return self._hit(idx, o, d)[0]
+        t = np.empty(idx.size)
+        kern.disk_hit_kernel(idx, as_points(o), as_points(d), self.center, self.n, self.u1, self.u2,
+                             self.s1, self.s2, t)
+        return t
 
     def le(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """Radiance (n, 3) toward -wi: L on the emitting side, 0 behind."""

@@ -14,6 +14,11 @@ Sampling (decided from the (light, point) pair only, so pdf_li always matches):
   sampling, pdf_w = 1 / Omega (see ``spherical_rect``);
 * otherwise (tiny, grazing, or sheared): uniform area sampling, pdf_w = d^2 / (A |cos theta_l|).
 
+Implementation: sample_li, pdf_li and intersect run as fused numba kernels
+(``renderer.kernels.lights``): one pass per row gathers the light, chooses the strategy and
+samples from a single spherical-rectangle setup. Texel sampling and texel colours (textured
+rects only) stay in numpy around the kernels.
+
 Texture orientation: the UsdLux doc puts the "texture min coordinates at (+X, +Y), max at
 (-X, -Y)". illum reads "min coordinates" as uv = (0, 0), with uv in the OpenGL convention
 (v up: v = 0 is the *bottom* row of the image, OIIO row H-1). So
@@ -33,19 +38,18 @@ import numpy as np
 
 from renderer.color import luminance
 from renderer.description import LightDesc
-from renderer.lights import spherical_rect
+from renderer.kernels import lights as kern
 from renderer.lights._common import (
     SHAPE_RTOL,
-    area_to_solid_angle,
-    direction_and_distance,
+    as_points,
     dot,
     emission_normal,
     invalid_sample,
     linear_part,
-    ray_plane,
     translation,
 )
 from renderer.lights.base import LightLiSample, ShadingContext
+from renderer.lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from renderer.lights.radiometry import emitted_radiance
 from renderer.lights.texture import ImageSet, load_texture_rgb
 
@@ -80,13 +84,15 @@ class RectLight:
     def __init__(self, paths, center, ex, ey, n, L, tex, images: ImageSet):
         self.paths = list(paths)
         self.count = len(self.paths)
-        self.center = center
-        self.ex = ex
-        self.ey = ey
-        self.n = n
-        self.L = L
-        self.tex = tex
+        # C-contiguous float64 / int64 / bool: the kernels index these tables directly.
+        self.center = as_points(center)
+        self.ex = as_points(ex)
+        self.ey = as_points(ey)
+        self.n = as_points(n)
+        self.L = as_points(L)
+        self.tex = np.ascontiguousarray(tex, dtype=np.int64)
         self.images = images
+        ex, ey = self.ex, self.ey
         self.area = np.linalg.norm(np.cross(ex, ey), axis=1) if self.count else np.zeros(0)
         gxx = np.einsum("ij,ij->i", ex, ex)
         gyy = np.einsum("ij,ij->i", ey, ey)
@@ -95,7 +101,7 @@ class RectLight:
         det = np.where(det > 0.0, det, 1.0)
         self.ex_dual = (gyy[:, None] * ex - gxy[:, None] * ey) / det[:, None]
         self.ey_dual = (gxx[:, None] * ey - gxy[:, None] * ex) / det[:, None]
-        self.is_rectangle = np.abs(gxy) <= SHAPE_RTOL * np.sqrt(gxx * gyy)
+        self.is_rectangle = np.ascontiguousarray(np.abs(gxy) <= SHAPE_RTOL * np.sqrt(gxx * gyy))
         self.delta = np.zeros(self.count, dtype=bool)
         self.warnings: list[str] = []
 
@@ -137,9 +143,6 @@ class RectLight:
         rel = q - self.center[idx]
         return np.stack([dot(rel, self.ex_dual[idx]), dot(rel, self.ey_dual[idx])], axis=1)
 
-    def _point(self, idx: np.ndarray, ab: np.ndarray) -> np.ndarray:
-        return self.center[idx] + ab[:, 0:1] * self.ex[idx] + ab[:, 1:2] * self.ey[idx]
-
     def _texel_rc(self, idx: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         img = np.maximum(self.tex[idx], 0)
         h = self.images.height[img] if self.images.count else np.ones(idx.size, dtype=np.int64)
@@ -160,99 +163,98 @@ class RectLight:
             L[rows] *= self.images.lookup(self.tex[i], r, c)
         return L
 
-    def _strategy(self, idx: np.ndarray, p: np.ndarray):
-        """Per-row sampling strategy: (use_spherical (n,) bool, SphericalRect setup or None)."""
-        cand = (self.tex[idx] < 0) & self.is_rectangle[idx]
-        use = np.zeros(idx.size, dtype=bool)
-        sr = None
-        if cand.any():
-            corner = self.center[idx] - 0.5 * self.ex[idx] - 0.5 * self.ey[idx]
-            sr = spherical_rect.setup(p, corner, self.ex[idx], self.ey[idx])
-            use = cand & sr.usable
-        return use, sr
-
-    def _front(self, idx: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return dot(p - self.center[idx], self.n[idx]) > 0.0
-
     # ----------------------------------------------------------------------------------
     # LightKind protocol
     # ----------------------------------------------------------------------------------
     def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """Sample a point on light idx (n,) seen from ctx.p; u (n, 2). Fails (pdf 0) from behind."""
-        idx = np.asarray(idx, dtype=np.int64)
-        p = ctx.p
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         n_rows = idx.size
         if n_rows == 0:
             return invalid_sample(0)
-        use_sph, sr = self._strategy(idx, p)
-        textured = self.tex[idx] >= 0
-
-        # Area sampling (also the default for rows that use another strategy, overwritten below).
-        ab = u - 0.5
-        pdf_area = np.divide(1.0, self.area[idx], out=np.zeros(n_rows), where=self.area[idx] > 0.0)
-        if textured.any():
-            rows = np.nonzero(textured)[0]
+        p = as_points(ctx.p)
+        u = as_points(u, 2)
+        tex_ab, tex_pdf_area, rows = self._texel_samples(idx, u)
+        L = np.empty((n_rows, 3))
+        wi = np.empty((n_rows, 3))
+        pdf = np.empty(n_rows)
+        dist = np.empty(n_rows)
+        p_l = np.empty((n_rows, 3))
+        kern.rect_sample_kernel(
+            idx, p, u, self.center, self.ex, self.ey, self.n, self.area, self.L, self.tex, self.is_rectangle,
+            tex_ab, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2, L, wi, pdf, dist, p_l,
+        )
+        if rows is not None:
+            # Texel colour at the sampled point (L is already 0 where the sample failed).
             i = idx[rows]
-            img = self.tex[i]
-            row, col, s, t, pmf = self.images.sample(img, u[rows])
-            h = self.images.height[img]
-            w = self.images.width[img]
-            uv = np.stack([(col + s) / w, 1.0 - (row + t) / h], axis=1)
-            ab[rows] = uv_to_ab(uv)
-            pdf_area[rows] = np.divide(pmf * (h * w), self.area[i], out=np.zeros(rows.size), where=self.area[i] > 0.0)
-        p_l = self._point(idx, ab)
-        if use_sph.any():
-            rows = np.nonzero(use_sph)[0]
-            sub = spherical_rect.SphericalRect(
-                **{f: getattr(sr, f)[rows] for f in sr.__dataclass_fields__}
-            )
-            p_l[rows] = spherical_rect.sample(sub, u[rows])
-        wi, dist = direction_and_distance(p, p_l)
-        cos_l = -dot(wi, self.n[idx])
-        pdf = area_to_solid_angle(pdf_area, dist, cos_l)
-        if use_sph.any():
-            pdf = np.where(use_sph, np.divide(1.0, sr.solid_angle, out=np.zeros(n_rows), where=use_sph), pdf)
-        ok = self._front(idx, p) & (cos_l > 0.0) & (dist > 0.0) & (pdf > 0.0)
-        pdf = np.where(ok, pdf, 0.0)
-        L = np.where(ok[:, None], self._radiance_at(idx, p_l), 0.0)
+            r, c = self._texel_rc(i, ab_to_uv(self._ab(i, p_l[rows])))
+            L[rows] *= self.images.lookup(self.tex[i], r, c)
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
+
+    def _texel_samples(self, idx: np.ndarray, u: np.ndarray):
+        """Texel importance sampling for the textured rows: (ab (n, 2), area pdf (n,), rows) with
+        only the textured rows filled, or empty arrays and None when no row is textured."""
+        textured = self.tex[idx] >= 0
+        if not textured.any():
+            return np.zeros((0, 2)), np.zeros(0), None
+        n_rows = idx.size
+        tex_ab = np.zeros((n_rows, 2))
+        tex_pdf_area = np.zeros(n_rows)
+        rows = np.nonzero(textured)[0]
+        i = idx[rows]
+        img = self.tex[i]
+        row, col, s, t, pmf = self.images.sample(img, u[rows])
+        h = self.images.height[img]
+        w = self.images.width[img]
+        uv = np.stack([(col + s) / w, 1.0 - (row + t) / h], axis=1)
+        tex_ab[rows] = uv_to_ab(uv)
+        tex_pdf_area[rows] = np.divide(
+            pmf * (h * w), self.area[i], out=np.zeros(rows.size), where=self.area[i] > 0.0
+        )
+        return tex_ab, tex_pdf_area, rows
 
     def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (n,) of sample_li(idx, ctx) producing wi; 0 if wi misses the front."""
-        idx = np.asarray(idx, dtype=np.int64)
-        p = ctx.p
-        if idx.size == 0:
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        n_rows = idx.size
+        if n_rows == 0:
             return np.zeros(0)
-        t, ab, hit = self._hit(idx, p, wi)
-        cos_l = -dot(wi, self.n[idx])
-        hit &= self._front(idx, p) & (cos_l > 0.0)
-        pdf_area = np.divide(1.0, self.area[idx], out=np.zeros(idx.size), where=self.area[idx] > 0.0)
+        p = as_points(ctx.p)
+        wi = as_points(wi)
+        tex_pdf_area = np.zeros(0)
         textured = self.tex[idx] >= 0
         if textured.any():
+            # The texel pmf at the hit point (where wi hits the plane; other rows get pdf 0).
             rows = np.nonzero(textured)[0]
             i = idx[rows]
+            _, ab = self._hit(i, p[rows], wi[rows], with_ab=True)
             img = self.tex[i]
-            r, c = self._texel_rc(i, ab_to_uv(ab[rows]))
+            r, c = self._texel_rc(i, ab_to_uv(ab))
             texel_count = self.images.height[img] * self.images.width[img]
-            pdf_area[rows] = np.divide(
-                self.images.pmf(img, r, c) * texel_count, self.area[i], out=np.zeros(rows.size), where=self.area[i] > 0.0
+            tex_pdf_area = np.zeros(n_rows)
+            tex_pdf_area[rows] = np.divide(
+                self.images.pmf(img, r, c) * texel_count, self.area[i],
+                out=np.zeros(rows.size), where=self.area[i] > 0.0,
             )
-        pdf = area_to_solid_angle(pdf_area, np.where(hit, t, 0.0), cos_l)
-        use_sph, sr = self._strategy(idx, p)
-        if use_sph.any():
-            pdf = np.where(use_sph, np.divide(1.0, sr.solid_angle, out=np.zeros(idx.size), where=use_sph), pdf)
-        return np.where(hit, pdf, 0.0)
+        pdf = np.empty(n_rows)
+        kern.rect_pdf_kernel(
+            idx, p, wi, self.center, self.ex, self.ey, self.n, self.area, self.ex_dual, self.ey_dual, self.tex,
+            self.is_rectangle, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2, pdf,
+        )
+        return pdf
 
-    def _hit(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray):
-        t, ok = ray_plane(o, d, self.center[idx], self.n[idx])
-        q = o + np.where(ok, t, 0.0)[:, None] * d
-        ab = self._ab(idx, q)
-        hit = ok & (t > 0.0) & (np.abs(ab[:, 0]) <= 0.5) & (np.abs(ab[:, 1]) <= 0.5)
-        return np.where(hit, t, np.inf), ab, hit
+    def _hit(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray, with_ab: bool = False):
+        """(t (n,) hit distance or inf, (a, b) (n, 2) plane-hit edge coordinates if with_ab)."""
+        t = np.empty(idx.size)
+        ab = np.empty((idx.size if with_ab else 0, 2))
+        kern.rect_hit_kernel(
+            idx, as_points(o), as_points(d), self.center, self.n, self.ex_dual, self.ey_dual, t, ab
+        )
+        return t, (ab if with_ab else None)
 
     def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Hit distance (n,) of rays o + t d with the (two-sided) shape, inf where none."""
-        idx = np.asarray(idx, dtype=np.int64)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         if idx.size == 0:
             return np.zeros(0)
         return self._hit(idx, o, d)[0]

@@ -32,6 +32,9 @@ L_eff = L pi r^2 / d^2 and phi = 4 pi I (equal to the sphere's pi * 4 pi r^2 * L
 Non-uniform scale: the sphere used for sampling, intersection and proxies has the largest
 world scale factor times the radius (a bounding sphere of the ellipsoid); the normalize area
 is still the ellipsoid's (Knud-Thomsen approximation, as hdEmbree). A warning is recorded.
+
+Implementation: sample_li, pdf_li and intersect are fused numba kernels
+(``renderer.kernels.lights``), one pass per row with the formulas above.
 """
 
 from __future__ import annotations
@@ -42,10 +45,10 @@ import numpy as np
 
 from renderer.color import luminance
 from renderer.description import LightDesc
-from renderer.geometry import coordinate_frame, cross
+from renderer.kernels import lights as kern
 from renderer.lights._common import (
     SHAPE_RTOL,
-    direction_and_distance,
+    as_points,
     dot,
     invalid_sample,
     linear_part,
@@ -112,10 +115,11 @@ class SphereLight:
     def __init__(self, paths, center, radius, L, delta, warnings=None):
         self.paths = list(paths)
         self.count = len(self.paths)
-        self.center = center
-        self.radius = radius
-        self.L = L
-        self.delta = delta
+        # C-contiguous float64 / bool: the kernels index these tables directly.
+        self.center = as_points(center)
+        self.radius = np.ascontiguousarray(radius, dtype=np.float64)
+        self.L = as_points(L)
+        self.delta = np.ascontiguousarray(delta, dtype=bool)
         self.warnings: list[str] = list(warnings or [])
 
     @staticmethod
@@ -147,99 +151,41 @@ class SphereLight:
         return cls([d.path for d in descs], center, radius, L, delta, warns)
 
     # ----------------------------------------------------------------------------------
-    def _cone(self, idx: np.ndarray, p: np.ndarray):
-        """Per row: (w_c unit toward centre, dc distance, sin2_max, one_minus_cos_max, outside)."""
-        w_c, dc = direction_and_distance(p, self.center[idx])
-        r = self.radius[idx]
-        outside = dc * dc > r * r * (1.0 + 1e-12)
-        sin2 = np.where(outside, (r * r) / np.where(outside, dc * dc, 1.0), 1.0)
-        cos_max = np.sqrt(np.maximum(0.0, 1.0 - sin2))
-        omc = sin2 / (1.0 + cos_max)  # 1 - cos theta_max without cancellation
-        return w_c, dc, sin2, omc, outside & ~self.delta[idx] & (r > 0.0)
-
     def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """Cone sampling from outside; fails inside. Point lights: pdf 1, L = L pi r^2 / d^2."""
-        idx = np.asarray(idx, dtype=np.int64)
-        p = ctx.p
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         n_rows = idx.size
         if n_rows == 0:
             return invalid_sample(0)
-        w_c, dc, sin2_max, omc, ok = self._cone(idx, p)
-        r = self.radius[idx]
-        sin_max = np.sqrt(sin2_max)
-        # theta of the sampled direction: x = 1 - cos theta uniform in [0, 1 - cos theta_max].
-        x = u[:, 0] * omc
-        cos_t = 1.0 - x
-        sin2 = x * (2.0 - x)
-        # Angle alpha at the centre between -w_c and the sphere point.
-        ratio = np.divide(sin2, sin_max, out=np.zeros(n_rows), where=sin_max > 0.0)
-        ratio2 = np.divide(sin2, sin2_max, out=np.zeros(n_rows), where=sin2_max > 0.0)
-        cos_a = np.clip(ratio + cos_t * np.sqrt(np.maximum(0.0, 1.0 - ratio2)), -1.0, 1.0)
-        sin_a = np.sqrt(np.maximum(0.0, 1.0 - cos_a * cos_a))
-        phi = 2.0 * np.pi * u[:, 1]
-        s, t = coordinate_frame(w_c)
-        # Outward normal at the sampled point: -w_c tilted by alpha around it.
-        n_s = (
-            -cos_a[:, None] * w_c
-            + (sin_a * np.cos(phi))[:, None] * s
-            + (sin_a * np.sin(phi))[:, None] * t
+        L = np.empty((n_rows, 3))
+        wi = np.empty((n_rows, 3))
+        pdf = np.empty(n_rows)
+        dist = np.empty(n_rows)
+        p_l = np.empty((n_rows, 3))
+        kern.sphere_sample_kernel(
+            idx, as_points(ctx.p), as_points(u, 2), self.center, self.radius, self.L, self.delta,
+            L, wi, pdf, dist, p_l,
         )
-        p_l = self.center[idx] + r[:, None] * n_s
-        wi, dist = direction_and_distance(p, p_l)
-        pdf = np.divide(1.0, 2.0 * np.pi * omc, out=np.zeros(n_rows), where=ok & (omc > 0.0))
-        ok &= (pdf > 0.0) & (dist > 0.0)
-        L = np.where(ok[:, None], self.L[idx], 0.0)
-        pdf = np.where(ok, pdf, 0.0)
-
-        # Delta (treatAsPoint) rows.
-        dl = self.delta[idx]
-        if dl.any():
-            good = dl & (dc > 0.0)
-            inv_d2 = np.divide(1.0, dc * dc, out=np.zeros(n_rows), where=good)
-            Lp = self.L[idx] * (np.pi * r * r * inv_d2)[:, None]
-            L = np.where(dl[:, None], np.where(good[:, None], Lp, 0.0), L)
-            wi = np.where(dl[:, None], w_c, wi)
-            dist = np.where(dl, dc, dist)
-            p_l = np.where(dl[:, None], self.center[idx], p_l)
-            pdf = np.where(dl, np.where(good, 1.0, 0.0), pdf)
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
 
     def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
         """1 / (2 pi (1 - cos theta_max)) inside the cone, 0 outside, inside the sphere, or delta."""
-        idx = np.asarray(idx, dtype=np.int64)
-        p = ctx.p
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         if idx.size == 0:
             return np.zeros(0)
-        w_c, dc, sin2_max, omc, ok = self._cone(idx, p)
-        # sin^2 of the angle between wi and w_c, accurate for tiny cones (no 1 - cos).
-        c = cross(wi, w_c)
-        sin2 = dot(c, c)
-        in_cone = (dot(wi, w_c) > 0.0) & (sin2 <= sin2_max * (1.0 + 1e-9))
-        ok &= in_cone
-        return np.divide(1.0, 2.0 * np.pi * omc, out=np.zeros(idx.size), where=ok & (omc > 0.0))
+        pdf = np.empty(idx.size)
+        kern.sphere_pdf_kernel(idx, as_points(ctx.p), as_points(wi), self.center, self.radius, self.delta, pdf)
+        return pdf
 
     def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         """First hit distance t > 0 (n,) with the sphere (inner hits included), inf where none;
         inf for point lights."""
-        idx = np.asarray(idx, dtype=np.int64)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         if idx.size == 0:
             return np.zeros(0)
-        oc = o - self.center[idx]
-        r = self.radius[idx]
-        b = dot(oc, d)
-        # Discriminant from the perpendicular offset (better conditioned than b^2 - c).
-        perp = oc - b[:, None] * d
-        disc = r * r - dot(perp, perp)
-        hit = (disc >= 0.0) & ~self.delta[idx] & (r > 0.0)
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        cc = dot(oc, oc) - r * r
-        q = -b - np.copysign(sq, b)
-        t0 = np.divide(cc, q, out=np.full(idx.size, np.inf), where=q != 0.0)
-        t1 = q
-        tn = np.minimum(t0, t1)
-        tf = np.maximum(t0, t1)
-        t = np.where(tn > 0.0, tn, np.where(tf > 0.0, tf, np.inf))
-        return np.where(hit, t, np.inf)
+        t = np.empty(idx.size)
+        kern.sphere_hit_kernel(idx, as_points(o), as_points(d), self.center, self.radius, self.delta, t)
+        return t
 
     def le(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """L toward -wi where wi arrives on the outside of the sphere; 0 inside and for points."""

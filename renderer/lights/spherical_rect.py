@@ -20,6 +20,12 @@ sin(au) = 0), and along y the projected height is interpolated linearly:
 
 The local frame has x along the first edge, y along the second, and z flipped so that z0 < 0.
 The sample density is 1/S per steradian.
+
+The rect and disk lights run the same maths per row inside their numba kernels
+(``renderer.kernels.lights._sr_setup`` / ``_sr_sample``, a line-by-line port of ``setup`` and
+``sample`` below, which stay as the vectorised statement of the method and for tests).
+MIN_SOLID_ANGLE and GRAZING_NZ2 are passed to those kernels as arguments, so this module
+stays their single source of truth.
 """
 
 from __future__ import annotations

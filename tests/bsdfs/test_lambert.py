@@ -78,3 +78,15 @@ def test_control_variate_decomposition(rng):
     np.testing.assert_array_equal(b.f(wo, wi), b.f_diffuse(wo, wi) + b.f_specular(wo, wi))
     np.testing.assert_allclose(b.diffuse_constant(wo), b.diffuse_albedo() / np.pi)
     assert len(b.take(np.arange(10))) == 10
+
+
+def test_f_parts_and_bind_wo(rng):
+    n = 1000
+    b = LambertBSDF(rng.random((n, 3)))
+    wo = rng.normal(size=(n, 3))
+    wi = rng.normal(size=(n, 3))
+    assert b.bind_wo(wo) is b
+    f, fd, pdf = b.f_parts(wo, wi)
+    np.testing.assert_array_equal(f, b.f(wo, wi))
+    np.testing.assert_array_equal(fd, b.f_diffuse(wo, wi))
+    np.testing.assert_array_equal(pdf, b.pdf(wo, wi))

@@ -392,3 +392,49 @@ def test_non_contiguous_inputs(rng):
     f2, pdf2 = b.f_pdf(wo.copy(), wi.copy())
     np.testing.assert_array_equal(f, f2)
     np.testing.assert_array_equal(pdf, pdf2)
+
+
+def test_f_parts_matches_the_separate_methods(rng):
+    n = 20_000
+    b = _random_bsdf(rng, n)
+    wo = _random_unit(rng, n)
+    wi = _random_unit(rng, n)
+    wo[: n // 2, 2] = np.abs(wo[: n // 2, 2])
+    f, fd, pdf = b.f_parts(wo, wi)
+    np.testing.assert_array_equal(f, b.f(wo, wi))
+    np.testing.assert_array_equal(fd, b.f_diffuse(wo, wi))
+    np.testing.assert_array_equal(pdf, b.pdf(wo, wi))
+    f2, pdf2 = b.f_pdf(wo, wi)
+    np.testing.assert_array_equal(f, f2)
+    np.testing.assert_array_equal(pdf, pdf2)
+
+
+def test_bind_wo_only_saves_work(rng):
+    """Bound wo terms give bit-identical results, travel with take(), and are ignored for rows
+    whose wo differs from the bound one."""
+    n = 5000
+    wo = _random_unit(rng, n)
+    wi = _random_unit(rng, n)
+    wo[: n // 2, 2] = np.abs(wo[: n // 2, 2])
+    u_lobe, u = rng.random(n), rng.random((n, 2))
+    plain = _random_bsdf(np.random.default_rng(9), n)
+    bound = _random_bsdf(np.random.default_rng(9), n).bind_wo(wo)
+
+    def everything(b, wo_, wi_, ul, uu):
+        s = b.sample_f(wo_, ul, uu)
+        return [*b.f_parts(wo_, wi_), b.f_specular(wo_, wi_), b.diffuse_constant(wo_),
+                b.lobe_probabilities(wo_)[0], s.f, s.wi, s.pdf, s.lobe]
+
+    for x, y in zip(everything(plain, wo, wi, u_lobe, u), everything(bound, wo, wi, u_lobe, u)):
+        np.testing.assert_array_equal(x, y)
+    rows = np.array([3, 3, 17, n - 1, 0])
+    for x, y in zip(everything(plain.take(rows), wo[rows], wi[rows], u_lobe[rows], u[rows]),
+                    everything(bound.take(rows), wo[rows], wi[rows], u_lobe[rows], u[rows])):
+        np.testing.assert_array_equal(x, y)
+    # A different wo (same array object mutated in place, and a fresh one) is not served stale terms.
+    other = _random_unit(rng, n)
+    other[:, 2] = np.abs(other[:, 2])
+    for x, y in zip(everything(plain, other, wi, u_lobe, u), everything(bound, other, wi, u_lobe, u)):
+        np.testing.assert_array_equal(x, y)
+    wo[:] = other
+    np.testing.assert_array_equal(bound.f_parts(wo, wi)[0], plain.f_parts(other, wi)[0])

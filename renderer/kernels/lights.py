@@ -1,0 +1,576 @@
+"""Fused per-row kernels for the rect, disk and sphere lights (see ``renderer.kernels``).
+
+Each kernel does, in one pass per row, what the light's numpy code did in many whole-array
+passes: gather the light's parameters by ``idx``, choose the sampling strategy, build the
+spherical rectangle *once* (the numpy code built it once to choose the strategy and again to
+sample), sample, convert the pdf and write the outputs. The formulas, their order of operations
+and every guard (zero lengths, grazing angles, non-finite pdfs) are those of the numpy code they
+replace, documented in ``renderer/lights/{rect,disk,sphere,spherical_rect}.py``; results agree
+with it to float rounding (numpy's ``arcsin``/``sin``/``cos`` may differ from libm by an ulp).
+
+Vectors are passed around as 3-tuples of floats, which LLVM keeps in registers.
+
+Shapes: ``idx`` (n,) int64 local light indices; points/directions (n, 3) float64; per-light
+tables (count, ...) float64, int64 or bool. Outputs are preallocated by the caller and fully
+overwritten.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+
+# --------------------------------------------------------------------------------------
+# 3-vector helpers (tuples)
+#
+# Helpers take scalars and tuples; only the branch-free ``_row``/``_put``/``_rect_corner``
+# touch arrays. LLVM inlines these ordinary njit calls. (In the BSDF kernels, helpers that took
+# arrays and returned from several branches, numba-inlined with ``inline="always"``, made the
+# loop 4x slower; keeping array reads with branches in the kernel bodies avoids that.)
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _row(a, r):
+    return (a[r, 0], a[r, 1], a[r, 2])
+
+
+@njit(cache=True, nogil=True)
+def _add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+@njit(cache=True, nogil=True)
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit(cache=True, nogil=True)
+def _scale(k, a):
+    return (k * a[0], k * a[1], k * a[2])
+
+
+@njit(cache=True, nogil=True)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, nogil=True)
+def _cross(a, b):
+    # np.cross's component formulas.
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, nogil=True)
+def _put(out, r, v):
+    out[r, 0] = v[0]
+    out[r, 1] = v[1]
+    out[r, 2] = v[2]
+
+
+@njit(cache=True, nogil=True)
+def _dir_dist(p, q):
+    """_common.direction_and_distance for one row: unit p -> q and the distance (zero stays zero)."""
+    v = _sub(q, p)
+    d = math.sqrt(_dot(v, v))
+    s = d if d > 0.0 else 1.0
+    return (v[0] / s, v[1] / s, v[2] / s), d
+
+
+@njit(cache=True, nogil=True)
+def _area_to_solid_angle(pdf_area, dist, cos_light):
+    """_common.area_to_solid_angle for one row."""
+    c = abs(cos_light)
+    if not (c > 0.0 and pdf_area > 0.0):
+        return 0.0
+    out = pdf_area * dist * dist / c
+    return out if math.isfinite(out) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _clip(x, lo, hi):
+    # np.clip(x, lo, hi) == minimum(maximum(x, lo), hi)
+    return min(max(x, lo), hi)
+
+
+# --------------------------------------------------------------------------------------
+# Spherical rectangle (spherical_rect.setup / spherical_rect.sample, one row)
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _sr_setup(p, corner, ex, ey, min_solid_angle, grazing_nz2):
+    """Rectangle corner + [0,1]^2 (ex, ey) seen from p (ex, ey orthogonal).
+
+    Returns (x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, b0, b1, h2h3, solid_angle, usable).
+    """
+    lx = math.sqrt(_dot(ex, ex))
+    ly = math.sqrt(_dot(ey, ey))
+    sx = lx if lx > 0.0 else 1.0
+    sy = ly if ly > 0.0 else 1.0
+    x_hat = (ex[0] / sx, ex[1] / sx, ex[2] / sx)
+    y_hat = (ey[0] / sy, ey[1] / sy, ey[2] / sy)
+    z_hat = _cross(x_hat, y_hat)
+    d = _sub(corner, p)
+    x0 = _dot(d, x_hat)
+    y0 = _dot(d, y_hat)
+    z0 = _dot(d, z_hat)
+    if z0 > 0.0:
+        z_hat = (-z_hat[0], -z_hat[1], -z_hat[2])
+        z0 = -z0
+    x1 = x0 + lx
+    y1 = y0 + ly
+    z2 = z0 * z0
+    # z-components of the unit normals of the planes through p and each edge.
+    n0 = -y0
+    n1 = x1
+    n2 = y1
+    n3 = -x0
+    d0 = math.sqrt(n0 * n0 + z2)
+    d1 = math.sqrt(n1 * n1 + z2)
+    d2 = math.sqrt(n2 * n2 + z2)
+    d3 = math.sqrt(n3 * n3 + z2)
+    all_ok = d0 > 0.0 and d1 > 0.0 and d2 > 0.0 and d3 > 0.0
+    nz0 = n0 / d0 if d0 > 0.0 else 0.0
+    nz1 = n1 / d1 if d1 > 0.0 else 0.0
+    nz2 = n2 / d2 if d2 > 0.0 else 0.0
+    nz3 = n3 / d3 if d3 > 0.0 else 0.0
+    h0 = math.asin(_clip(nz0 * nz1, -1.0, 1.0))
+    h1 = math.asin(_clip(nz1 * nz2, -1.0, 1.0))
+    h2 = math.asin(_clip(nz2 * nz3, -1.0, 1.0))
+    h3 = math.asin(_clip(nz3 * nz0, -1.0, 1.0))
+    solid = ((h0 + h1) + h2) + h3
+    if all_ok and z0 < 0.0:
+        solid = max(solid, 0.0)
+    else:
+        solid = 0.0
+    grazing = min(min(nz0 * nz0, nz1 * nz1), min(nz2 * nz2, nz3 * nz3)) > grazing_nz2
+    usable = solid >= min_solid_angle and not grazing and math.isfinite(solid)
+    return x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, nz0, nz2, h2 + h3, solid, usable
+
+
+@njit(cache=True, nogil=True)
+def _sr_sample(p, x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, b0, b1, h2h3, solid, u0, u1):
+    """Point on the rectangle, uniformly distributed in solid angle seen from p."""
+    au = u0 * solid - h2h3
+    num = math.cos(au) * b0 + b1
+    den = math.sin(au)
+    q = math.sqrt(num * num + b0 * b0 * den * den)
+    if q > 0.0:
+        cu = den * math.copysign(1.0, num) / q
+    else:
+        cu = 0.0
+    cu = _clip(cu, -1.0, 1.0)
+    s = math.sqrt(max(1.0 - cu * cu, 1e-300))
+    xu = _clip(-cu * z0 / s, x0, x1)
+    dd = math.sqrt(xu * xu + z0 * z0)
+    r0 = math.sqrt(dd * dd + y0 * y0)
+    r1 = math.sqrt(dd * dd + y1 * y1)
+    h0 = y0 / r0 if r0 > 0.0 else 0.0
+    h1 = y1 / r1 if r1 > 0.0 else 1.0
+    hv = h0 + u1 * (h1 - h0)
+    yv = _clip(hv * dd / math.sqrt(max(1.0 - hv * hv, 1e-300)), y0, y1)
+    return (
+        p[0] + xu * x_hat[0] + yv * y_hat[0] + z0 * z_hat[0],
+        p[1] + xu * x_hat[1] + yv * y_hat[1] + z0 * z_hat[1],
+        p[2] + xu * x_hat[2] + yv * y_hat[2] + z0 * z_hat[2],
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Planar hits (rect, disk)
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _ray_plane(o, d, c, n):
+    """_common.ray_plane for one row: (t, ok), t = inf when the ray is parallel."""
+    den = _dot(n, d)
+    ok = den != 0.0
+    num = _dot(n, _sub(c, o))
+    t = num / den if ok else math.inf
+    ok = ok and math.isfinite(t)
+    return (t if ok else math.inf), ok
+
+
+@njit(cache=True, nogil=True)
+def _rect_hit(o, d, c, n, exd, eyd):
+    """RectLight._hit for one row: (t or inf, a, b, hit)."""
+    t, ok = _ray_plane(o, d, c, n)
+    tt = t if ok else 0.0
+    q = (o[0] + tt * d[0], o[1] + tt * d[1], o[2] + tt * d[2])
+    rel = _sub(q, c)
+    a = _dot(rel, exd)
+    b = _dot(rel, eyd)
+    hit = ok and t > 0.0 and abs(a) <= 0.5 and abs(b) <= 0.5
+    return (t if hit else math.inf), a, b, hit
+
+
+# --------------------------------------------------------------------------------------
+# Rect light
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _rect_corner(i, center, ex, ey):
+    """Corner c - ex/2 - ey/2 of rect i."""
+    return _sub(_sub(_row(center, i), _scale(0.5, _row(ex, i))), _scale(0.5, _row(ey, i)))
+
+
+@njit(cache=True, nogil=True)
+def rect_sample_kernel(
+    idx, p, u, center, ex, ey, nrm, area, radiance, tex, is_rect, tex_ab, tex_pdf_area,
+    min_sa, graz, out_L, out_wi, out_pdf, out_dist, out_pl,
+):
+    """RectLight.sample_li. Textured rows read their (a, b) and area pdf from tex_ab (n, 2) and
+    tex_pdf_area (n,) (texel sampling, done by the caller); their L still lacks the texel colour."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        pr = _row(p, r)
+        c = _row(center, i)
+        e1 = _row(ex, i)
+        e2 = _row(ey, i)
+        nl = _row(nrm, i)
+        use = False
+        pdf_sph = 0.0
+        pdf_area = 0.0
+        pl = c
+        if tex[i] < 0 and is_rect[i]:
+            # Strategy choice and sampling share this one setup.
+            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), e1, e2, min_sa, graz)
+            if st[12]:
+                use = True
+                pdf_sph = 1.0 / st[11]
+                pl = _sr_sample(pr, st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9],
+                                st[10], st[11], u[r, 0], u[r, 1])
+        if not use:
+            if tex[i] >= 0:
+                a = tex_ab[r, 0]
+                b = tex_ab[r, 1]
+                pdf_area = tex_pdf_area[r]
+            else:
+                a = u[r, 0] - 0.5
+                b = u[r, 1] - 0.5
+                pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
+            pl = _add(_add(c, _scale(a, e1)), _scale(b, e2))
+        wi, dist = _dir_dist(pr, pl)
+        cos_l = -_dot(wi, nl)
+        pdf = pdf_sph if use else _area_to_solid_angle(pdf_area, dist, cos_l)
+        front = _dot(_sub(pr, c), nl) > 0.0
+        ok = front and cos_l > 0.0 and dist > 0.0 and pdf > 0.0
+        out_pdf[r] = pdf if ok else 0.0
+        for k in range(3):
+            out_L[r, k] = radiance[i, k] if ok else 0.0
+        _put(out_wi, r, wi)
+        out_dist[r] = dist
+        _put(out_pl, r, pl)
+
+
+@njit(cache=True, nogil=True)
+def rect_pdf_kernel(
+    idx, p, wi, center, ex, ey, nrm, area, exd, eyd, tex, is_rect, tex_pdf_area, min_sa, graz, out_pdf,
+):
+    """RectLight.pdf_li. Textured rows take their area pdf from tex_pdf_area (n,)."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        pr = _row(p, r)
+        w = _row(wi, r)
+        c = _row(center, i)
+        nl = _row(nrm, i)
+        t, a, b, hit = _rect_hit(pr, w, c, nl, _row(exd, i), _row(eyd, i))
+        cos_l = -_dot(w, nl)
+        hit = hit and _dot(_sub(pr, c), nl) > 0.0 and cos_l > 0.0
+        if not hit:
+            out_pdf[r] = 0.0
+            continue
+        if tex[i] >= 0:
+            pdf_area = tex_pdf_area[r]
+        else:
+            pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
+        pdf = _area_to_solid_angle(pdf_area, t, cos_l)
+        if tex[i] < 0 and is_rect[i]:
+            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), _row(ex, i), _row(ey, i), min_sa, graz)
+            if st[12]:
+                pdf = 1.0 / st[11]
+        out_pdf[r] = pdf
+
+
+@njit(cache=True, nogil=True)
+def rect_hit_kernel(idx, o, d, center, nrm, exd, eyd, out_t, out_ab):
+    """RectLight._hit: t (n,) (inf on a miss) and the edge coordinates (a, b) (n, 2) of the
+    plane hit (meaningful only where t is finite). out_ab may have 0 rows (not wanted)."""
+    want_ab = out_ab.shape[0] > 0
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        t, a, b, hit = _rect_hit(
+            _row(o, r), _row(d, r), _row(center, i), _row(nrm, i), _row(exd, i), _row(eyd, i)
+        )
+        out_t[r] = t
+        if want_ab:
+            out_ab[r, 0] = a
+            out_ab[r, 1] = b
+
+
+# --------------------------------------------------------------------------------------
+# Disk light
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _disk_q(x, c, u1, u2, s1, s2):
+    """DiskLight._q for one row: unit-disk coordinates of x projected onto the disk's plane."""
+    rel = _sub(x, c)
+    q1 = _dot(rel, u1) / s1 if s1 > 0 else 0.0
+    q2 = _dot(rel, u2) / s2 if s2 > 0 else 0.0
+    return q1, q2
+
+
+@njit(cache=True, nogil=True)
+def _disk_close(p, c, nl, u1, u2, s1, s2, close_ratio):
+    """First half of DiskLight._strategy for one row: (d_far > close_ratio d_near, p in front)."""
+    rel = _sub(p, c)
+    hn = _dot(rel, nl)
+    h = abs(hn)
+    q1, q2 = _disk_q(p, c, u1, u2, s1, s2)
+    qn = math.sqrt(q1 * q1 + q2 * q2 + 0.0)
+    rho = math.sqrt(max(_dot(rel, rel) - h * h, 0.0))  # in-plane distance to the centre
+    # Bounds of the distances from p to the ellipse: in-plane nearest >= s2 (|q| - 1),
+    # in-plane farthest <= rho + s1 (exact for circles).
+    near = s2 * max(qn - 1.0, 0.0)
+    far = rho + s1
+    d_near = math.sqrt(h * h + near * near)
+    d_far = math.sqrt(h * h + far * far)
+    return d_far > close_ratio * d_near, hn > 0.0
+
+
+@njit(cache=True, nogil=True)
+def _disk_rect(p, c, a1, a2, min_sa, graz):
+    """Spherical-rectangle setup of the bounding rectangle [-a1, a1] x [-a2, a2] of a disk
+    centred at c, seen from p."""
+    corner = _sub(_sub(c, a1), a2)
+    return _sr_setup(p, corner, _scale(2.0, a1), _scale(2.0, a2), min_sa, graz)
+
+
+@njit(cache=True, nogil=True)
+def disk_strategy_kernel(idx, p, center, e1, e2, nrm, u1, u2, s1, s2, close_ratio, min_sa, graz,
+                         out_use, out_solid):
+    """DiskLight._strategy: use solid-angle sampling (n,) bool and the bounding rectangle's
+    solid angle (n,) (sr, from p)."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        pr = _row(p, r)
+        c = _row(center, i)
+        close, front = _disk_close(pr, c, _row(nrm, i), _row(u1, i), _row(u2, i), s1[i], s2[i], close_ratio)
+        st = _disk_rect(pr, c, _row(e1, i), _row(e2, i), min_sa, graz)
+        out_use[r] = close and front and st[12]
+        out_solid[r] = st[11]
+
+
+@njit(cache=True, nogil=True)
+def disk_sample_kernel(
+    idx, p, u, center, e1, e2, nrm, u1, u2, s1, s2, area, radiance, close_ratio, min_sa, graz,
+    out_L, out_wi, out_pdf, out_dist, out_pl,
+):
+    """DiskLight.sample_li: concentric area sampling or bounding-rectangle solid-angle sampling
+    (samples outside the ellipse fail)."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        pr = _row(p, r)
+        c = _row(center, i)
+        nl = _row(nrm, i)
+        v1 = _row(u1, i)
+        v2 = _row(u2, i)
+        a1 = _row(e1, i)
+        a2 = _row(e2, i)
+        close, front = _disk_close(pr, c, nl, v1, v2, s1[i], s2[i], close_ratio)
+        use = False
+        inside = True
+        pdf_sph = 0.0
+        pl = c
+        if close and front:
+            st = _disk_rect(pr, c, a1, a2, min_sa, graz)
+            if st[12]:
+                use = True
+                pdf_sph = 1.0 / st[11]
+                pl = _sr_sample(pr, st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9],
+                                st[10], st[11], u[r, 0], u[r, 1])
+                q1, q2 = _disk_q(pl, c, v1, v2, s1[i], s2[i])
+                inside = q1 * q1 + q2 * q2 <= 1.0
+        if not use:
+            # Shirley-Chiu concentric map (sampling.sample_uniform_disk_concentric).
+            sa = 2.0 * u[r, 0] - 1.0
+            sb = 2.0 * u[r, 1] - 1.0
+            if abs(sa) > abs(sb):
+                rad = sa
+                th = (_PI / 4.0) * (sb / sa if sa != 0.0 else 0.0)
+            else:
+                rad = sb
+                th = (_PI / 2.0) - (_PI / 4.0) * (sa / sb if sb != 0.0 else 0.0)
+            qa = rad * math.cos(th)
+            qb = rad * math.sin(th)
+            pl = _add(_add(c, _scale(qa, a1)), _scale(qb, a2))
+        wi, dist = _dir_dist(pr, pl)
+        cos_l = -_dot(wi, nl)
+        if use:
+            pdf = pdf_sph
+        else:
+            pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
+            pdf = _area_to_solid_angle(pdf_area, dist, cos_l)
+        ok = inside and front and cos_l > 0.0 and dist > 0.0 and pdf > 0.0
+        out_pdf[r] = pdf if ok else 0.0
+        for k in range(3):
+            out_L[r, k] = radiance[i, k] if ok else 0.0
+        _put(out_wi, r, wi)
+        out_dist[r] = dist
+        _put(out_pl, r, pl)
+
+
+@njit(cache=True, nogil=True)
+def _disk_hit(o, d, c, nl, u1, u2, s1, s2):
+    t, ok = _ray_plane(o, d, c, nl)
+    tt = t if ok else 0.0
+    x = (o[0] + tt * d[0], o[1] + tt * d[1], o[2] + tt * d[2])
+    q1, q2 = _disk_q(x, c, u1, u2, s1, s2)
+    hit = ok and t > 0.0 and q1 * q1 + q2 * q2 <= 1.0
+    return (t if hit else math.inf), hit
+
+
+@njit(cache=True, nogil=True)
+def disk_pdf_kernel(
+    idx, p, wi, center, e1, e2, nrm, u1, u2, s1, s2, area, close_ratio, min_sa, graz, out_pdf,
+):
+    """DiskLight.pdf_li."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        pr = _row(p, r)
+        w = _row(wi, r)
+        c = _row(center, i)
+        nl = _row(nrm, i)
+        v1 = _row(u1, i)
+        v2 = _row(u2, i)
+        t, hit = _disk_hit(pr, w, c, nl, v1, v2, s1[i], s2[i])
+        cos_l = -_dot(w, nl)
+        hit = hit and _dot(_sub(pr, c), nl) > 0.0 and cos_l > 0.0
+        if not hit:
+            out_pdf[r] = 0.0
+            continue
+        pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
+        pdf = _area_to_solid_angle(pdf_area, t, cos_l)
+        # hit implies p in front, the other half of the strategy rule.
+        close, _ = _disk_close(pr, c, nl, v1, v2, s1[i], s2[i], close_ratio)
+        if close:
+            st = _disk_rect(pr, c, _row(e1, i), _row(e2, i), min_sa, graz)
+            if st[12]:
+                pdf = 1.0 / st[11]
+        out_pdf[r] = pdf
+
+
+@njit(cache=True, nogil=True)
+def disk_hit_kernel(idx, o, d, center, nrm, u1, u2, s1, s2, out_t):
+    """DiskLight.intersect: t (n,), inf where the ray misses the (two-sided) ellipse."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        out_t[r] = _disk_hit(_row(o, r), _row(d, r), _row(center, i), _row(nrm, i), _row(u1, i), _row(u2, i),
+                             s1[i], s2[i])[0]
+
+
+# --------------------------------------------------------------------------------------
+# Sphere light
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _sphere_cone(p, c, r, delta):
+    """SphereLight._cone for one row: (w_c, dc, sin2_max, 1 - cos theta_max, ok)."""
+    w_c, dc = _dir_dist(p, c)
+    outside = dc * dc > r * r * (1.0 + 1e-12)
+    sin2 = (r * r) / (dc * dc) if outside else 1.0
+    cos_max = math.sqrt(max(0.0, 1.0 - sin2))
+    omc = sin2 / (1.0 + cos_max)  # 1 - cos theta_max without cancellation
+    return w_c, dc, sin2, omc, outside and not delta and r > 0.0
+
+
+@njit(cache=True, nogil=True)
+def sphere_sample_kernel(
+    idx, p, u, center, radius, radiance, delta, out_L, out_wi, out_pdf, out_dist, out_pl,
+):
+    """SphereLight.sample_li: uniform cone sampling mapped to the visible sphere point; delta
+    (treatAsPoint) rows return the centre with pdf 1 and L pi r^2 / d^2."""
+    for row in range(idx.shape[0]):
+        i = idx[row]
+        pr = _row(p, row)
+        c = _row(center, i)
+        r = radius[i]
+        w_c, dc, sin2_max, omc, ok = _sphere_cone(pr, c, r, delta[i])
+        if delta[i]:
+            good = dc > 0.0
+            inv_d2 = 1.0 / (dc * dc) if good else 0.0
+            k = _PI * r * r * inv_d2
+            for j in range(3):
+                out_L[row, j] = radiance[i, j] * k if good else 0.0
+            _put(out_wi, row, w_c)
+            out_dist[row] = dc
+            _put(out_pl, row, c)
+            out_pdf[row] = 1.0 if good else 0.0
+            continue
+        sin_max = math.sqrt(sin2_max)
+        x = u[row, 0] * omc
+        cos_t = 1.0 - x
+        sin2 = x * (2.0 - x)
+        ratio = sin2 / sin_max if sin_max > 0.0 else 0.0
+        ratio2 = sin2 / sin2_max if sin2_max > 0.0 else 0.0
+        cos_a = _clip(ratio + cos_t * math.sqrt(max(0.0, 1.0 - ratio2)), -1.0, 1.0)
+        sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
+        phi = 2.0 * _PI * u[row, 1]
+        # geometry.coordinate_frame(w_c) (Duff et al. 2017).
+        sign = 1.0 if w_c[2] >= 0.0 else -1.0
+        fa = -1.0 / (sign + w_c[2])
+        fb = w_c[0] * w_c[1] * fa
+        s = (1.0 + sign * w_c[0] * w_c[0] * fa, sign * fb, -sign * w_c[0])
+        t = (fb, sign + w_c[1] * w_c[1] * fa, -w_c[1])
+        ks = sin_a * math.cos(phi)
+        kt = sin_a * math.sin(phi)
+        n_s = _add(_add(_scale(-cos_a, w_c), _scale(ks, s)), _scale(kt, t))
+        pl = _add(c, _scale(r, n_s))
+        wi, dist = _dir_dist(pr, pl)
+        den = _TWO_PI * omc
+        pdf = 1.0 / den if (ok and omc > 0.0) else 0.0
+        ok = ok and pdf > 0.0 and dist > 0.0
+        out_pdf[row] = pdf if ok else 0.0
+        for j in range(3):
+            out_L[row, j] = radiance[i, j] if ok else 0.0
+        _put(out_wi, row, wi)
+        out_dist[row] = dist
+        _put(out_pl, row, pl)
+
+
+@njit(cache=True, nogil=True)
+def sphere_pdf_kernel(idx, p, wi, center, radius, delta, out_pdf):
+    """SphereLight.pdf_li: 1 / (2 pi (1 - cos theta_max)) inside the cone, else 0."""
+    for row in range(idx.shape[0]):
+        i = idx[row]
+        w = _row(wi, row)
+        w_c, dc, sin2_max, omc, ok = _sphere_cone(_row(p, row), _row(center, i), radius[i], delta[i])
+        # sin^2 of the angle between wi and w_c, accurate for tiny cones (no 1 - cos).
+        cr = _cross(w, w_c)
+        sin2 = _dot(cr, cr)
+        ok = ok and _dot(w, w_c) > 0.0 and sin2 <= sin2_max * (1.0 + 1e-9)
+        out_pdf[row] = 1.0 / (_TWO_PI * omc) if (ok and omc > 0.0) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def sphere_hit_kernel(idx, o, d, center, radius, delta, out_t):
+    """SphereLight.intersect: first t > 0 (inner hits included), inf on a miss or for points."""
+    for row in range(idx.shape[0]):
+        i = idx[row]
+        dr = _row(d, row)
+        oc = _sub(_row(o, row), _row(center, i))
+        r = radius[i]
+        b = _dot(oc, dr)
+        # Discriminant from the perpendicular offset (better conditioned than b^2 - c).
+        perp = _sub(oc, _scale(b, dr))
+        disc = r * r - _dot(perp, perp)
+        if not (disc >= 0.0 and not delta[i] and r > 0.0):
+            out_t[row] = math.inf
+            continue
+        sq = math.sqrt(max(disc, 0.0))
+        cc = _dot(oc, oc) - r * r
+        q = -b - math.copysign(sq, b)
+        t0 = cc / q if q != 0.0 else math.inf
+        t1 = q
+        tn = min(t0, t1)
+        tf = max(t0, t1)
+        out_t[row] = tn if tn > 0.0 else (tf if tf > 0.0 else math.inf)
