@@ -1,30 +1,73 @@
-"""Lighting services (light samplers), chosen by name."""
+"""Lighting services (light samplers), chosen by name.
+
+``make_light_sampler(name, lights)`` builds one over a LightSet. With name '' or 'auto' the
+choice follows the light count (finite and infinite lights together):
+
+* up to EXHAUSTIVE_MAX_LIGHTS (8) lights: ``exhaustive``, every light at every vertex; a few
+  more shadow rays cost less than the variance of picking;
+* above that: ``bvh``, the light BVH. Its importance (power, distance, orientation, horizon)
+  beats power-proportional picking as soon as the lights are spread out in space, which is
+  why a scene has many of them. Measured (bench/bench_light_samplers.py, 160x90, 30 s per
+  render, relMSE over pixels that see no light directly): 13.7x lower than uniform and 9.9x
+  lower than power on stages/fireflies (5000 sphere lights), 14.9x and 3.1x on
+  stages/city_lights (293 rect and disk lights), although a pick costs ~2.5 us (a descent of
+  ~18 levels) against ~0.02 us for the power sampler's alias table. Just above the threshold
+  it still wins: with 9 / 16 / 32 mixed lights at random points the relative variance of the
+  pick (unshadowed) is 1.8 / 2.3 / 4.3 for bvh, 5.5 / 8.7 / 13 for uniform and 34 / 17 / 18
+  for power. The build is ~0.05 s for 5000 lights, ~1.4 s CPU for 100k.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..errors import SettingsError
+from .bvh import BVHLightSampler
 from .exhaustive import ExhaustiveLightSampler
 from .power import PowerLightSampler
 from .uniform import UniformLightSampler
 
-SAMPLERS = {"exhaustive": ExhaustiveLightSampler, "uniform": UniformLightSampler, "power": PowerLightSampler}
+SAMPLERS = {
+    "exhaustive": ExhaustiveLightSampler,
+    "uniform": UniformLightSampler,
+    "power": PowerLightSampler,
+    "bvh": BVHLightSampler,
+}
 
 # Up to this many lights, every light is estimated at every vertex (each with its own
 # estimator and N): the variance of picking is worse than the cost of a few more shadow rays.
 EXHAUSTIVE_MAX_LIGHTS = 8
 
-__all__ = ["SAMPLERS", "make_light_sampler", "ExhaustiveLightSampler", "PowerLightSampler", "UniformLightSampler"]
+__all__ = [
+    "SAMPLERS",
+    "EXHAUSTIVE_MAX_LIGHTS",
+    "make_light_sampler",
+    "default_sampler_name",
+    "BVHLightSampler",
+    "ExhaustiveLightSampler",
+    "PowerLightSampler",
+    "UniformLightSampler",
+]
+
+
+def default_sampler_name(light_count: int) -> str:
+    """The 'auto' choice for a scene with light_count lights (see the module docstring)."""
+    return "exhaustive" if light_count <= EXHAUSTIVE_MAX_LIGHTS else "bvh"
 
 
 def make_light_sampler(name: str, lights):
-    """Build the named sampler over a LightSet. 'auto' picks by light count:
-    exhaustive up to EXHAUSTIVE_MAX_LIGHTS lights, power beyond."""
-    phi = lights.phi() if lights.count else np.zeros(0)
+    """Build the named sampler over a LightSet (or None for a scene without lights).
+
+    The BVH sampler reads the lights' geometry; the others only their powers ``lights.phi()``.
+    'auto' / '' choose by light count (default_sampler_name).
+    """
+    count = 0 if lights is None else int(lights.count)
     if name in ("", "auto"):
-        name = "exhaustive" if np.asarray(phi).size <= EXHAUSTIVE_MAX_LIGHTS else "power"
+        name = default_sampler_name(count)
     if name not in SAMPLERS:
         raise SettingsError(f"unknown light sampler {name!r}; choose from {sorted(SAMPLERS)}",
                             attribute="light_sampler")
+    if name == "bvh":
+        return BVHLightSampler(lights)
+    phi = lights.phi() if count else np.zeros(0)
     return SAMPLERS[name](phi)
