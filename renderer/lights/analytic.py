@@ -17,8 +17,8 @@ Conventions
   or inside it gets 0.
 * Results are finite, ≥ 0, and computed without floating-point warnings.
 
-How each integral is evaluated (all exact up to rounding unless stated)
------------------------------------------------------------------------
+How each integral is evaluated (all exact up to rounding)
+---------------------------------------------------------
 Planar lights (polygon, rect, disk) use Lambert's formula in an in-plane form. With q the
 foot of p on the light's plane, h > 0 the height of p above it, ρ the 2-D in-plane position
 relative to q, c = −nrm·N and m the in-plane part of nrm (N: plane normal towards p),
@@ -32,25 +32,30 @@ is a sum of boundary fluxes with elementary closed forms:
 * straight edge at signed distance δ from q, tangential end coordinates s_a < s_b, outward
   normal n:  (c δ − h m·n) Δ / (2w), w = √(δ²+h²), Δ = atan2(w L, w² + s_a s_b). This is term
   for term Lambert's ½ θ_i nrm·normalize(v_i × v_{i+1}) with θ_i = Δ computed by atan2, but
-  written so that the factor h is explicit (grazing points keep full relative accuracy).
+  written so that the factor h of the linear part is explicit.
 * circular arc (disk): ∫ (a0 + a1 cos ψ + b1 sin ψ) / (A − B cos ψ) dψ, integrated in closed
   form with the periodic "eccentric anomaly" correction D(ψ) = F(ψ) − ψ, so there are no
   branch cuts and no cancellation when B ≪ A or when p is near the rim (peaky integrand).
-* when q is outside the (clipped) region, the radial part is evaluated as the difference
-  from its h = 0 value (the in-plane winding angle, exactly 0), removing the cancellation
-  ε·d/h of the plain formula for points close to the light's plane.
+* grazing points (h smaller than the distance from q to the clipped light): the radial part
+  is evaluated as the difference from its h = 0 value (the in-plane winding angle of q,
+  exactly 0 outside), which removes the cancellation ~ε·r_q/h of the plain sum.
 
-Far field (light diameter < FAR_RATIO × distance): the boundary sums cancel from O(size/d) to
-O((size/d)²) (relative rounding error ~ ε·d/size), so the same integral is instead evaluated
-over the clipped area by Gauss-Legendre quadrature (collapsed-square triangles for polygons,
-a polar-segment map for disks) in coordinates relative to the light's centre. The integrand is
-analytic with its nearest singularity ~d away, so the quadrature error is ~(FAR_RATIO/2)^(2k)
-(k = FAR_ORDER); with the defaults that is < 1e-20 relative, i.e. exact in float64.
+Area quadrature replaces the boundary sums where they cancel (their terms are O(angular size)
+while G is O(angular size²)): for lights smaller than FAR_RATIO × distance, and for "slivers"
+(thin lights, lights sliced thinly by the horizon) whose terms cancel by more than KAPPA_MAX,
+when the light's radius is below QUAD_MAX_R × its distance. The same integrand is integrated
+over the clipped area by Gauss-Legendre (collapsed-square fan triangles for polygons, a
+polar-segment map for disks) in coordinates relative to the light's centre, with an order
+chosen so that the error bound r^(2·order) (r = radius / distance) is below 1e-17.
 
 Sphere: exact closed form. Fully above the horizon (cos θ ≥ sin σ): π sin²σ cos θ. Straddling:
 Snyder (1996) / Frostbite's expression, which is *exact* (see projected_solid_angle_sphere for
 the derivation and for the rearrangement that avoids cancellation at tiny σ and near the
 sphere's surface).
+
+Accuracy (tests/analytic, against independent quadrature over thousands of configurations
+with sizes 1e-6..1e6 and distance/size 1e-12..1e12): relative error ≤ ~1e-9 wherever G is
+determined by the float64 inputs to better than that; see tests/analytic/report_errors.py.
 """
 
 from __future__ import annotations
@@ -69,14 +74,37 @@ __all__ = [
     "projected_solid_angle_dome_constant",
 ]
 
-# Light diameter / distance below which the far-field quadrature replaces the boundary sums.
-# Boundary sums then lose at most ~ε/FAR_RATIO² (disk) relative; quadrature error ~(FAR_RATIO/2)^(2·FAR_ORDER).
+# Light diameter / distance below which the far-field quadrature replaces the boundary sums,
+# which lose ~ε·(distance/size) relative to cancellation there.
 FAR_RATIO = 1e-2
+# Minimum Gauss-Legendre order per dimension of the area quadrature. The order actually used
+# grows with r = (light radius)/(lower bound of its distance) so that r^(2·order) < 1e-17.
 FAR_ORDER = 6
+# Boundary sums whose terms cancel by more than this factor (slivers: thin lights, or lights
+# sliced thinly by the horizon) are recomputed by area quadrature when r ≤ QUAD_MAX_R.
+KAPPA_MAX = 1e5
+QUAD_MAX_R = 0.35
+_MAX_ORDER = 24
+# The disk's polar-segment map carries a sin²φ factor (area element × chord length) that is
+# not a polynomial in φ: 16 nodes integrate it over [0, π] to ~1e-16 (6 would leave ~1e-6).
+_DISK_PHI_ORDER = 16
 
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(FAR_ORDER)  # nodes/weights on [-1, 1]
-_GL01_X = 0.5 * (_GL_X + 1.0)                                # ... mapped to [0, 1]
-_GL01_W = 0.5 * _GL_W
+_GL_CACHE: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _gl(n: int):
+    """Gauss-Legendre nodes/weights of order n on [-1, 1] and on [0, 1] (cached)."""
+    if n not in _GL_CACHE:
+        x, w = np.polynomial.legendre.leggauss(n)
+        _GL_CACHE[n] = (x, w, 0.5 * (x + 1.0), 0.5 * w)
+    return _GL_CACHE[n]
+
+
+def _quad_order(r: np.ndarray) -> np.ndarray:
+    """Order with r^(2n) ≤ 1e-17 (r < 1), at least FAR_ORDER, at most _MAX_ORDER."""
+    rr = np.clip(r, 1e-300, 0.999)
+    n = np.ceil(17.0 / (-2.0 * np.log10(rr)))
+    return np.clip(n, FAR_ORDER, _MAX_ORDER).astype(int)
 
 
 # ----------------------------------------------------------------------------------------
@@ -142,8 +170,8 @@ def _edge_terms(delta, sa, L, h, c, m_n):
     h: height of p above the plane (> 0); c = -nrm·N; m_n = m·n.
     Returns (linear, radial_direct, radial_minus_h0): the h-factored linear flux
     -h (m·n) Δ/(2w), the radial flux c δ Δ/(2w), and the radial flux minus its h = 0 value
-    c·sign(δ)·Δ0/2 (its edge sum is 0 when q lies outside the region), evaluated without
-    cancellation.
+    c·sign(δ)·Δ0/2 (evaluated without cancellation; sign(δ)·Δ0 is the signed in-plane angle the
+    edge subtends at q, and these sum to q's winding angle, 0 when q is outside the region).
     """
     sb = sa + L
     w = np.hypot(delta, h)
@@ -163,6 +191,20 @@ def _edge_terms(delta, sa, L, h, c, m_n):
     Ta = np.arctan2(-sa * h2 / wpd, w * ad + sa * sa)
     diff = np.where(ok, 0.5 * c * (t1 + sd * (Tb - Ta)), 0.0)
     return lin, rad, diff
+
+
+def _use_difference_form(outside_margin, h):
+    """Where to evaluate the radial flux as "value minus its h = 0 value" (whose edge sum, the
+    winding angle of q, is exactly 0 when the foot q is outside the region).
+
+    outside_margin: how far q is outside the region (> 0 only if it is; a lower bound of its
+    in-plane distance r_q to it). With the boundary known to rounding δx ~ ε·size, the in-plane
+    angles at q carry errors ~δx/r_q. The plain sum passes them straight on when h ≪ r_q
+    (its terms are ±c/2 times those angles, cancelling to ~h), while the difference form's
+    terms are O(h²/r_q²) and damp them; when h ≳ r_q it is the other way round (the plain terms
+    are then angles seen from p itself, well conditioned). So: difference form iff h < r_q.
+    """
+    return (outside_margin > 0.0) & (outside_margin > h)
 
 
 # ----------------------------------------------------------------------------------------
@@ -199,10 +241,10 @@ def _clip_polygon(P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return Q, count
 
 
-def _near_polygon(Q, count, rho_o, h, c, m, orient):
-    """Closed-form (Lambert/Green) G for clipped polygons Q (r, S, 2) given relative to the
-    centroid o; rho_o (r, 2) is o relative to the foot q."""
-    A = rho_o[:, None, :] + Q
+def _near_polygon(Q, count, h, c, m, orient):
+    """Closed-form (Lambert/Green) G for clipped polygons Q (r, S, 2), in-plane coordinates
+    relative to the foot q of p."""
+    A = Q
     E = np.roll(Q, -1, axis=1) - Q                    # edge vectors from the accurate offsets
     L = np.hypot(E[..., 0], E[..., 1])
     Ls = np.where(L > 0.0, L, 1.0)
@@ -213,27 +255,32 @@ def _near_polygon(Q, count, rho_o, h, c, m, orient):
     sa = A[..., 0] * tx + A[..., 1] * ty
     m_n = m[:, None, 0] * nx + m[:, None, 1] * ny
     lin, rad, diff = _edge_terms(delta, sa, L, h[:, None], c[:, None], m_n)
-    # q (the foot of p) inside the clipped polygon: the plain radial sum has no cancellation;
-    # outside: use the difference form (the h = 0 winding term it drops is exactly 0).
-    inside = np.all((delta >= 0.0) | (L == 0.0), axis=1) & (count >= 3)
-    radial = np.where(inside, rad.sum(axis=1), diff.sum(axis=1))
-    return lin.sum(axis=1) + radial
+    # radial part: plain sum, or, for grazing points whose foot q is clearly outside the
+    # clipped polygon, the difference form (its h = 0 winding term is exactly 0)
+    margin = np.where(L > 0.0, -delta, -np.inf).max(axis=1)   # distance beyond the worst edge line
+    use_diff = _use_difference_form(margin, h) & (count >= 3)
+    radial = np.where(use_diff, diff.sum(axis=1), rad.sum(axis=1))
+    g = lin.sum(axis=1) + radial
+    mag = np.abs(lin).sum(axis=1) + np.where(use_diff, np.abs(diff).sum(axis=1), np.abs(rad).sum(axis=1))
+    return g, mag
 
 
-def _far_polygon(Q, D2, rho_o, z_o, m, h, orient):
-    """Far-field G: Gauss-Legendre over the fan triangles of the clipped polygon (coordinates
-    relative to the centroid o; D2 = |o − p|², z_o = nrm·(o − p))."""
+def _far_polygon(Q, D2, rho_o, z_o, m, h, orient, order):
+    """Area-quadrature G: order×order Gauss-Legendre on the collapsed square of each fan
+    triangle of the clipped polygon (coordinates relative to the centroid o; D2 = |o − p|²,
+    z_o = nrm·(o − p))."""
+    _, _, X, W = _gl(order)
     A = Q[:, :1, :]
     B = Q[:, 1:-1, :]
     C = Q[:, 2:, :]
     e1 = B - A
     e2 = C - B
     area2 = _cross2(e1, e2)                                        # (r, T) signed, = 2·area
-    u = _GL01_X[:, None]
-    v = _GL01_X[None, :]
+    u = X[:, None]
+    v = X[None, :]
     pts = (A[:, :, None, None, :] + u[..., None] * e1[:, :, None, None, :]
            + (u * v)[..., None] * e2[:, :, None, None, :])        # (r, T, g, g, 2)
-    wts = (_GL01_W[:, None] * _GL01_W[None, :]) * u                # collapsed-square Jacobian
+    wts = (W[:, None] * W[None, :]) * u                            # collapsed-square Jacobian
     num = np.maximum(z_o[:, None, None, None] + _dot(pts, m[:, None, None, None, :]), 0.0)
     den = D2[:, None, None, None] + 2.0 * _dot(pts, rho_o[:, None, None, None, :]) + _dot(pts, pts)
     f = num / (den * den)
@@ -269,19 +316,32 @@ def _polygon_core(p, nrm, verts, front):
     z = z_o[:, None] + _dot(rel, nrm[:, None, :])                  # nrm·(v_i − p)
     area2 = _cross2(sig, np.roll(sig, -1, axis=1)).sum(axis=1)
     orient = np.where(area2 < 0.0, -1.0, 1.0)
-    Q, count = _clip_polygon(sig, z)
     res = np.zeros(r.size)
-    has = count >= 3
-    diam = 2.0 * np.sqrt(_dot(sig, sig).max(axis=1))
+    half = np.sqrt(_dot(sig, sig).max(axis=1))                     # radius about the centroid
     D2 = _dot(D, D)
-    far = has & (diam * diam < (FAR_RATIO * FAR_RATIO) * D2)
-    near = has & ~far
+    dc = np.sqrt(D2)
+    rq = np.where(dc > half, half / np.where(dc > half, dc - half, 1.0), np.inf)
+    quad = 2.0 * half < FAR_RATIO * dc
+    near = ~quad
     if np.any(near):
+        # near field: vertices relative to the foot q straight from v − p, so a vertex close
+        # to p keeps full relative precision (no detour through the centroid)
         i = np.nonzero(near)[0]
-        res[i] = _near_polygon(Q[i], count[i], rho_o[i], h[i], c[i], m[i], orient[i])
-    if np.any(far):
-        i = np.nonzero(far)[0]
-        res[i] = _far_polygon(Q[i], D2[i], rho_o[i], z_o[i], m[i], h[i], orient[i])
+        vp = verts[r[i]] - p[r[i], None, :]
+        rho_v = np.stack([_dot(vp, t1[i, None, :]), _dot(vp, t2[i, None, :])], axis=-1)
+        Q, count = _clip_polygon(rho_v, _dot(vp, nrm[i, None, :]))
+        g, mag = _near_polygon(Q, count, h[i], c[i], m[i], orient[i])
+        res[i] = np.where(count >= 3, g, 0.0)
+        # slivers: terms cancel by > KAPPA_MAX -> area quadrature if the light is compact enough
+        redo = (count >= 3) & (mag > KAPPA_MAX * np.abs(g)) & (rq[i] <= QUAD_MAX_R)
+        quad[i[redo]] = True
+    if np.any(quad):
+        order = _quad_order(rq)
+        for n_ in np.unique(order[quad]):
+            i = np.nonzero(quad & (order == n_))[0]
+            Q, count = _clip_polygon(sig[i], z[i])
+            g = _far_polygon(Q, D2[i], rho_o[i], z_o[i], m[i], h[i], orient[i], int(n_))
+            res[i] = np.where(count >= 3, g, 0.0)
     out[r] = np.maximum(res, 0.0)
     return out
 
@@ -356,12 +416,12 @@ def projected_solid_angle_sphere(p, nrm, center, radius) -> np.ndarray:
     """
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
     n = p.shape[0]
-    nrm = _unit(_rows(nrm, n))[0]
+    nrm, nlen = _unit(_rows(nrm, n))
     r = _rows(radius, n, None)
     D = _rows(center, n) - p
     d = np.sqrt(_dot(D, D))
     z = _dot(nrm, D)
-    valid = (r > 0.0) & (d > r)
+    valid = (r > 0.0) & (d > r) & (nlen > 0.0)
     ds = np.where(valid, d, 1.0)
     s = np.where(valid, r / ds, 0.0)
     s2 = s * s                                          # sin²σ without 1 − cos²
@@ -419,7 +479,8 @@ def _disk_E(psi, P, R, h, kappa, mu):
 
 def _near_disk(P, rho_c, R, h, c, m, mm, zc, full, sa0, ca0, alpha0):
     """Closed-form G for a horizon-clipped disk (in-plane quantities relative to the foot q)."""
-    A_mB = (P - R) ** 2 + h * h                         # A − B, A = P² + R² + h², B = 2PR
+    # A − B, A = P² + R² + h², B = 2PR (> 0 as h > 0; the floor only guards underflow of h²)
+    A_mB = np.maximum((P - R) ** 2 + h * h, np.finfo(np.float64).tiny)
     A_pB = (P + R) ** 2 + h * h
     A = 0.5 * (A_mB + A_pB)
     B = 2.0 * P * R
@@ -446,55 +507,89 @@ def _near_disk(P, rho_c, R, h, c, m, mm, zc, full, sa0, ca0, alpha0):
     cdiff = -2.0 * sin_g * sa0                         # cos ψ1 − cos ψ2
     s1 = np.sin(0.5 * psi1)
     den1 = A_mB + 2.0 * B * s1 * s1                    # A − B cos ψ1
-    K = np.where(full, 0.0, _log1pc(B * cdiff / den1) * cdiff / den1)   # ∫ sin ψ/(A − B cos ψ)
+    xk = np.maximum(B * cdiff / den1, -1.0 + 1e-16)    # > −1 exactly; guard rounding
+    K = np.where(full, 0.0, _log1pc(xk) * cdiff / den1)  # ∫ sin ψ/(A − B cos ψ)
     lin = 0.5 * R * h * (m_u * C + m_v * K)
     # radial arc flux (c/2)·R·Ir, R·Ir = [(1 − ρh) Δψ − ρh ΔD]/2, ρh = X/Y, X = P² + h² − R²
     X = (P - R) * (P + R) + h * h
-    one_m_rho = np.where(X > 0.0, 4.0 * h * h * R * R / (Y * (Y + X)), (Y - X) / Y)
+    YpX = Y + np.abs(X)                                # Y ± X without cancellation (Y ≥ |X|)
+    q4 = 4.0 * h * h * R * R / (Y * YpX)              # = 1 − |ρh|, since Y² − X² = 4h²R²
     rho_h = X / Y
+    one_m_rho = np.where(X > 0.0, q4, YpX / Y)
     rad_direct = 0.5 * c * 0.5 * (one_m_rho * dpsi - rho_h * dD)
     # ... minus its h = 0 value: [(ρ0 − ρh)(Δψ + ΔD) + ρ0 ΔE]/2, ρ0 = sign(P − R)
     rho0 = np.sign(P - R)
-    r0_m_rh = np.where(
-        P > R, 4.0 * h * h * R * R / (Y * (Y + X)),
-        np.where(P == R, -rho_h,
-                 np.where(X < 0.0, -4.0 * h * h * R * R / (Y * (Y - np.minimum(X, 0.0))), -1.0 - rho_h)))
+    r0_m_rh = np.where(P > R, q4, np.where(P == R, -rho_h, np.where(X < 0.0, -q4, -1.0 - rho_h)))
     mu = np.abs(P - R)
     dE = np.where(full, 0.0, _disk_E(psi2, P, R, h, kappa, mu) - _disk_E(psi1, P, R, h, kappa, mu))
     rad_diff = 0.5 * c * 0.5 * (r0_m_rh * (dpsi + dD) + rho0 * dE)
     # horizon chord (partial rows): from the arc end (α0) back to its start (−α0), outward −m̂
-    delta = c * h / mms                                # distance of the chord's line from q
+    # distance of the chord's line from q (only defined for clipped rows, where it is bounded
+    # by P + R since |zc| < R|m|)
+    delta = np.where(full, 0.0, c * h / np.where(full, 1.0, mms))
     perp_rho = -my * rho_c[:, 0] + mx * rho_c[:, 1]    # m̂⊥·ρ_c
     L = np.where(full, 0.0, 2.0 * R * sa0)
     sa = -perp_rho - R * sa0
     c_lin, c_rad, c_diff = _edge_terms(delta, sa, L, h, c, -mm)
-    inside = (P <= R) & (full | (delta >= 0.0))
-    radial = np.where(inside, rad_direct + c_rad, rad_diff + c_diff)
-    return lin + c_lin + radial
+    # radial part: plain, or for grazing points with q clearly outside, the difference form
+    margin = np.maximum(P - R, np.where(full, -np.inf, -delta))
+    use_diff = _use_difference_form(margin, h)
+    radial = np.where(use_diff, rad_diff + c_diff, rad_direct + c_rad)
+    g = lin + c_lin + radial
+    # size of the individual terms, to detect cancellation (slivers)
+    mag = (0.5 * R * h * (np.abs(m_u * C) + np.abs(m_v * K)) + np.abs(c_lin)
+           + np.where(use_diff,
+                      0.25 * np.abs(c) * (np.abs(r0_m_rh * (dpsi + dD)) + np.abs(dE)) + np.abs(c_diff),
+                      0.25 * np.abs(c) * (np.abs(one_m_rho * dpsi) + np.abs(rho_h * dD)) + np.abs(c_rad)))
+    return g, mag
 
 
-def _far_disk(R, D2, rho_c, zc, m, mm, h, alpha0):
-    """Far-field G: Gauss-Legendre over the clipped disk {|σ| ≤ R, zc + m·σ ≥ 0} with
-    σ = R cos φ m̂ + y m̂⊥, φ ∈ [0, α0], |y| ≤ R sin φ (smooth in φ and y)."""
-    mms = np.where(mm > 0.0, mm, 1.0)
-    mx = np.where(mm > 0.0, m[:, 0] / mms, 1.0)
-    my = np.where(mm > 0.0, m[:, 1] / mms, 0.0)
-    phi = alpha0[:, None] * _GL01_X[None, :]                 # (r, g)
-    wphi = alpha0[:, None] * _GL01_W[None, :]
-    x = R[:, None] * np.cos(phi)
-    ys = R[:, None] * np.sin(phi)
-    y = ys[:, :, None] * _GL_X[None, None, :]                 # (r, g, g)
-    wy = ys[:, :, None] * _GL_W[None, None, :]
+def _far_ellipse(T, D2, rho_c, zc, m, h, order):
+    """Area-quadrature G over the clipped ellipse {c + T ξ : |ξ| ≤ 1, zc + m·Tξ ≥ 0}.
+
+    T: (r, 2, 2) in-plane semi-axis matrix (columns = semi-axes in the (t1, t2) frame; R·I for
+    a disk); D2 = |c − p|²; rho_c: (r, 2) centre relative to the foot q; zc = nrm·(c − p);
+    m: (r, 2) in-plane part of nrm; h: height. In the unit disk, ξ = cos φ m̂' + y m̂'⊥ with
+    m' = Tᵀm, φ ∈ [0, α0], |y| ≤ sin φ (smooth in φ and y; the sin²φ factor needs ≥ 16 nodes
+    in φ), Gauss-Legendre of order max(order, 16) in φ and order in y.
+    """
+    _, _, Xp, Wp = _gl(max(order, _DISK_PHI_ORDER))
+    Xy, Wy, _, _ = _gl(order)
+    mp = np.einsum("rji,rj->ri", T, m)                     # Tᵀ m
+    mm = np.hypot(mp[:, 0], mp[:, 1])
+    full = zc >= mm
+    part = (zc < mm) & (zc > -mm)
+    mms = np.where(part, mm, 1.0)
+    sa0 = np.where(part, np.sqrt(np.maximum((mm - zc) * (mm + zc), 0.0)) / mms, 0.0)
+    alpha0 = np.where(full, np.pi, np.where(part, np.arctan2(sa0, -zc / mms), 0.0))
+    nz = mm > 0.0
+    mms = np.where(nz, mm, 1.0)
+    mx = np.where(nz, mp[:, 0] / mms, 1.0)
+    my = np.where(nz, mp[:, 1] / mms, 0.0)
+    phi = alpha0[:, None] * Xp[None, :]                       # (r, gφ)
+    wphi = alpha0[:, None] * Wp[None, :]
+    x = np.cos(phi)
+    ys = np.sin(phi)
+    y = ys[:, :, None] * Xy[None, None, :]                    # (r, gφ, gy)
+    wy = ys[:, :, None] * Wy[None, None, :]
     xb = x[:, :, None]
-    sx = xb * mx[:, None, None] - y * my[:, None, None]       # σ in (t1, t2)
-    sy = xb * my[:, None, None] + y * mx[:, None, None]
+    xi0 = xb * mx[:, None, None] - y * my[:, None, None]      # ξ in the unit disk
+    xi1 = xb * my[:, None, None] + y * mx[:, None, None]
+    sx = T[:, 0, 0, None, None] * xi0 + T[:, 0, 1, None, None] * xi1   # σ = T ξ
+    sy = T[:, 1, 0, None, None] * xi0 + T[:, 1, 1, None, None] * xi1
     num = np.maximum(zc[:, None, None] + mm[:, None, None] * xb, 0.0)
     den = (D2[:, None, None] + 2.0 * (sx * rho_c[:, None, None, 0] + sy * rho_c[:, None, None, 1])
            + sx * sx + sy * sy)
     f = num / (den * den)
-    # dA = (R sin φ dφ)·dy
-    tot = (f * wy * (R[:, None] * np.sin(phi) * wphi)[:, :, None]).sum(axis=(1, 2))
-    return h * tot
+    # dA = |det T| · (sin φ dφ)·dy
+    tot = (f * wy * (np.sin(phi) * wphi)[:, :, None]).sum(axis=(1, 2))
+    det = np.abs(T[:, 0, 0] * T[:, 1, 1] - T[:, 0, 1] * T[:, 1, 0])
+    return h * det * tot
+
+
+def _far_disk(R, D2, rho_c, zc, m, h, order):
+    T = R[:, None, None] * np.eye(2)[None, :, :]
+    return _far_ellipse(T, D2, rho_c, zc, m, h, order)
 
 
 def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
@@ -502,8 +597,8 @@ def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
 
     p, nrm: (n, 3); center, e_n: (n, 3) or (3,) (e_n: emitting normal, normalised here);
     radius: (n,) or scalar. p sees the disk iff dot(p − center, e_n) > 0.
-    Exact closed form (elementary functions, see the module docstring) in the near field,
-    order-FAR_ORDER² Gauss-Legendre over the clipped disk when radius < FAR_RATIO·distance.
+    Exact closed form (elementary functions, see the module docstring); Gauss-Legendre over
+    the clipped disk where that cancels (far or sliver), as for polygons.
     """
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
     n = p.shape[0]
@@ -534,17 +629,24 @@ def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
     ca0 = np.where(part, -zc / Rms, -1.0)
     alpha0 = np.where(full, np.pi, np.arctan2(sa0, ca0))
     D2 = _dot(D, D)
+    dc = np.sqrt(D2)
+    rq = np.where(dc > R, R / np.where(dc > R, dc - R, 1.0), np.inf)
     res = np.zeros(r.size)
     vis = full | part
-    far = vis & (4.0 * R * R < (FAR_RATIO * FAR_RATIO) * D2)
-    near = vis & ~far
+    quad = vis & (2.0 * R < FAR_RATIO * dc)
+    near = vis & ~quad
     if np.any(near):
         i = np.nonzero(near)[0]
-        res[i] = _near_disk(P[i], rho_c[i], R[i], h[i], c[i], m[i], mm[i], zc[i], full[i],
+        g, mag = _near_disk(P[i], rho_c[i], R[i], h[i], c[i], m[i], mm[i], zc[i], full[i],
                             sa0[i], ca0[i], alpha0[i])
-    if np.any(far):
-        i = np.nonzero(far)[0]
-        res[i] = _far_disk(R[i], D2[i], rho_c[i], zc[i], m[i], mm[i], h[i], alpha0[i])
+        res[i] = g
+        redo = (mag > KAPPA_MAX * np.abs(g)) & (rq[i] <= QUAD_MAX_R)
+        quad[i[redo]] = True
+    if np.any(quad):
+        order = _quad_order(rq)
+        for n_ in np.unique(order[quad]):
+            i = np.nonzero(quad & (order == n_))[0]
+            res[i] = _far_disk(R[i], D2[i], rho_c[i], zc[i], m[i], h[i], int(n_))
     out[r] = np.maximum(res, 0.0)
     return out
 
