@@ -156,22 +156,21 @@ def _atomic_target(path: str) -> tuple[str, str]:
     return tmp, path
 
 
-def write_exr(path: str, film: Film, metadata: dict | None = None) -> None:
-    """Write the film as a float32 RGB EXR with display window = full image, data window = crop.
+def write_rgb_exr(path: str, pixels: np.ndarray, metadata: dict | None = None, *,
+                  origin: tuple[int, int] = (0, 0), full: tuple[int, int] | None = None) -> None:
+    """Write (h, w, 3) pixels as a float32 RGB EXR, atomically (temporary name, then rename).
 
-    metadata: str/int/float values become EXR attributes; numpy (4,4) arrays become matrices;
-    dicts/lists are stored as JSON strings.
+    origin: data-window position inside the display window of size ``full`` (width, height),
+    default the image itself. metadata: str/int/float values become EXR attributes; numpy (4,4)
+    arrays become matrices; dicts/lists are stored as JSON strings.
     """
     import OpenImageIO as oiio
 
-    x0, y0, x1, y1 = film.window
-    pixels = film.mean()
-    if not np.all(np.isfinite(pixels)):  # unreachable by construction; a guard, not a policy
-        raise RuntimeError("film holds non-finite pixels")
-    spec = oiio.ImageSpec(x1 - x0, y1 - y0, 3, oiio.FLOAT)
-    spec.x, spec.y = x0, y0
+    h, w = pixels.shape[:2]
+    spec = oiio.ImageSpec(w, h, 3, oiio.FLOAT)
+    spec.x, spec.y = origin
     spec.full_x, spec.full_y = 0, 0
-    spec.full_width, spec.full_height = film.width, film.height
+    spec.full_width, spec.full_height = full or (w, h)
     spec.channelnames = ("R", "G", "B")
     spec.attribute("compression", "zip")
     spec.attribute("oiio:ColorSpace", "lin_rec709")
@@ -182,13 +181,22 @@ def write_exr(path: str, film: Film, metadata: dict | None = None) -> None:
         out = oiio.ImageOutput.create(tmp)
         if out is None or not out.open(tmp, spec):
             raise OSError(f"cannot open {path} for writing: {oiio.geterror()}")
-        if not out.write_image(pixels):
+        if not out.write_image(np.ascontiguousarray(pixels, dtype=np.float32)):
             raise OSError(f"cannot write {path}: {out.geterror()}")
         out.close()
         os.replace(tmp, final)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def write_exr(path: str, film: Film, metadata: dict | None = None) -> None:
+    """Write the film as a float32 RGB EXR with display window = full image, data window = crop."""
+    x0, y0, x1, y1 = film.window
+    pixels = film.mean()
+    if not np.all(np.isfinite(pixels)):  # unreachable by construction; a guard, not a policy
+        raise RuntimeError("film holds non-finite pixels")
+    write_rgb_exr(path, pixels, metadata, origin=(x0, y0), full=(film.width, film.height))
 
 
 def _set_attr(spec, key: str, value) -> None:

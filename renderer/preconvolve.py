@@ -863,33 +863,14 @@ def _scan(src: _Source) -> _Scan:
 # Irradiance EXR I/O
 # --------------------------------------------------------------------------------------
 def write_irradiance(path: str, E: np.ndarray, meta: dict) -> None:
-    """Write E (h, w, 3) as a float32 RGB EXR with string/int/float metadata (atomically)."""
-    import OpenImageIO as oiio
+    """Write E (h, w, 3) as a float32 RGB EXR with string/int/float metadata (atomically), so a
+    reader (or a parallel render filling the cache) never sees a half-written file."""
+    from .film import write_rgb_exr
 
-    h, w = E.shape[:2]
-    spec = oiio.ImageSpec(w, h, 3, oiio.FLOAT)
-    spec.channelnames = ("R", "G", "B")
-    spec.attribute("compression", "zip")
-    for k, v in meta.items():
-        spec.attribute(k, v)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    # Write next to the target and rename: a reader (or a parallel render filling the cache)
-    # never sees a half-written file.
-    fd, tmp = tempfile.mkstemp(suffix=".exr", prefix=".illum-irr-", dir=d)
-    os.close(fd)
     try:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, spec):
-            raise IllumError(f"cannot write: {oiio.geterror()}", file=path)
-        ok = out.write_image(np.ascontiguousarray(E, dtype=np.float32))
-        out.close()
-        if not ok:
-            raise IllumError("cannot write image data", file=path)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        write_rgb_exr(path, E, meta)
+    except OSError as e:
+        raise IllumError(str(e), file=path) from e
 
 
 def read_irradiance(path: str) -> tuple[np.ndarray, dict]:
