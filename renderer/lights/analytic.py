@@ -71,6 +71,7 @@ __all__ = [
     "projected_solid_angle_rect",
     "projected_solid_angle_sphere",
     "projected_solid_angle_disk",
+    "projected_solid_angle_ellipse",
     "projected_solid_angle_dome_constant",
 ]
 
@@ -647,6 +648,99 @@ def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
         for n_ in np.unique(order[quad]):
             i = np.nonzero(quad & (order == n_))[0]
             res[i] = _far_disk(R[i], D2[i], rho_c[i], zc[i], m[i], h[i], int(n_))
+    out[r] = np.maximum(res, 0.0)
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# ellipse (a disk under non-uniform scale or shear)
+# ----------------------------------------------------------------------------------------
+def projected_solid_angle_ellipse(p, nrm, center, e1, e2, e_n) -> np.ndarray:
+    """Projected solid angle (n,) [sr] of a one-sided elliptical light, horizon-clipped.
+
+    The light is {center + cos t·e1 + sin t·e2 scaled by ≤ 1}: e1, e2 (n, 3) or (3,) are two
+    conjugate semi-diameters spanning the ellipse's plane (e.g. its principal semi-axes, as
+    ``renderer.lights.disk`` stores them; any non-parallel pair works); e_n: emitting normal
+    (normalised here); p sees the light iff dot(p − center, e_n) > 0.
+
+    Method (exact). The rays from p through the ellipse form an elliptic cone vᵀMv ≤ 0,
+    M = ℓ1ℓ1ᵀ + ℓ2ℓ2ᵀ − ℓ3ℓ3ᵀ (ℓ1,2 map a ray direction to the ellipse coordinates of its hit
+    point times ℓ3·v = −N·v). Every such cone has *circular sections*: with eigenvalues
+    λ1 ≥ λ2 > 0 > λ3 (unit eigenvectors u1, u3), M − λ2·I = (α·v)(β·v) for
+    α, β = √(λ1−λ2)·u1 ∓ √(λ2−λ3)·u3, so on a plane α·v = k the cone is the sphere
+    λ2|v|² + k β·v = 0: a circle. The projected solid angle depends only on the set of
+    directions (and nrm), so G(ellipse) = G(disk bounded by that circle), evaluated by
+    projected_solid_angle_disk (with p at the origin, so no translation rounding). Far away
+    (ellipse diameter < FAR_RATIO·distance) the section's radius would be a difference of two
+    nearly equal sphere radii, so the clipped ellipse is integrated directly by area
+    quadrature instead (the disk's quadrature through the affine map of the unit disk).
+    """
+    p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+    n = p.shape[0]
+    nrm, nlen = _unit(_rows(nrm, n))
+    N = _unit(_rows(e_n, n))[0]
+    e1 = _rows(e1, n)
+    e2 = _rows(e2, n)
+    D = _rows(center, n) - p
+    h = -_dot(N, D)
+    area = np.sqrt(_dot(np.cross(e1, e2), np.cross(e1, e2)))
+    ok = (h > 0.0) & (area > 0.0) & (nlen > 0.0)
+    out = np.zeros(n)
+    if not np.any(ok):
+        return out
+    r = np.nonzero(ok)[0]
+    N, D, h, e1, e2, nrm = N[r], D[r], h[r], e1[r], e2[r], nrm[r]
+    res = np.zeros(r.size)
+    D2 = _dot(D, D)
+    half = np.sqrt(np.maximum(_dot(e1, e1), _dot(e2, e2)))
+    far = 2.0 * half < FAR_RATIO * np.sqrt(D2)
+    if np.any(far):
+        i = np.nonzero(far)[0]
+        t1, t2 = _plane_frame(N[i])
+        T = np.stack([np.stack([_dot(e1[i], t1), _dot(e2[i], t1)], axis=-1),
+                      np.stack([_dot(e1[i], t2), _dot(e2[i], t2)], axis=-1)], axis=1)   # (r, 2, 2)
+        rho_c = np.stack([_dot(D[i], t1), _dot(D[i], t2)], axis=-1)
+        m = np.stack([_dot(nrm[i], t1), _dot(nrm[i], t2)], axis=-1)
+        rq = half[i] / (np.sqrt(D2[i]) - half[i])
+        order = _quad_order(rq)
+        for n_ in np.unique(order):
+            j = np.nonzero(order == n_)[0]
+            res[i[j]] = _far_ellipse(T[j], D2[i[j]], rho_c[j], _dot(nrm[i[j]], D[i[j]]), m[j], h[i[j]], int(n_))
+    near = ~far
+    if np.any(near):
+        i = np.nonzero(near)[0]
+        # dual basis of (e1, e2) within the plane: f_a·e_b = δ_ab, f_a ⟂ N
+        a11, a12, a22 = _dot(e1[i], e1[i]), _dot(e1[i], e2[i]), _dot(e2[i], e2[i])
+        det = a11 * a22 - a12 * a12
+        f1 = (a22[:, None] * e1[i] - a12[:, None] * e2[i]) / det[:, None]
+        f2 = (a11[:, None] * e2[i] - a12[:, None] * e1[i]) / det[:, None]
+        pc = -D[i]                                                  # p − c
+        hi_ = h[i][:, None]
+        l1 = -_dot(f1, pc)[:, None] * N[i] + hi_ * f1
+        l2 = -_dot(f2, pc)[:, None] * N[i] + hi_ * f2
+        l3 = -N[i]
+        M = (l1[:, :, None] * l1[:, None, :] + l2[:, :, None] * l2[:, None, :]
+             - l3[:, :, None] * l3[:, None, :])
+        M = M / np.trace(M, axis1=1, axis2=2)[:, None, None]      # scale-free (trace > 0)
+        lam, U = np.linalg.eigh(M)                                  # ascending: λ3 < 0 < λ2 ≤ λ1
+        lam3, lam2, lam1 = lam[:, 0], lam[:, 1], lam[:, 2]
+        u3, u1 = U[:, :, 0], U[:, :, 2]
+        s1 = np.sqrt(np.maximum(lam1 - lam2, 0.0))[:, None]
+        s3 = np.sqrt(np.maximum(lam2 - lam3, 0.0))[:, None]
+        alpha = s1 * u1 - s3 * u3
+        beta = s1 * u1 + s3 * u3
+        v0 = D[i]                                                   # inside the cone, our nappe
+        k = _dot(alpha, v0)                                          # plane α·v = α·v0 through v0
+        s0 = -(k / (2.0 * lam2))[:, None] * beta                    # sphere centre (through p)
+        rs2 = (k * k) * _dot(beta, beta) / (4.0 * lam2 * lam2)
+        a2 = _dot(alpha, alpha)
+        t = (k - _dot(alpha, s0)) / a2
+        cc = s0 + t[:, None] * alpha                                # circle centre relative to p
+        rad2 = rs2 - t * t * a2
+        ahat = alpha / np.sqrt(a2)[:, None]
+        en = np.where((_dot(ahat, cc) > 0.0)[:, None], -ahat, ahat)  # p on the emitting side
+        res[i] = projected_solid_angle_disk(np.zeros((i.size, 3)), nrm[i], cc, en,
+                                            np.sqrt(np.maximum(rad2, 0.0)))
     out[r] = np.maximum(res, 0.0)
     return out
 
