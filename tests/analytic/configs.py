@@ -57,7 +57,7 @@ def _perp_frame(a):
 
 @dataclass
 class PlanarConfig:
-    kind: str              # "rect" | "disk" | "polygon"
+    kind: str              # "rect" | "disk" | "polygon" | "ellipse"
     p_mode: str
     n_mode: str
     p: np.ndarray          # local (px, py, h)
@@ -68,6 +68,7 @@ class PlanarConfig:
     ey: np.ndarray | None = None
     verts2d: np.ndarray | None = None
     radius: float = 0.0
+    radius_b: float = 0.0  # ellipse: semi-axis along local y (radius: along local x)
     scale: float = 1.0
 
     def world(self):
@@ -85,10 +86,11 @@ class PlanarConfig:
 
 def _light_points(cfg, u):
     """A point of the light (local, z = 0) from two uniforms."""
-    if cfg.kind == "disk":
-        r = cfg.radius * np.sqrt(u[0])
+    if cfg.kind in ("disk", "ellipse"):
+        r = np.sqrt(u[0])
         t = 2.0 * np.pi * u[1]
-        return np.array([r * np.cos(t), r * np.sin(t), 0.0])
+        rb = cfg.radius_b if cfg.kind == "ellipse" else cfg.radius
+        return np.array([cfg.radius * r * np.cos(t), rb * r * np.sin(t), 0.0])
     V = cfg.verts2d
     i = int(u[0] * 0.999999 * V.shape[0])
     a, b = V[0], V[i]
@@ -125,6 +127,10 @@ def planar_config(kind: str, p_mode: int, n_mode: int, perm: int, u: np.ndarray,
             V = V[::-1]                                         # both windings
         cfg.verts2d = V
         ext = S
+    elif kind == "ellipse":
+        cfg.radius = S                                         # semi-axis along local x
+        cfg.radius_b = S * _logu(u[1], -2.0, 0.0)               # along local y
+        ext = S
     else:
         cfg.radius = S
         ext = S
@@ -147,10 +153,10 @@ def planar_config(kind: str, p_mode: int, n_mode: int, perm: int, u: np.ndarray,
     elif mode == "rim":
         # close to the boundary (edge or corner), inside or outside, low height
         off = _logu(u[3], -10.0, -1.0) * ext * (1.0 if u[4] > 0.5 else -1.0)
-        if kind == "disk":
+        if kind in ("disk", "ellipse"):
             t = 2.0 * np.pi * u[5]
-            rr = cfg.radius + off
-            p = np.array([rr * np.cos(t), rr * np.sin(t), 0.0])
+            rb = cfg.radius_b if kind == "ellipse" else cfg.radius
+            p = np.array([(cfg.radius + off) * np.cos(t), (rb + off) * np.sin(t), 0.0])
         else:
             V = cfg.verts2d
             i = int(u[5] * 0.999999 * V.shape[0])

@@ -28,13 +28,14 @@ import numpy as np
 
 from renderer.lights.analytic import (
     projected_solid_angle_disk,
+    projected_solid_angle_ellipse,
     projected_solid_angle_polygon,
     projected_solid_angle_rect,
     projected_solid_angle_sphere,
 )
 
 from .configs import PlanarConfig, SphereConfig
-from .reference import disk_reference, polygon_reference, sphere_reference
+from .reference import disk_reference, ellipse_reference, polygon_reference, sphere_reference
 
 REL_TOL = 1e-5
 FLOOR = 1e-12
@@ -103,7 +104,12 @@ def position_condition(cfg: PlanarConfig, p: np.ndarray) -> float:
     X: magnitude of the coordinates that get rounded when forming p-relative geometry (the
     light's size plus |p| for points near it; far points are handled relative to the light),
     B = ∮ h/d³ dl (see _boundary_sensitivity)."""
-    if cfg.kind == "disk":
+    if cfg.kind == "ellipse":
+        t = np.linspace(0.0, 2.0 * np.pi, 4097)[:-1]
+        V = np.stack([cfg.radius * np.cos(t), cfg.radius_b * np.sin(t)], axis=1)
+        S = cfg.radius
+        B = _boundary_sensitivity(V, p)
+    elif cfg.kind == "disk":
         t = np.linspace(0.0, 2.0 * np.pi, 1025)[:-1]
         V = cfg.radius * np.stack([np.cos(t), np.sin(t)], axis=1)
         S = cfg.radius
@@ -131,6 +137,10 @@ def eval_planar(cfg: PlanarConfig):
         g = projected_solid_angle_rect(P, Nn, c, ex, ey, en_w)[0]
     elif cfg.kind == "disk":
         g = projected_solid_angle_disk(P, Nn, np.zeros(3), en_w, cfg.radius)[0]
+    elif cfg.kind == "ellipse":
+        M = cfg.perm
+        g = projected_solid_angle_ellipse(P, Nn, np.zeros(3), M @ np.array([cfg.radius, 0.0, 0.0]),
+                                          M @ np.array([0.0, cfg.radius_b, 0.0]), en_w)[0]
     else:
         g = projected_solid_angle_polygon(P, Nn, cfg.polygon_world()[None])[0]
     p, nrm = cfg.p.copy(), cfg.nrm.copy()
@@ -145,6 +155,9 @@ def eval_planar(cfg: PlanarConfig):
     if cfg.kind == "disk":
         om = disk_reference(cfg.radius, p, nrm, "omega", atol=pos)
         ref = disk_reference(cfg.radius, p, nrm, "G", atol=max(REF_ATOL * om, pos))
+    elif cfg.kind == "ellipse":
+        om = ellipse_reference(cfg.radius, cfg.radius_b, p, nrm, "omega", atol=pos)
+        ref = ellipse_reference(cfg.radius, cfg.radius_b, p, nrm, "G", atol=max(REF_ATOL * om, pos))
     else:
         om = polygon_reference(cfg.verts2d, p, nrm, "omega", atol=pos)
         ref = polygon_reference(cfg.verts2d, p, nrm, "G", atol=max(REF_ATOL * om, pos))

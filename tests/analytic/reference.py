@@ -403,6 +403,56 @@ def _disk_far(R, p, nrm, what, atol, rtol):
     return float(_adaptive(outer, kinks, atol=atol, rtol=rtol))
 
 
+def ellipse_reference(a: float, b: float, p, nrm, what: str = "G", atol: float = 0.0,
+                      rtol: float = 1e-13) -> float:
+    """Reference for the ellipse x²/a² + y²/b² ≤ 1 (local plane z = 0): Cartesian, outer
+    y = b sin θ, inner x ∈ ±a cos θ along the larger in-plane component of nrm. Meant for
+    points not within ~1e-6 of the size from the rim (no rim-specific grading)."""
+    a, b = float(a), float(b)
+    p = np.asarray(p, dtype=np.float64).copy()
+    nrm = np.asarray(nrm, dtype=np.float64).copy()
+    if abs(nrm[1]) > abs(nrm[0]):
+        p, nrm, a, b = p[[1, 0, 2]], nrm[[1, 0, 2]], b, a
+    px, py, h = (float(t) for t in p)
+    nx, ny, nz = (float(t) for t in nrm)
+    f = _f_cartesian(h, nrm, what)
+    kinks = [-0.5 * np.pi, 0.5 * np.pi]
+    if abs(py) < b:
+        th_q = float(np.arcsin(py / b))
+        kinks += _graded_list(th_q, 0.5 * h / b, -0.5 * np.pi, 0.5 * np.pi)
+    if what == "G":
+        kappa = nx * px + ny * py + nz * h
+        amp = np.hypot(nx * a, ny * b)
+        if amp > 0 and abs(kappa) < amp:
+            tm = np.arctan2(ny * b, nx * a)
+            a_ = np.arccos(kappa / amp)
+            for t in (tm + a_, tm - a_):
+                kinks.append(float(np.arcsin(np.clip(np.sin(t), -1.0, 1.0))))
+
+    def outer(th):
+        y = b * np.sin(th)
+        half = a * np.cos(th)
+        lo, hi = -half, half
+        width = 2.0 * half
+        dy = y - py
+        if what == "G":
+            rest = nz * h - ny * dy
+            if nx != 0.0:
+                with np.errstate(over="ignore"):
+                    bound = px + rest / nx
+            if nx > 0.0:
+                lo = np.maximum(lo, bound)
+            elif nx < 0.0:
+                hi = np.minimum(hi, bound)
+            else:
+                hi = np.where(rest <= 0.0, hi, lo)
+            width = np.where((lo == -half) & (hi == half), width, hi - lo)
+        k_ = np.sqrt(dy * dy + h * h)
+        return _inner_rational(lambda r, u: f(u, dy[r, None]), lo - px, hi - px, width, k_) * (b * np.cos(th))
+
+    return float(_adaptive(outer, kinks, atol=atol, rtol=rtol))
+
+
 def _sin_minus_xcos(x):
     """sin x − x cos x without cancellation at small x."""
     x2 = x * x
