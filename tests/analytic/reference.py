@@ -147,7 +147,11 @@ def _graded_list(center, scale, lo, hi, levels=None):
         return []
     span = max(abs(center - lo), abs(hi - center), hi - lo)
     J = int(np.clip(np.ceil(np.log2(max(span / scale, 1.0))) + 1, 1, 1100)) if levels is None else levels
-    g = scale * 2.0 ** np.arange(J + 1)
+    # With a subnormal scale, scale * 2^j can pass the float64 range before reaching the span:
+    # those breakpoints lie outside [lo, hi] anyway, so drop them instead of overflowing.
+    with np.errstate(over="ignore"):
+        g = scale * 2.0 ** np.arange(J + 1)
+    g = g[np.isfinite(g)]
     pts = np.concatenate([center - g, center + g, [center]])
     return list(pts[(pts > lo) & (pts < hi)])
 
