@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 demo: $(STAMP)
 	@mkdir -p $(OUT)
 	$(BIN)/illum render stages/cornell_box.usda -o $(OUT)/cornell_box.exr --preview $(OUT)/cornell_box.png \
-		--spp 64 --stats $(OUT)/cornell_box.json
+		--spp 16 --stats $(OUT)/cornell_box.json
 	@echo ""
 	@echo "Rendered:"
 	@echo "  $(abspath $(OUT)/cornell_box.exr)   (linear Rec.709, float32 EXR)"
