@@ -9,9 +9,10 @@
 both. Operations the old tree lacks are emulated the way its callers did them (``f_parts`` as
 ``f_pdf`` + ``f_diffuse``).
 
-For each operation and batch size n: the best of ``--repeat`` timings of one call on n points
-(1 thread), and of two concurrent calls on n/2 points each from a ThreadPoolExecutor
-(2 threads). The machine may be shared, so the minimum time is kept (the least disturbed run);
+For each operation and batch size n: the best of ``--repeat`` timings of back-to-back calls on
+n points (1 thread), and of the same number of calls on n/2 points in each of two threads of a
+ThreadPoolExecutor (2 threads); each timing lasts ~20 ms or one call. The machine may be
+shared, so the minimum time is kept (the least disturbed run);
 ``--rounds`` repeats the whole measurement, alternating with the baseline, and keeps the best
 round of each entry. Throughput is in
 millions of points per second; "x2" is the 2-thread throughput over the 1-thread one, which
@@ -144,7 +145,6 @@ BUILDERS = (light_ops("rect"), light_ops("sphere"), bsdf_ops)
 
 # --------------------------------------------------------------------------------------
 def _best(fn, repeat):
-    fn()  # warm-up (compilation / cache load, first-touch allocations)
     best = float("inf")
     for _ in range(repeat):
         t0 = time.perf_counter()
@@ -153,7 +153,12 @@ def _best(fn, repeat):
     return best
 
 
-def measure(repeat: int, sizes=SIZES) -> dict:
+def measure(repeat: int, sizes=SIZES, block: float = 0.02) -> dict:
+    """{"name|n": (1-thread M points/s, 2-thread M points/s)}.
+
+    Each timing covers ``calls`` back-to-back calls (enough for ~``block`` seconds), as the
+    integrator's threads run many chunks: the 1-thread timing runs them on n points, the 2-thread
+    timing runs them on each half of the points in two threads at once."""
     results = {}
     with ThreadPoolExecutor(2) as pool:
         for n in sizes:
@@ -163,15 +168,23 @@ def measure(repeat: int, sizes=SIZES) -> dict:
                 ops = build(n, np.random.default_rng(1))
                 for name, op in ops.items():
                     half = n // 2
-                    t1 = _best(lambda: op(0, n), reps)
+                    op(0, n), op(0, half), op(half, n)  # warm-up: compilation / cache load, allocations
+                    t0 = time.perf_counter()
+                    op(0, n)
+                    calls = max(1, int(block / max(time.perf_counter() - t0, 1e-9)))
+
+                    def run(lo, hi):
+                        for _ in range(calls):
+                            op(lo, hi)
 
                     def two():
-                        a = pool.submit(op, 0, half)
-                        b = pool.submit(op, half, n)
+                        a = pool.submit(run, 0, half)
+                        b = pool.submit(run, half, n)
                         a.result()
                         b.result()
 
-                    t2 = _best(two, reps)
+                    t1 = _best(lambda: run(0, n), reps) / calls
+                    t2 = _best(two, reps) / calls
                     results[f"{name}|{n}"] = (n / t1 / 1e6, n / t2 / 1e6)
     return results
 
@@ -179,7 +192,7 @@ def measure(repeat: int, sizes=SIZES) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--baseline", help="root of another tree to measure side by side")
-    ap.add_argument("--repeat", type=int, default=100,
+    ap.add_argument("--repeat", type=int, default=20,
                     help="timings per measurement at n = 16384, a quarter of that at 262144 (best is kept)")
     ap.add_argument("--rounds", type=int, default=1,
                     help="measure everything this many times (alternating trees), keep the best")

@@ -201,12 +201,10 @@ def split_integrand(bsdf, wo_l, wi_l, weight, lights, light, control, with_pdf=T
     control: (m, 3) c(wo) of each row (the BSDF's wi-constant diffuse part).
     Returns (g (m, 3), residual (m, 3), BSDF pdf of wi (m,) or None).
     """
-    if with_pdf and hasattr(bsdf, "f_pdf"):
-        f_all, pdf = bsdf.f_pdf(wo_l, wi_l)
-    else:
-        f_all = bsdf.f(wo_l, wi_l)
-        pdf = bsdf.pdf(wo_l, wi_l) if with_pdf else None
-    f_d = bsdf.f_diffuse(wo_l, wi_l)
+    # One fused evaluation gives the whole BSDF, its diffuse lobe and the pdf.
+    f_all, f_d, pdf = bsdf.f_parts(wo_l, wi_l)
+    if not with_pdf:
+        pdf = None
     up = (wi_l[:, 2] > 0.0) & (wo_l[:, 2] > 0.0)
     sd = lights.diffuse_scale[light][:, None]
     ss = lights.specular_scale[light][:, None]

@@ -276,6 +276,8 @@ class PathIntegrator:
                 bsdf = make_bsdf(params)
                 s, t = coordinate_frame(si.ns)
                 wo_l = to_local(si.wo, s, t, si.ns)
+                # Precompute the BSDF's wo-dependent terms once per vertex (E(wo) albedo lookups).
+                bsdf.bind_wo(wo_l)
                 ctx = ShadingContext(si.p, si.ng, si.ns)
                 eps = scene.accel.ray_epsilon(si.p)
 
