@@ -225,12 +225,9 @@ def stage_content_hash(stage_path: str) -> str:
 
     The digests are sorted, so the hash depends on what the files hold, not where they are.
     """
-    from pxr import Sdf, UsdUtils
+    from .usd.dependencies import stage_dependencies
 
-    layers, assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(os.path.abspath(stage_path)))
-    files = {os.path.abspath(stage_path)}
-    files.update(layer.realPath for layer in layers if layer.realPath)
-    files.update(a for a in assets if a)
+    files, unresolved = stage_dependencies(stage_path)
     digests = []
     for f in files:
         if os.path.isfile(f):
