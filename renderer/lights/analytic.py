@@ -48,6 +48,10 @@ over the clipped area by Gauss-Legendre (collapsed-square fan triangles for poly
 polar-segment map for disks) in coordinates relative to the light's centre, with an order
 chosen so that the error bound r^(2·order) (r = radius / distance) is below 1e-17.
 
+Ellipse (a disk under non-uniform scale): the same Green's-theorem fluxes, with the arc flux
+integrated numerically (Gauss-Legendre on panels graded towards the integrand's complex poles,
+which are the roots of a quartic) — not a closed form, but accurate to ~1e-13 in the tests.
+
 Sphere: exact closed form. Fully above the horizon (cos θ ≥ sin σ): π sin²σ cos θ. Straddling:
 Snyder (1996) / Frostbite's expression, which is *exact* (see projected_solid_angle_sphere for
 the derivation and for the rearrangement that avoids cancellation at tiny σ and near the
@@ -147,11 +151,6 @@ def _log1pc(x: np.ndarray) -> np.ndarray:
     return np.where(small, 1.0 - 0.5 * x, np.log1p(xs) / xs)
 
 
-def _safe_div(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-    ok = den != 0.0
-    return np.where(ok, num / np.where(ok, den, 1.0), 0.0)
-
-
 def _plane_frame(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """In-plane orthonormal axes (t1, t2) for unit normals N (n, 3); zero rows get some frame."""
     ok = _dot(N, N) > 0.0
@@ -216,9 +215,10 @@ def _clip_polygon(P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
     P: (n, k, 2) vertices; z: (n, k) signed (linear) clip function at the vertices.
     Returns Q (n, S, 2), S = max(k+1, largest count), the kept/created vertices in order with
-    the tail padded by repeating the last one (zero-length edges contribute nothing), and the
-    vertex count (n,). A vertex on the line (z = 0) counts as outside; the crossing point of an
-    edge from it is then the vertex itself, so nothing is lost.
+    the tail padded by repeating the last one (zero-length edges contribute nothing), the
+    vertex count (n,), and on_line (n, S): edge j (slot j -> j+1) is the new edge along the
+    clip line. A vertex on the line (z = 0) counts as outside; the crossing point of an edge
+    from it is then the vertex itself, so nothing is lost.
     """
     n, k, _ = P.shape
     Pn = np.roll(P, -1, axis=1)
@@ -231,20 +231,26 @@ def _clip_polygon(P: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     X = P + t[..., None] * (Pn - P)
     slots = np.stack([P, X], axis=2).reshape(n, 2 * k, 2)
     valid = np.stack([ins, cross], axis=2).reshape(n, 2 * k)
+    is_x = np.stack([np.zeros_like(ins), cross], axis=2).reshape(n, 2 * k)
     count = valid.sum(axis=1)
     S = max(k + 1, int(count.max()) if n else 0)
     order = np.argsort(~valid, axis=1, kind="stable")[:, :S]
     Q = np.take_along_axis(slots, order[..., None], axis=1)
+    is_x = np.take_along_axis(is_x, order, axis=1)
     last = np.maximum(count - 1, 0)
     j = np.arange(S)[None, :]
     pick = np.where(j < count[:, None], j, last[:, None])
     Q = np.take_along_axis(Q, pick[..., None], axis=1)
-    return Q, count
+    is_x = np.take_along_axis(is_x, pick, axis=1)
+    # edge j runs from slot j to slot j+1: it lies on the clip line iff both ends are crossings
+    # (an exit followed by an entry)
+    on_line = is_x & np.roll(is_x, -1, axis=1)
+    return Q, count, on_line
 
 
-def _near_polygon(Q, count, h, c, m, orient):
+def _near_polygon(Q, count, on_line, h, c, m, orient):
     """Closed-form (Lambert/Green) G for clipped polygons Q (r, S, 2), in-plane coordinates
-    relative to the foot q of p."""
+    relative to the foot q of p; on_line marks the edge created along the horizon line."""
     A = Q
     E = np.roll(Q, -1, axis=1) - Q                    # edge vectors from the accurate offsets
     L = np.hypot(E[..., 0], E[..., 1])
@@ -255,6 +261,12 @@ def _near_polygon(Q, count, h, c, m, orient):
     delta = A[..., 0] * nx + A[..., 1] * ny
     sa = A[..., 0] * tx + A[..., 1] * ty
     m_n = m[:, None, 0] * nx + m[:, None, 1] * ny
+    # the horizon edge lies on m·ρ + h c = 0: outward normal −m̂, distance c·h/|m| from q
+    # exactly (recomputing it from its end points would bury a tiny h in their rounding)
+    mm = np.hypot(m[:, 0], m[:, 1])[:, None]
+    line = on_line & (mm > 0.0)
+    delta = np.where(line, c[:, None] * h[:, None] / np.where(line, mm, 1.0), delta)
+    m_n = np.where(line, -mm, m_n)
     lin, rad, diff = _edge_terms(delta, sa, L, h[:, None], c[:, None], m_n)
     # radial part: plain sum, or, for grazing points whose foot q is clearly outside the
     # clipped polygon, the difference form (its h = 0 winding term is exactly 0)
@@ -330,8 +342,8 @@ def _polygon_core(p, nrm, verts, front):
         i = np.nonzero(near)[0]
         vp = verts[r[i]] - p[r[i], None, :]
         rho_v = np.stack([_dot(vp, t1[i, None, :]), _dot(vp, t2[i, None, :])], axis=-1)
-        Q, count = _clip_polygon(rho_v, _dot(vp, nrm[i, None, :]))
-        g, mag = _near_polygon(Q, count, h[i], c[i], m[i], orient[i])
+        Q, count, on_line = _clip_polygon(rho_v, _dot(vp, nrm[i, None, :]))
+        g, mag = _near_polygon(Q, count, on_line, h[i], c[i], m[i], orient[i])
         res[i] = np.where(count >= 3, g, 0.0)
         # slivers: terms cancel by > KAPPA_MAX -> area quadrature if the light is compact enough
         redo = (count >= 3) & (mag > KAPPA_MAX * np.abs(g)) & (rq[i] <= QUAD_MAX_R)
@@ -340,7 +352,7 @@ def _polygon_core(p, nrm, verts, front):
         order = _quad_order(rq)
         for n_ in np.unique(order[quad]):
             i = np.nonzero(quad & (order == n_))[0]
-            Q, count = _clip_polygon(sig[i], z[i])
+            Q, count, _ = _clip_polygon(sig[i], z[i])
             g = _far_polygon(Q, D2[i], rho_o[i], z_o[i], m[i], h[i], orient[i], int(n_))
             res[i] = np.where(count >= 3, g, 0.0)
     out[r] = np.maximum(res, 0.0)
@@ -655,25 +667,188 @@ def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 # ellipse (a disk under non-uniform scale or shear)
 # ----------------------------------------------------------------------------------------
+_NEWTON_STEP = np.pi / 32     # largest Newton step (radians) when refining the nearest rim point
+
+
+def _ellipse_poles(rho_c, A1, A2, h):
+    """Complex zeros of |ρ(t)|² + h², ρ = ρ_c + A1 cos t + A2 sin t, as (Re t, |Im t|), each
+    (r, 4). With z = e^{it}: z²(|ρ|² + h²) = c4 z⁴ + c3 z³ + c2 z² + c1 z + c0 where
+    c4 = (k3 − i k4)/2, c3 = (k1 − i k2)/2, c2 = k0, c1 = conj(c3), c0 = conj(c4) for
+    |ρ|² + h² = k0 + k1 cos t + k2 sin t + k3 cos 2t + k4 sin 2t; t = arg z − i ln|z|. Roots
+    from the companion matrix (batched eigenvalues); a (near-)circle drops to the quadratic
+    c3 z² + c2 z + c1 (its two other roots are at z ≈ 0, ∞: reported at distance π).
+    Used only to place quadrature breakpoints (near-double roots are accurate to ~√ε)."""
+    a11, a22, a12 = _dot(A1, A1), _dot(A2, A2), _dot(A1, A2)
+    k0 = _dot(rho_c, rho_c) + 0.5 * (a11 + a22) + h * h
+    k1, k2 = 2.0 * _dot(rho_c, A1), 2.0 * _dot(rho_c, A2)
+    k3, k4 = 0.5 * (a11 - a22), a12
+    c4 = 0.5 * (k3 - 1j * k4)
+    c3 = 0.5 * (k1 - 1j * k2)
+    c2 = k0 + 0j
+    c1 = np.conj(c3)
+    c0 = np.conj(c4)
+    scale = np.abs(c3) + np.abs(c2)
+    quartic = np.abs(c4) > 1e-8 * scale
+    n = rho_c.shape[0]
+    re = np.zeros((n, 4))
+    im = np.full((n, 4), np.pi)
+    if np.any(quartic):
+        i = np.nonzero(quartic)[0]
+        comp = np.zeros((i.size, 4, 4), dtype=complex)
+        comp[:, 1, 0] = comp[:, 2, 1] = comp[:, 3, 2] = 1.0
+        comp[:, :, 3] = -np.stack([c0[i], c1[i], c2[i], c3[i]], axis=1) / c4[i, None]
+        z = np.linalg.eigvals(comp)
+        re[i] = np.angle(z)
+        im[i] = np.abs(np.log(np.maximum(np.abs(z), 1e-300)))
+    if np.any(~quartic):
+        i = np.nonzero(~quartic)[0]
+        a, b, cc = c3[i], c2[i], c1[i]
+        ok = np.abs(a) > 0                     # a = 0: circle centred on q, no preferred t
+        a = np.where(ok, a, 1.0)
+        disc = np.sqrt(b * b - 4.0 * a * cc)
+        z = (-b + np.where((np.conj(b) * disc).real >= 0, -disc, disc)) / (2.0 * a)
+        re[i, 0] = re[i, 1] = np.where(ok, np.angle(z), 0.0)
+        im[i, 0] = im[i, 1] = np.where(ok, np.abs(np.log(np.maximum(np.abs(z), 1e-300))), np.pi)
+    return re, im
+
+
+def _near_ellipse(rho_c, A1, A2, h, c, m, zc):
+    """Near-field G of a horizon-clipped ellipse {ρ_c + A1 cos t + A2 sin t} (in-plane, relative
+    to the foot q; det[A1 A2] > 0) by the same Green's-theorem fluxes as the disk, with the arc
+    integral evaluated by Gauss-Legendre (12 nodes per panel) on panels graded geometrically
+    towards the integrand's complex poles (see below), so that a point close to the rim keeps
+    ~1e-13. The horizon chord is a straight edge (_edge_terms). Returns (G, |terms|)."""
+    r = rho_c.shape[0]
+    det = _cross2(A1, A2)
+    mA1, mA2 = _dot(m, A1), _dot(m, A2)
+    mu = np.hypot(mA1, mA2)
+    full = zc >= mu
+    mus = np.where(full, 1.0, mu)
+    sa0 = np.where(full, 0.0, np.sqrt(np.maximum((mu - zc) * (mu + zc), 0.0)) / mus)
+    alpha0 = np.where(full, np.pi, np.arctan2(sa0, -zc / mus))
+    t_m = np.arctan2(mA2, mA1)
+
+    def rho(t):
+        ct, st = np.cos(t), np.sin(t)
+        return rho_c[:, None, :] + ct[..., None] * A1[:, None, :] + st[..., None] * A2[:, None, :]
+
+    def drho(t):
+        ct, st = np.cos(t), np.sin(t)
+        return -st[..., None] * A1[:, None, :] + ct[..., None] * A2[:, None, :]
+
+    # Quadrature breakpoints: the integrand's only singularities are the complex zeros of
+    # |ρ(t)|² + h² (four; two near the real axis for each flank of a thin ellipse that is
+    # close to q). Grade geometrically towards each zero's real part from half its distance to
+    # the real axis. Zeros very close to the axis (p near the rim) are near-double and only
+    # good to ~√ε, so the rim point nearest to q is also refined by Newton on ρ·ρ' = 0 and
+    # graded from √(|ρ|² + h²)/|ρ'| there.
+    pre, pim = _ellipse_poles(rho_c, A1, A2, h)
+    # one zero per conjugate pair (the pairs z, 1/z̄ share their real part): the two nearest the
+    # real axis that belong to different pairs (farthest apart in argument)
+    k0 = np.argmin(pim, axis=1)
+    a0 = pre[np.arange(r), k0]
+    sep = np.abs(np.angle(np.exp(1j * (pre - a0[:, None]))))
+    k1 = np.argmax(sep, axis=1)
+    centres = [a0, pre[np.arange(r), k1]]
+    widths = [np.clip(0.5 * pim[np.arange(r), k], 1e-300, np.pi / 8.0) for k in (k0, k1)]
+    step_max = _NEWTON_STEP
+    ts = a0.copy()
+    for _ in range(8):
+        q0, q1 = rho(ts[:, None])[:, 0], drho(ts[:, None])[:, 0]
+        q2 = q0 - rho_c                                     # ρ'' = −(A1 cos t + A2 sin t)
+        g1 = _dot(q1, q1) - _dot(q0, q2)
+        step = -_dot(q0, q1) / np.where(g1 > 0.0, g1, 1.0)
+        ts = ts + np.where(g1 > 0.0, np.clip(step, -step_max, step_max), 0.0)
+    q0, q1 = rho(ts[:, None])[:, 0], drho(ts[:, None])[:, 0]
+    dmin2 = _dot(q0, q0)
+    # (caps: ≥ 16 panels per turn even for a smooth integrand, so 12 nodes give ~1e-15)
+    centres.append(ts)
+    widths.append(np.clip(np.sqrt(dmin2 + h * h) / np.maximum(np.sqrt(_dot(q1, q1)), 1e-300),
+                          1e-300, np.pi / 8.0))
+    # arc parameter range; each centre graded at its periodic copies next to the range (the
+    # arc can reach the copy of a pole from either end)
+    lo = np.where(full, centres[0] - np.pi, t_m - alpha0)
+    hi = np.where(full, centres[0] + np.pi, t_m + alpha0)
+    mid = 0.5 * (lo + hi)
+    centres = [ts_ + 2.0 * np.pi * np.round((mid - ts_) / (2.0 * np.pi)) for ts_ in centres]
+    # rows grouped by the number of grading levels they need (no Python loop over rows)
+    levels = np.clip(np.ceil(np.log2(2.0 * np.pi / np.minimum.reduce(widths))) + 1, 1, 1100).astype(int)
+    arc_lin = np.zeros(r)
+    arc_rad = np.zeros(r)
+    arc_diff = np.zeros(r)
+    mag_lin = np.zeros(r)
+    mag_rad = np.zeros(r)
+    mag_diff = np.zeros(r)
+    _, _, X, W = _gl(12)
+    for J in np.unique(levels):
+        i = np.nonzero(levels == J)[0]
+        parts = [lo[i, None], hi[i, None]]
+        for ts_, wdt in zip(centres, widths):
+            g = wdt[i, None] * 2.0 ** np.arange(J + 1)[None, :]
+            for shift in (-2.0 * np.pi, 0.0, 2.0 * np.pi):
+                tc = ts_[i, None] + shift
+                parts += [tc - g, tc, tc + g]
+        cand = np.clip(np.concatenate(parts, axis=1), lo[i, None], hi[i, None])
+        cand.sort(axis=1)
+        a_, b_ = cand[:, :-1], cand[:, 1:]
+        keep = (b_ > a_).any(axis=0)                         # drop all-empty panel columns
+        a_, b_ = a_[:, keep], b_[:, keep]
+        t = (a_[..., None] + (b_ - a_)[..., None] * X).reshape(i.size, -1)
+        w = ((b_ - a_)[..., None] * W).reshape(i.size, -1)
+        ct, st = np.cos(t), np.sin(t)
+        R_ = rho_c[i, None, :] + ct[..., None] * A1[i, None, :] + st[..., None] * A2[i, None, :]
+        dR = -st[..., None] * A1[i, None, :] + ct[..., None] * A2[i, None, :]
+        r2 = _dot(R_, R_)
+        hh = (h[i] * h[i])[:, None]
+        d2 = r2 + hh
+        cr = _cross2(R_, dR)                                   # ρ × ρ'
+        lin = -0.5 * h[i, None] * _cross2(m[i, None, :], dR) / d2
+        rad = 0.5 * c[i, None] * cr / d2
+        diff = -0.5 * c[i, None] * cr * hh / (np.where(r2 > 0.0, r2, 1.0) * d2)
+        arc_lin[i] = (lin * w).sum(axis=1)
+        arc_rad[i] = (rad * w).sum(axis=1)
+        arc_diff[i] = (diff * w).sum(axis=1)
+        mag_lin[i] = (np.abs(lin) * w).sum(axis=1)
+        mag_rad[i] = (np.abs(rad) * w).sum(axis=1)
+        mag_diff[i] = (np.abs(diff) * w).sum(axis=1)
+    # q outside the ellipse, or cut off by the chord: margin as for the disk
+    xi = _cross2(-rho_c, A2) / det
+    eta = _cross2(A1, -rho_c) / det
+    outside_ell = xi * xi + eta * eta > 1.0
+    # chord from the arc's end back to its start: a straight edge on the horizon line
+    # m·ρ + h c = 0, so (as for the disk) its outward normal is −m̂, its direction −m̂⊥ and
+    # its distance from q exactly c h/|m| (not recomputed from the end points, whose
+    # rounding would swamp a tiny h)
+    pa, pb = rho(hi[:, None])[:, 0], rho(lo[:, None])[:, 0]
+    e = pb - pa
+    L = np.where(full, 0.0, np.hypot(e[:, 0], e[:, 1]))
+    mm = np.hypot(m[:, 0], m[:, 1])
+    mms = np.where(mm > 0.0, mm, 1.0)
+    mx, my = m[:, 0] / mms, m[:, 1] / mms
+    delta = np.where(full, 0.0, c * h / np.where(full, 1.0, mms))
+    sa = -(-my * pa[:, 0] + mx * pa[:, 1])                  # pa·(−m̂⊥)
+    c_lin, c_rad, c_diff = _edge_terms(delta, sa, L, h, c, -mm)
+    margin = np.maximum(np.where(outside_ell, np.sqrt(dmin2), -np.inf), np.where(full, -np.inf, -delta))
+    use_diff = _use_difference_form(margin, h)
+    gval = arc_lin + c_lin + np.where(use_diff, arc_diff + c_diff, arc_rad + c_rad)
+    mag = (mag_lin + np.abs(c_lin)
+           + np.where(use_diff, mag_diff + np.abs(c_diff), mag_rad + np.abs(c_rad)))
+    return gval, mag
+
+
 def projected_solid_angle_ellipse(p, nrm, center, e1, e2, e_n) -> np.ndarray:
     """Projected solid angle (n,) [sr] of a one-sided elliptical light, horizon-clipped.
 
-    The light is {center + cos t·e1 + sin t·e2 scaled by ≤ 1}: e1, e2 (n, 3) or (3,) are two
-    conjugate semi-diameters spanning the ellipse's plane (e.g. its principal semi-axes, as
+    The light is {center + x·e1 + y·e2 : x² + y² ≤ 1}: e1, e2 (n, 3) or (3,) are two conjugate
+    semi-diameters spanning the ellipse's plane (e.g. its principal semi-axes, as
     ``renderer.lights.disk`` stores them; any non-parallel pair works); e_n: emitting normal
     (normalised here); p sees the light iff dot(p − center, e_n) > 0.
 
-    Method (exact). The rays from p through the ellipse form an elliptic cone vᵀMv ≤ 0,
-    M = ℓ1ℓ1ᵀ + ℓ2ℓ2ᵀ − ℓ3ℓ3ᵀ (ℓ1,2 map a ray direction to the ellipse coordinates of its hit
-    point times ℓ3·v = −N·v). Every such cone has *circular sections*: with eigenvalues
-    λ1 ≥ λ2 > 0 > λ3 (unit eigenvectors u1, u3), M − λ2·I = (α·v)(β·v) for
-    α, β = √(λ1−λ2)·u1 ∓ √(λ2−λ3)·u3, so on a plane α·v = k the cone is the sphere
-    λ2|v|² + k β·v = 0: a circle. The projected solid angle depends only on the set of
-    directions (and nrm), so G(ellipse) = G(disk bounded by that circle), evaluated by
-    projected_solid_angle_disk (with p at the origin, so no translation rounding). Far away
-    (ellipse diameter < FAR_RATIO·distance) the section's radius would be a difference of two
-    nearly equal sphere radii, so the clipped ellipse is integrated directly by area
-    quadrature instead (the disk's quadrature through the affine map of the unit disk).
+    Not a closed form: the disk's Green's-theorem formulation with the arc flux integrated by
+    Gauss-Legendre on panels graded from the rim point nearest to p's foot (relative error
+    ~1e-13 in tests, also within 1e-10 of the rim), the chord and the grazing difference form
+    exactly as for the disk; area quadrature (through the affine map of the unit disk) for
+    small/far ellipses and slivers.
     """
     p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
     n = p.shape[0]
@@ -683,64 +858,42 @@ def projected_solid_angle_ellipse(p, nrm, center, e1, e2, e_n) -> np.ndarray:
     e2 = _rows(e2, n)
     D = _rows(center, n) - p
     h = -_dot(N, D)
-    area = np.sqrt(_dot(np.cross(e1, e2), np.cross(e1, e2)))
-    ok = (h > 0.0) & (area > 0.0) & (nlen > 0.0)
+    cr = np.cross(e1, e2)
+    ok = (h > 0.0) & (_dot(cr, cr) > 0.0) & (nlen > 0.0)
     out = np.zeros(n)
     if not np.any(ok):
         return out
     r = np.nonzero(ok)[0]
     N, D, h, e1, e2, nrm = N[r], D[r], h[r], e1[r], e2[r], nrm[r]
-    res = np.zeros(r.size)
+    t1, t2 = _plane_frame(N)
+    A1 = np.stack([_dot(e1, t1), _dot(e1, t2)], axis=-1)
+    A2 = np.stack([_dot(e2, t1), _dot(e2, t2)], axis=-1)
+    A2 = np.where((_cross2(A1, A2) < 0.0)[:, None], -A2, A2)    # counter-clockwise parameter
+    rho_c = np.stack([_dot(D, t1), _dot(D, t2)], axis=-1)
+    m = np.stack([_dot(nrm, t1), _dot(nrm, t2)], axis=-1)
+    c = -_dot(nrm, N)
+    zc = _dot(nrm, D)
+    mu = np.hypot(_dot(m, A1), _dot(m, A2))
+    vis = zc > -mu
     D2 = _dot(D, D)
+    dc = np.sqrt(D2)
     half = np.sqrt(np.maximum(_dot(e1, e1), _dot(e2, e2)))
-    far = 2.0 * half < FAR_RATIO * np.sqrt(D2)
-    if np.any(far):
-        i = np.nonzero(far)[0]
-        t1, t2 = _plane_frame(N[i])
-        T = np.stack([np.stack([_dot(e1[i], t1), _dot(e2[i], t1)], axis=-1),
-                      np.stack([_dot(e1[i], t2), _dot(e2[i], t2)], axis=-1)], axis=1)   # (r, 2, 2)
-        rho_c = np.stack([_dot(D[i], t1), _dot(D[i], t2)], axis=-1)
-        m = np.stack([_dot(nrm[i], t1), _dot(nrm[i], t2)], axis=-1)
-        rq = half[i] / (np.sqrt(D2[i]) - half[i])
-        order = _quad_order(rq)
-        for n_ in np.unique(order):
-            j = np.nonzero(order == n_)[0]
-            res[i[j]] = _far_ellipse(T[j], D2[i[j]], rho_c[j], _dot(nrm[i[j]], D[i[j]]), m[j], h[i[j]], int(n_))
-    near = ~far
+    rq = np.where(dc > half, half / np.where(dc > half, dc - half, 1.0), np.inf)
+    quad = vis & (2.0 * half < FAR_RATIO * dc)
+    near = vis & ~quad
+    res = np.zeros(r.size)
     if np.any(near):
         i = np.nonzero(near)[0]
-        # dual basis of (e1, e2) within the plane: f_a·e_b = δ_ab, f_a ⟂ N
-        a11, a12, a22 = _dot(e1[i], e1[i]), _dot(e1[i], e2[i]), _dot(e2[i], e2[i])
-        det = a11 * a22 - a12 * a12
-        f1 = (a22[:, None] * e1[i] - a12[:, None] * e2[i]) / det[:, None]
-        f2 = (a11[:, None] * e2[i] - a12[:, None] * e1[i]) / det[:, None]
-        pc = -D[i]                                                  # p − c
-        hi_ = h[i][:, None]
-        l1 = -_dot(f1, pc)[:, None] * N[i] + hi_ * f1
-        l2 = -_dot(f2, pc)[:, None] * N[i] + hi_ * f2
-        l3 = -N[i]
-        M = (l1[:, :, None] * l1[:, None, :] + l2[:, :, None] * l2[:, None, :]
-             - l3[:, :, None] * l3[:, None, :])
-        M = M / np.trace(M, axis1=1, axis2=2)[:, None, None]      # scale-free (trace > 0)
-        lam, U = np.linalg.eigh(M)                                  # ascending: λ3 < 0 < λ2 ≤ λ1
-        lam3, lam2, lam1 = lam[:, 0], lam[:, 1], lam[:, 2]
-        u3, u1 = U[:, :, 0], U[:, :, 2]
-        s1 = np.sqrt(np.maximum(lam1 - lam2, 0.0))[:, None]
-        s3 = np.sqrt(np.maximum(lam2 - lam3, 0.0))[:, None]
-        alpha = s1 * u1 - s3 * u3
-        beta = s1 * u1 + s3 * u3
-        v0 = D[i]                                                   # inside the cone, our nappe
-        k = _dot(alpha, v0)                                          # plane α·v = α·v0 through v0
-        s0 = -(k / (2.0 * lam2))[:, None] * beta                    # sphere centre (through p)
-        rs2 = (k * k) * _dot(beta, beta) / (4.0 * lam2 * lam2)
-        a2 = _dot(alpha, alpha)
-        t = (k - _dot(alpha, s0)) / a2
-        cc = s0 + t[:, None] * alpha                                # circle centre relative to p
-        rad2 = rs2 - t * t * a2
-        ahat = alpha / np.sqrt(a2)[:, None]
-        en = np.where((_dot(ahat, cc) > 0.0)[:, None], -ahat, ahat)  # p on the emitting side
-        res[i] = projected_solid_angle_disk(np.zeros((i.size, 3)), nrm[i], cc, en,
-                                            np.sqrt(np.maximum(rad2, 0.0)))
+        g, mag = _near_ellipse(rho_c[i], A1[i], A2[i], h[i], c[i], m[i], zc[i])
+        res[i] = g
+        redo = (mag > KAPPA_MAX * np.abs(g)) & (rq[i] <= QUAD_MAX_R)
+        quad[i[redo]] = True
+    if np.any(quad):
+        T = np.stack([A1, A2], axis=-1)                           # columns: semi-axes
+        order = _quad_order(rq)
+        for n_ in np.unique(order[quad]):
+            i = np.nonzero(quad & (order == n_))[0]
+            res[i] = _far_ellipse(T[i], D2[i], rho_c[i], zc[i], m[i], h[i], int(n_))
     out[r] = np.maximum(res, 0.0)
     return out
 

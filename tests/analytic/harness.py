@@ -106,9 +106,17 @@ def position_condition(cfg: PlanarConfig, p: np.ndarray) -> float:
     B = ∮ h/d³ dl (see _boundary_sensitivity)."""
     if cfg.kind == "ellipse":
         t = np.linspace(0.0, 2.0 * np.pi, 4097)[:-1]
-        V = np.stack([cfg.radius * np.cos(t), cfg.radius_b * np.sin(t)], axis=1)
-        S = cfg.radius
+        a, b = cfg.radius, cfg.radius_b
+        V = np.stack([a * np.cos(t), b * np.sin(t)], axis=1)
+        S = a
         B = _boundary_sensitivity(V, p)
+        # near the rim the polygon misses the closest stretch: locally a straight edge at
+        # distance d = |F|/|∇F| (F = x²/a² + y²/b² − 1) contributes 2h/(d² + h²)
+        F = (p[0] / a) ** 2 + (p[1] / b) ** 2 - 1.0
+        gF = np.hypot(2.0 * p[0] / a ** 2, 2.0 * p[1] / b ** 2)
+        if gF > 0:
+            d = abs(F) / gF
+            B = max(B, 2.0 * p[2] / (d * d + p[2] * p[2]))
     elif cfg.kind == "disk":
         t = np.linspace(0.0, 2.0 * np.pi, 1025)[:-1]
         V = cfg.radius * np.stack([np.cos(t), np.sin(t)], axis=1)

@@ -18,8 +18,10 @@ boundary); the planar lights are integrated in *area measure* straight from the 
 Polygons use Cartesian coordinates (x inner, along the larger in-plane component of nrm)
 centred on the foot of p when p is near the light (so tiny heights are resolved in the
 node positions) and on the light otherwise (so far lights keep their shape). Disks use polar
-coordinates: about the foot of p when it is inside the disk, about the disk's centre
-otherwise (radial variable measured inwards from the rim, angle from the direction of p).
+coordinates about the foot of p when it is inside the disk, about the disk's centre when it
+is outside within 4 radii (radial variable measured inwards from the rim, angle from the
+direction of p), and Cartesian coordinates in the disk's frame (outer y = R sin θ) beyond.
+Ellipses: polar about the foot of p inside, Cartesian (outer y = b sin θ) outside.
 
 The sphere uses the cone integral  G = ∫_0^σ sin α H(α) dα  where H(α) = ∫_0^{2π}
 max(0, cos α sin θ' + sin α cos θ' cos φ) dφ is elementary (θ' the elevation of the centre
@@ -38,16 +40,6 @@ _NG = 12
 _X, _W = np.polynomial.legendre.leggauss(_NG)
 _X01 = 0.5 * (_X + 1.0)
 _W01 = 0.5 * _W
-
-
-def _panel_nodes(breaks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Legendre nodes/weights on the panels between sorted breakpoints (..., B)."""
-    a = breaks[..., :-1]
-    w = breaks[..., 1:] - a
-    x = a[..., None] + w[..., None] * _X01
-    wt = w[..., None] * _W01
-    shape = breaks.shape[:-1] + (-1,)
-    return x.reshape(shape), wt.reshape(shape)
 
 
 _SPLITS = np.array([-4.0, -2.0, -1.0, 0.0, 1.0, 2.0, 4.0])
@@ -141,6 +133,13 @@ def _adaptive(func, breaks, atol=0.0, rtol=1e-13, max_rounds=60, max_panels=2000
     return done + whole.sum()
 
 
+def _ratio(num, den):
+    """num/den for graded-breakpoint scales: inf instead of an overflow (no breakpoints)."""
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        q = np.float64(num) / np.float64(den)
+    return float(q) if np.isfinite(q) and q > 0 else float("inf")
+
+
 def _graded_list(center, scale, lo, hi, levels=None):
     """Breakpoints center ± scale·2^j inside [lo, hi] (as a list)."""
     if not (np.isfinite(center) and np.isfinite(scale)) or scale <= 0.0 or hi <= lo:
@@ -222,7 +221,9 @@ def polygon_reference(V: np.ndarray, p, nrm, what: str = "G", atol: float = 0.0,
         mm2 = nx * nx + ny * ny
         if mm2 > 0.0 and nx != 0.0:
             # the clip end point meets the pole at y = py + ny nz h/|m|² ± i h|nx|/|m|²
-            kinks += _graded_list(py + ny * nz * h / mm2, h * abs(nx) / mm2, ylo, yhi)
+            with np.errstate(all="ignore"):           # overflow -> no breakpoints
+                yc = py + ny * nz * h / mm2
+            kinks += _graded_list(float(yc), _ratio(h * abs(nx), mm2), ylo, yhi)
     kinks = np.clip(np.array(kinks + [ylo, yhi]), ylo, yhi)
 
     y0, y1 = V[:, 1][None, :], Vn[:, 1][None, :]
@@ -293,7 +294,7 @@ def disk_reference(R: float, p, nrm, what: str = "G", atol: float = 0.0, rtol: f
         if what == "G" and mm > 0:
             # the clip line passes near q when nz ≈ 0: features at the directions ⟂ m
             for s in (0.5 * np.pi, -0.5 * np.pi):
-                kinks += _graded_list(wrap(tm + s - tq), max(abs(nz) / mm, 1e-300), -np.pi, np.pi)
+                kinks += _graded_list(wrap(tm + s - tq), _ratio(abs(nz), mm), -np.pi, np.pi)
         kinks = np.clip(np.array(kinks), -np.pi, np.pi)
 
         def outer(phi):
@@ -415,6 +416,8 @@ def ellipse_reference(a: float, b: float, p, nrm, what: str = "G", atol: float =
     a, b = float(a), float(b)
     p = np.asarray(p, dtype=np.float64).copy()
     nrm = np.asarray(nrm, dtype=np.float64).copy()
+    if (p[0] / a) ** 2 + (p[1] / b) ** 2 < 1.0:
+        return _ellipse_inside(a, b, p, nrm, what, atol, rtol)
     if abs(nrm[1]) > abs(nrm[0]):
         p, nrm, a, b = p[[1, 0, 2]], nrm[[1, 0, 2]], b, a
     px, py, h = (float(t) for t in p)
@@ -424,6 +427,24 @@ def ellipse_reference(a: float, b: float, p, nrm, what: str = "G", atol: float =
     if abs(py) < b:
         th_q = float(np.arcsin(py / b))
         kinks += _graded_list(th_q, 0.5 * h / b, -0.5 * np.pi, 0.5 * np.pi)
+    # the x-range end points (±a cos θ, b sin θ) meet the integrand's pole near the rim points
+    # closest to q (local minima of the distance, refined by a few Newton steps): grade there
+    tt = np.linspace(0.0, 2.0 * np.pi, 4096, endpoint=False)
+    dd = (a * np.cos(tt) - px) ** 2 + (b * np.sin(tt) - py) ** 2
+    for k in np.nonzero((dd <= np.roll(dd, 1)) & (dd <= np.roll(dd, -1)))[0][:4]:
+        t = tt[k]
+        for _ in range(20):
+            x, y = a * np.cos(t) - px, b * np.sin(t) - py
+            dx, dy = -a * np.sin(t), b * np.cos(t)
+            g1 = x * dx + y * dy
+            g2 = dx * dx + dy * dy + x * (-a * np.cos(t)) + y * (-b * np.sin(t))
+            if g2 <= 0:
+                break
+            t -= np.clip(g1 / g2, -0.01, 0.01)
+        x, y = a * np.cos(t) - px, b * np.sin(t) - py
+        speed = np.hypot(a * np.sin(t), b * np.cos(t))
+        scale = 0.5 * np.sqrt(x * x + y * y + h * h) / max(speed, 1e-300)
+        kinks += _graded_list(float(np.arcsin(np.clip(np.sin(t), -1.0, 1.0))), scale, -0.5 * np.pi, 0.5 * np.pi)
     if what == "G":
         kappa = nx * px + ny * py + nz * h
         amp = np.hypot(nx * a, ny * b)
@@ -453,6 +474,62 @@ def ellipse_reference(a: float, b: float, p, nrm, what: str = "G", atol: float =
             width = np.where((lo == -half) & (hi == half), width, hi - lo)
         k_ = np.sqrt(dy * dy + h * h)
         return _inner_rational(lambda r, u: f(u, dy[r, None]), lo - px, hi - px, width, k_) * (b * np.cos(th))
+
+    return float(_adaptive(outer, kinks, atol=atol, rtol=rtol))
+
+
+def _ellipse_inside(a, b, p, nrm, what, atol, rtol):
+    """Ellipse reference for a foot q of p inside the ellipse: polar coordinates about q,
+    x = q + ρ e(φ), ρ ∈ [0, ρ_max(φ)] (ρ_max from the quadratic, in its cancellation-free
+    form), the radial integral as for the disk."""
+    px, py, h = (float(t) for t in p)
+    nx, ny, nz = (float(t) for t in nrm)
+    bnz = nz * h
+    C = (px / a) ** 2 + (py / b) ** 2 - 1.0                  # < 0 inside
+    kinks = [-np.pi, np.pi]
+    if what == "G":
+        kappa = nx * px + ny * py + nz * h
+        amp = np.hypot(nx * a, ny * b)
+        if amp > 0 and abs(kappa) < amp:
+            tm = np.arctan2(ny * b, nx * a)
+            a_ = np.arccos(kappa / amp)
+            for t in (tm + a_, tm - a_):
+                kinks.append(float(np.arctan2(b * np.sin(t) - py, a * np.cos(t) - px)))
+        mm = np.hypot(nx, ny)
+        if mm > 0:
+            tmm = np.arctan2(ny, nx)
+            for s_ in (0.5 * np.pi, -0.5 * np.pi):
+                c_ = (tmm + s_ + np.pi) % (2.0 * np.pi) - np.pi
+                kinks += _graded_list(c_, _ratio(abs(nz), mm), -np.pi, np.pi)
+    # directions towards the nearest rim stretch, where ρ_max(φ) is small and varies fast
+    tt = np.linspace(-np.pi, np.pi, 4096, endpoint=False)
+    ex, ey = np.cos(tt), np.sin(tt)
+    A = (ex / a) ** 2 + (ey / b) ** 2
+    B = px * ex / a ** 2 + py * ey / b ** 2
+    root = np.sqrt(B * B - A * C)
+    rm = np.where(B > 0, -C / (B + root), (root - B) / A)
+    k = int(np.argmin(rm))
+    d = float(rm[k])
+    kinks += _graded_list(float(tt[k]), 0.5 * (d + h) / max(a, b), -np.pi, np.pi)
+    kinks = np.clip(np.array(kinks), -np.pi, np.pi)
+
+    def outer(phi):
+        ex, ey = np.cos(phi), np.sin(phi)
+        A = (ex / a) ** 2 + (ey / b) ** 2
+        B = px * ex / a ** 2 + py * ey / b ** 2
+        root = np.sqrt(B * B - A * C)
+        hi = np.where(B > 0, -C / np.where(B > 0, B + root, 1.0), (root - B) / A)
+        lo = np.zeros_like(phi)
+        am = nx * ex + ny * ey
+        if what == "G":
+            lo, hi = _clip_range(lo, hi, am, bnz)
+
+        def f(r, rho):
+            d2 = rho * rho + h * h
+            if what == "G":
+                return h * np.maximum(am[r, None] * rho - bnz, 0.0) * rho / (d2 * d2)
+            return h * rho / (d2 * np.sqrt(d2))
+        return _inner_rational(f, lo, hi, hi - lo, np.full(phi.size, h))
 
     return float(_adaptive(outer, kinks, atol=atol, rtol=rtol))
 

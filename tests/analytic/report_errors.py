@@ -2,9 +2,10 @@
 
     .venv/bin/python tests/analytic/report_errors.py [N_PER_KIND] [SEED]
 
-Draws N random configurations per light kind (all placement/normal modes, scales 1e-6..1e6,
-distance/size ratios 1e-12..1e12; see configs.py), compares with reference.py and prints the
-max relative error (over configurations with G ≥ 1e-6·Ω) and max |error|/Ω (all).
+Draws N random configurations per light kind (rect, disk, polygon, ellipse, sphere; all
+placement/normal modes, scales 1e-6..1e6, distance/size ratios 1e-12..1e12; see configs.py),
+compares with reference.py and prints, per kind, the max relative error over the
+well-conditioned configurations and the max |error|/tolerance over all (harness.py).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ def main(n: int = 2000, seed: int = 12345) -> int:
     rng = np.random.default_rng(seed)
     failures = []
     t0 = time.perf_counter()
-    for kind in ("rect", "disk", "polygon"):
+    for kind in ("rect", "disk", "polygon", "ellipse"):
         for _ in range(n):
             k = int(rng.integers(3, 8))
             cfg = planar_config(kind, int(rng.integers(len(P_MODES))), int(rng.integers(len(N_MODES))),

@@ -53,6 +53,13 @@ def test_polygon_matches_quadrature(pm, nm, pr, u, k):
     _planar("polygon", pm, nm, pr, u, k)
 
 
+# Ellipses (an extra: the disk light under non-uniform scale), aspect 1e-2..1.
+@hyp_settings(400, LONG)
+@given(pm=p_mode, nm=n_mode, pr=perm, u=uniforms)
+def test_ellipse_matches_quadrature(pm, nm, pr, u):
+    _planar("ellipse", pm, nm, pr, u)
+
+
 @hyp_settings(DEFAULT, LONG)
 @given(sm=s_mode, u=uniforms)
 def test_sphere_matches_quadrature(sm, u):
@@ -63,7 +70,7 @@ def test_sphere_matches_quadrature(sm, u):
 # --- long profile ------------------------------------------------------------------------
 @pytest.mark.slow
 @hyp_settings(40, LONG)
-@given(kind=st.sampled_from(["rect", "disk", "polygon"]), pm=p_mode, nm=n_mode, pr=perm, u=uniforms,
+@given(kind=st.sampled_from(["rect", "disk", "polygon", "ellipse"]), pm=p_mode, nm=n_mode, pr=perm, u=uniforms,
        k=st.integers(3, 7))
 def test_long_planar_sweep(kind, pm, nm, pr, u, k):
     _planar(kind, pm, nm, pr, u, k)

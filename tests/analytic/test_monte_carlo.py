@@ -9,6 +9,7 @@ import pytest
 from renderer.geometry import coordinate_frame
 from renderer.lights.analytic import (
     projected_solid_angle_disk,
+    projected_solid_angle_ellipse,
     projected_solid_angle_rect,
     projected_solid_angle_sphere,
 )
@@ -40,6 +41,10 @@ CASES = [
     ("disk", [0.2, 0.1, 0.8], [0.3, 0.0, -1.0], dict(center=[0, 0, 0], en=[0, 0, 1], radius=1.0)),
     ("disk", [1.5, 0.0, 0.2], [-1.0, 0.2, 0.4], dict(center=[0, 0, 0], en=[0, 0, 1], radius=1.0)),
     ("disk", [0.0, 0.3, 0.4], [0.0, 1.0, 0.1], dict(center=[0, 0, 0], en=[0, 0, 1], radius=1.0)),
+    ("ellipse", [0.5, 0.1, 0.3], [-0.2, 0.1, -1.0], dict(center=[0, 0, 0], e1=[2.0, 0.5, 0], e2=[-0.1, 0.4, 0],
+                                                       en=[0, 0, 1])),
+    ("ellipse", [2.5, 0.0, 0.4], [-1.0, 0.0, 0.3], dict(center=[0, 0, 0], e1=[2.0, 0, 0], e2=[0, 0.3, 0],
+                                                      en=[0, 0, 1])),
     ("sphere", [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], dict(center=[0, 0, 3.0], radius=1.0)),
     ("sphere", [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], dict(center=[3.0, 0, 0.4], radius=1.0)),
     ("sphere", [0.0, 0.0, 0.0], [0.3, 0.0, 1.0], dict(center=[1.2, 0.5, -0.2], radius=1.0)),
@@ -69,6 +74,13 @@ def test_monte_carlo_matches_analytic(case):
         ok, x = _plane_hit(P, d, c, en)
         hit = ok & (np.linalg.norm(x - c, axis=1) <= prm["radius"]) & ((p - c) @ en > 0)
         G = projected_solid_angle_disk(p[None], nrm[None], c, en, prm["radius"])[0]
+    elif kind == "ellipse":
+        c, e1, e2, en = (np.asarray(prm[k], float) for k in ("center", "e1", "e2", "en"))
+        ok, x = _plane_hit(P, d, c, en)
+        g = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+        xy = np.linalg.solve(g, np.stack([(x - c) @ e1, (x - c) @ e2]))
+        hit = ok & (xy[0] ** 2 + xy[1] ** 2 <= 1.0) & ((p - c) @ en > 0)
+        G = projected_solid_angle_ellipse(p[None], nrm[None], c, e1, e2, en)[0]
     else:
         c = np.asarray(prm["center"], float)
         r = prm["radius"]

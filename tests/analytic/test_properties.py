@@ -10,6 +10,7 @@ from renderer.lights import analytic as an
 from renderer.lights.analytic import (
     projected_solid_angle_disk,
     projected_solid_angle_dome_constant,
+    projected_solid_angle_ellipse,
     projected_solid_angle_polygon,
     projected_solid_angle_rect,
     projected_solid_angle_sphere,
@@ -301,3 +302,54 @@ def test_rigid_motion_invariance(kind):
             X = np.linalg.norm(cfg.p) + np.linalg.norm(T) + cfg.scale
             tol = 1e-9 * g0 + 1e-12 * omega + 256 * np.finfo(float).eps * (X / abs(cfg.p[2])) * omega
         assert abs(g1 - g0) <= tol, (kind, g0, g1)
+
+
+# --- ellipse --------------------------------------------------------------------------------------
+def test_ellipse_circle_equals_disk_and_parametrisation_invariance():
+    """A circle given as an ellipse (rotated conjugate semi-diameters) equals the disk, for
+    points anywhere including within 1e-10 of the rim; and an ellipse is independent of which
+    pair of conjugate semi-diameters describes it."""
+    rng = np.random.default_rng(29)
+    n = 4000
+    en = _unit(rng.normal(size=(n, 3)))
+    a = _unit(np.cross(en, rng.normal(size=(n, 3))))
+    b = np.cross(en, a)
+    R = 10.0 ** rng.uniform(-3, 3, n)
+    c = rng.normal(size=(n, 3))
+    # points: generic, and near the rim (in-plane offset 1e-10..1e-2 of R, low heights)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    rim = (1 + rng.choice([-1, 1], n) * 10.0 ** rng.uniform(-10, -2, n)) * R
+    near = c + (np.cos(ang) * rim)[:, None] * a + (np.sin(ang) * rim)[:, None] * b + \
+        (R * 10.0 ** rng.uniform(-10, 0, n))[:, None] * en
+    far = c + _unit(rng.normal(size=(n, 3))) * (R * 10.0 ** rng.uniform(-2, 3, n))[:, None]
+    p = np.where((rng.random(n) < 0.5)[:, None], near, far)
+    nrm = _unit(rng.normal(size=(n, 3)))
+    gd = projected_solid_angle_disk(p, nrm, c, en, R)
+    th = rng.uniform(0, 2 * np.pi, n)[:, None]
+    e1 = R[:, None] * (np.cos(th) * a + np.sin(th) * b)
+    e2 = R[:, None] * (-np.sin(th) * a + np.cos(th) * b)
+    ge = projected_solid_angle_ellipse(p, nrm, c, e1, e2, en)
+    d = np.linalg.norm(p - c, axis=1)
+    omega = np.pi * R ** 2 / np.maximum(d * d, R * R)
+    h = np.abs(np.einsum("ij,ij->i", p - c, en))
+    # position rounding near the rim: ε·(|p−c| + R)/(distance to the rim) relative
+    inplane = np.sqrt(np.maximum(d * d - h * h, 0.0))
+    r_rim = np.hypot(inplane - R, h)
+    cond = 64 * np.finfo(float).eps * (d + R) / r_rim
+    assert np.all(np.abs(ge - gd) <= 1e-9 * gd + 1e-12 * omega + cond * np.maximum(gd, omega))
+    # an elongated ellipse from two different conjugate pairs
+    s_ = 10.0 ** rng.uniform(-2, 0, n)[:, None]
+    f1, f2 = R[:, None] * a, s_ * R[:, None] * b
+    g1 = projected_solid_angle_ellipse(p, nrm, c, f1, f2, en)
+    k1, k2 = np.cos(th) * f1 + np.sin(th) * f2, -np.sin(th) * f1 + np.cos(th) * f2
+    g2 = projected_solid_angle_ellipse(p, nrm, c, k1, k2, en)
+    assert np.all(np.abs(g1 - g2) <= 1e-9 * g1 + 1e-12 * omega + cond * np.maximum(g1, omega))
+
+
+def test_ellipse_zeros():
+    p = np.array([[0.1, 0.2, -1.0], [0.3, 0.1, 0.0], [0.0, 0.0, 1.0]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    g = projected_solid_angle_ellipse(p, nrm, np.zeros(3), np.array([2.0, 0, 0]), np.array([0, 0.5, 0]), Z)
+    assert np.all(g == 0.0)
+    assert projected_solid_angle_ellipse(p[:1] * -1, -Z[None], np.zeros(3), np.array([2.0, 0, 0]),
+                                         np.array([4.0, 0, 0]), Z)[0] == 0.0          # degenerate
