@@ -35,6 +35,8 @@ class DirectQuery:
     light: (n,) global light index; eps: (n,) ray-origin offsets;
     control: (n, 3) c(wo), the BSDF's wi-constant diffuse lobe at each row (the control
     variate's function, whose integral F = c(wo)·E is exact).
+    pmf: (n,) probability with which the lighting service picked each row's light, or None
+    (1). Only the light half of continuation MIS needs it (see mis.mis_light_half).
     """
 
     ctx: ShadingContext
@@ -45,6 +47,7 @@ class DirectQuery:
     light: np.ndarray
     eps: np.ndarray
     control: np.ndarray
+    pmf: np.ndarray | None = None
 
     @property
     def n(self) -> int:

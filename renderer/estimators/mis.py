@@ -37,6 +37,26 @@ def mis_parts(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom, h
     return diff + spec, spec, rays + rays_b, ls
 
 
+def mis_light_half(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom,
+                   heuristic: str) -> DirectResult:
+    """The light-sampling half of MIS whose BSDF half is the path's continuation ray.
+
+    The integrator reuses the BSDF sample that continues the path as the BSDF technique for
+    every light it reaches (pbrt's scheme): that ray adds L_e weighted by h(p_b, pmf·p_l) when
+    it hits the light. This half weights its light samples by h(pmf·p_l, p_b), with pmf the
+    probability that the lighting service picked the light, so the two halves sum to one
+    estimator and no BSDF sample, light intersection or second shadow ray is spent here.
+    Returns the contribution *not yet* divided by pmf, like every estimator.
+    """
+    ls, rays = light_samples(q, lights, trace, N, u)
+    pmf = np.ones(q.n) if q.pmf is None else q.pmf
+    p_pick = ls.p_l * pmf[:, None]  # delta lights keep p_l = inf, so their weight is 1
+    w_l = mis_weights(heuristic, p_pick.reshape(-1), ls.p_b.reshape(-1)).reshape(ls.p_l.shape)
+    p_l = np.where(np.isinf(ls.p_l), 1.0, ls.p_l)
+    f = (ls.fd + ls.fs) * (w_l * ls.v)[:, :, None]
+    return DirectResult(ratio(f, p_l).mean(axis=1), rays)
+
+
 class MISEstimator:
     token = "mis"
 

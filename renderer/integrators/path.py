@@ -10,9 +10,20 @@ directly, 1 is direct lighting, and so on.
 
 Direct lighting at every scattering vertex is done *per light* by the estimator the light's
 IllumLightAPI chose (renderer/estimators): the lighting service picks the light(s), the estimator
-draws that light's own light and/or BSDF samples and returns its whole contribution. The path's
-continuation ray therefore adds light emission only on unsampled segments (camera rays), never
-after a scattering event, so nothing is counted twice and no MIS bookkeeping rides on the path.
+draws that light's own light and/or BSDF samples and returns its whole contribution.
+
+Continuation MIS (pbrt's scheme, and the cheap common case): where a light's estimator is MIS
+with one sample at this vertex, the estimator only draws the light half, weighted by
+h(pmf·p_l, p_b), and the BSDF sample that continues the path *is* the BSDF half: when that ray
+reaches the light, it adds L_e weighted by h(p_b, pmf·p_l), with pmf the probability that the
+lighting service would have picked that light at the previous vertex. That saves a BSDF sample,
+a light intersection and a shadow ray per light and vertex. It applies where the continuation
+ray sees exactly what the estimator's BSDF sample would have seen: MIS with N = 1 at that vertex
+(so every vertex but the first, where a light may take its own N), no per-light diffuse/specular
+multiplier, no shadowLink set, and a vertex that is not the last one (there the extension ray is
+never traced: max depth 1 traces no extension rays at all). Every other (vertex, light) pair
+gets its whole contribution from its estimator, and the continuation ray adds nothing for that
+light, so nothing is counted twice. ``stats["direct_rule"]["continuation_mis"]`` counts the pairs.
 
 Rule for per-light sample counts (the talk's "interplay with path tracing"): at the first
 scattering vertex every picked light gets its own N = illum:samples, so α = v̄ is formed from that
@@ -40,7 +51,8 @@ from ..lights.base import ShadingContext
 from ..materials import make_bsdf
 from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
-from ..sampling import safe_div
+from ..estimators.mis import mis_light_half
+from ..sampling import balance_heuristic, power_heuristic, safe_div
 
 ESTIMATOR_TOKENS = tuple(t for t in TOKENS if t != "auto")
 ALPHA_TOKENS = ALPHAS
@@ -167,6 +179,19 @@ class PathIntegrator:
         self.est_alpha = np.array([ALPHA_TOKENS.index(x["cv_alpha"]) for x in ls], dtype=np.int64)
         self.est_samples = np.array([x["samples"] for x in ls], dtype=np.int64)
         self.est_heuristic = np.array([HEURISTIC_TOKENS.index(x["mis_heuristic"]) for x in ls], dtype=np.int64)
+        self.rule_counts["continuation_mis"] = 0
+        # Lights whose MIS BSDF half may ride on the continuation ray (see the module docstring).
+        if self.has_lights:
+            lights = self.lights
+            plain = (lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
+            if scene.shadow_group is not None:
+                plain &= scene.shadow_group < 0
+            plain &= getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
+            plain &= getattr(lights, "transparent", np.ones(lights.count, dtype=bool))
+            self.cont_ok = (self.est_token == ESTIMATOR_TOKENS.index("mis")) & plain
+        else:
+            self.cont_ok = np.zeros(0, dtype=bool)
+        self.samples_one = self.est_samples == 1
         if options.max_depth <= 1:
             self.skipped.append("max depth <= 1: no extension rays are traced (unless emissive geometry needs them)")
 
@@ -214,6 +239,13 @@ class PathIntegrator:
         beta = np.ones((m, 3))               # path throughput
         depth = np.zeros(m, dtype=np.int64)  # scattering events so far
         unsampled = np.ones(m, dtype=bool)   # True: no scattering yet, so emitters count fully
+        # Continuation MIS: the vertex the ray left (p, ng, ns: columns 0:9), the BSDF pdf p_b of
+        # its direction (column 9), that vertex's mesh, and cont = 0 (no MIS half rides on this
+        # ray), 1 (left a deeper vertex), 2 (left the first vertex, where lights with N > 1
+        # took their own BSDF samples).
+        prev = np.zeros((m, 10))
+        prev_mesh = np.zeros(m, dtype=np.int64)
+        cont = np.zeros(m, dtype=np.int8)
         budget = opt.max_depth + 64          # bound on loop trips (cutout pass-throughs included)
 
         while path.size and budget > 0:
@@ -222,23 +254,25 @@ class PathIntegrator:
             hits = scene.accel.intersect(o, d, tmax)
             t_geo = np.minimum(hits.t, tmax)
 
-            # ---- emission from lights crossed before the surface, and from the environment
-            # After a scattering event the estimators already covered every light (see above).
-            if np.any(unsampled):
+            # ---- emission from lights crossed before the surface, and from the environment:
+            # in full on unsampled rays, MIS-weighted on continuation rays (module docstring).
+            seen = unsampled | (cont > 0)
+            if np.any(seen):
+                em = _Emission(self, path, beta, d, unsampled, cont, prev, prev_mesh)
                 if self.finite.size:
-                    self._add_light_hits(L, path, beta, o, d, t_geo, unsampled)
+                    self._add_light_hits(L, em, o, t_geo, seen)
                 if self.infinite.size:
                     # The environment is at infinity: a camera ray sees it whatever its far clip.
-                    escaped = ~hits.hit & unsampled
+                    escaped = ~hits.hit & seen
                     if np.any(escaped):
-                        self._add_escaped(L, path, beta, d, escaped)
+                        self._add_escaped(L, em, escaped)
 
             # ---- surfaces ----------------------------------------------------------------
             keep = np.nonzero(hits.hit)[0]
             if not keep.size:
                 break
             path, beta, o, d, tmax, depth = path[keep], beta[keep], o[keep], d[keep], tmax[keep], depth[keep]
-            unsampled = unsampled[keep]
+            unsampled, cont, prev, prev_mesh = unsampled[keep], cont[keep], prev[keep], prev_mesh[keep]
             si = self._interaction(hits.prim[keep], hits.b1[keep], hits.b2[keep], d)
             t_hit = hits.t[keep]
             params = scene.materials.evaluate(si.mat, si.st)
@@ -251,7 +285,8 @@ class PathIntegrator:
             if np.any(through):
                 tr = np.nonzero(through)[0]
                 pass_o = offset_origin(si.p[tr], si.ng[tr], d[tr], scene.accel.ray_epsilon(si.p[tr]))
-                pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr], unsampled[tr])
+                pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr], unsampled[tr],
+                              cont[tr], prev[tr], prev_mesh[tr])
                 solid = np.nonzero(~through)[0]
                 path, beta, d, depth = path[solid], beta[solid], d[solid], depth[solid]
                 si = _take(si, solid)
@@ -280,13 +315,17 @@ class PathIntegrator:
                 bsdf.bind_wo(wo_l)
                 ctx = ShadingContext(si.p, si.ng, si.ns)
                 eps = scene.accel.ray_epsilon(si.p)
+                # The continuation ray can carry MIS halves only where it is traced and its hit
+                # may still add emission: not from the last scattering vertex.
+                continues = depth + 1 < opt.max_depth
 
                 # ---- direct lighting, per light, by its estimator --------------------------
                 if self.has_lights:
-                    self._direct(L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary=depth == 0, mesh=si.mesh)
+                    self._direct(L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary=depth == 0, mesh=si.mesh,
+                                 continues=continues)
 
                 # With no emissive geometry, a ray whose next vertex cannot scatter finds nothing.
-                if not scene.materials.has_emission and np.all(depth + 1 >= opt.max_depth):
+                if not scene.materials.has_emission and not np.any(continues):
                     next_state = None
                     n = 0
 
@@ -294,13 +333,14 @@ class PathIntegrator:
             if n:
                 # The extension ray leaving the D-th vertex can still find emission (pbrt's
                 # convention), but the vertex it reaches scatters no further.
-                depth = depth + 1
                 bs = bsdf.sample_f(wo_l, rng.random(n), rng.random((n, 2)))
                 wi = to_world(bs.wi, s, t, si.ns)
                 cos_i = np.abs(bs.wi[:, 2])
                 ok = (bs.pdf > 0.0) & (dot(wi, si.ng) > 0.0)
                 beta = beta * safe_div(bs.f * cos_i[:, None], bs.pdf)
                 ok &= np.any(beta > 0.0, axis=1) & np.all(np.isfinite(beta), axis=1)
+                next_cont = np.where(continues, np.where(depth == 0, 2, 1), 0).astype(np.int8)
+                depth = depth + 1
 
                 # ---- Russian roulette, driven by throughput -------------------------------
                 rr = depth >= opt.rr_depth
@@ -311,15 +351,17 @@ class PathIntegrator:
                     ok &= survive
 
                 k = np.nonzero(ok)[0]
+                next_prev = np.concatenate([si.p[k], si.ng[k], si.ns[k], bs.pdf[k][:, None]], axis=1)
                 next_state = (path[k], beta[k], offset_origin(si.p[k], si.ng[k], wi[k], eps[k]), wi[k],
-                              np.full(k.size, np.inf), depth[k], np.zeros(k.size, bool))
+                              np.full(k.size, np.inf), depth[k], np.zeros(k.size, bool),
+                              next_cont[k], next_prev, si.mesh[k])
                 self.rays.add(extension=k.size)
 
             # ---- gather the rays that continue ---------------------------------------------
             states = [st for st in (next_state, pass_state) if st is not None and st[0].size]
             if not states:
                 break
-            path, beta, o, d, tmax, depth, unsampled = (
+            path, beta, o, d, tmax, depth, unsampled, cont, prev, prev_mesh = (
                 states[0] if len(states) == 1 else tuple(np.concatenate(x) for x in zip(*states)))
         return L
 
@@ -347,16 +389,19 @@ class PathIntegrator:
         ns = np.where(bad[:, None], ng, ns)
         return Interaction(p=p, ng=ng, ns=ns, wo=wo, st=st, mat=g.material[prim], mesh=g.mesh[prim])
 
-    def _add_light_hits(self, L, path, beta, o, d, t_limit, unsampled) -> None:
-        """Add emission of every finite light crossed before t_limit by unsampled rays
-        (lights are transparent, so a ray may cross several)."""
-        rows_u = np.nonzero(unsampled)[0]
-        rows, light, t_hit = self._light_hits(o[rows_u], d[rows_u], t_limit[rows_u])
+    def _add_light_hits(self, L, em: "_Emission", o, t_limit, seen) -> None:
+        """Add emission of every finite light crossed before t_limit by the rows in ``seen``
+        (lights are transparent, so a ray may cross several), weighted by em."""
+        rows_u = np.nonzero(seen)[0]
+        rows, light, t_hit = self._light_hits(o[rows_u], em.d[rows_u], t_limit[rows_u])
         if rows.size == 0:
             return
         rows = rows_u[rows]
-        Le = self.lights.le(light, o[rows] + d[rows] * t_hit[:, None], d[rows])
-        np.add.at(L, path[rows], beta[rows] * Le)
+        w = em.weight(rows, light)
+        if not np.any(w > 0.0):
+            return
+        Le = self.lights.le(light, o[rows] + em.d[rows] * t_hit[:, None], em.d[rows])
+        np.add.at(L, em.path[rows], em.beta[rows] * (Le * w[:, None]))
 
     def _light_hits(self, o, d, t_limit):
         """All (row, light, t) with an exact light hit at t < t_limit."""
@@ -417,11 +462,15 @@ class PathIntegrator:
         _, first = np.unique(key, return_index=True)
         return rows[first], light[first], t[first]
 
-    def _add_escaped(self, L, path, beta, d, escaped) -> None:
+    def _add_escaped(self, L, em: "_Emission", escaped) -> None:
         rows = np.nonzero(escaped)[0]
         for li in self.infinite:
-            Le = self.lights.le_escaped(np.full(rows.size, li, dtype=np.int64), d[rows])
-            np.add.at(L, path[rows], beta[rows] * Le)
+            light = np.full(rows.size, li, dtype=np.int64)
+            w = em.weight(rows, light)
+            if not np.any(w > 0.0):
+                continue
+            Le = self.lights.le_escaped(light, em.d[rows])
+            np.add.at(L, em.path[rows], em.beta[rows] * (Le * w[:, None]))
 
     def _visible(self, p, ng, wi, dist, eps, accel=None) -> np.ndarray:
         """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf).
@@ -440,7 +489,7 @@ class PathIntegrator:
         accel = self.scene.shadow_accels[shadow_group]
         return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel)
 
-    def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary, mesh) -> None:
+    def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary, mesh, continues) -> None:
         """Direct lighting at n shading points: lights picked by the lighting service, each
         estimated by its own estimator with its own sample count (see the module docstring)."""
         n = path.size
@@ -471,8 +520,12 @@ class PathIntegrator:
         self.rule_counts["alpha_one_fallback"] += int(fallback.sum())
         alpha = np.where(N < 2, ALPHA_ONE, alpha)
         heur = self.est_heuristic[light]
+        # MIS with one sample, where the continuation ray supplies the BSDF half.
+        half = self.cont_ok[light] & (N == 1) & continues[rows]
+        self.rule_counts["continuation_mis"] += int(half.sum())
         group = self.scene.shadow_group[light] + 1 if self.scene.shadow_group is not None else np.zeros_like(light)
-        key = (((tok * 8 + alpha) * 4 + heur) * 4096 + np.minimum(N, 4095)) * (len(self.scene.shadow_accels) + 1) + group
+        key = ((((tok * 8 + alpha) * 4 + heur) * 4096 + np.minimum(N, 4095)) * (len(self.scene.shadow_accels) + 1)
+               + group) * 2 + half
         for k in np.unique(key):
             g = np.nonzero(key == k)[0]
             r = rows[g]
@@ -480,14 +533,56 @@ class PathIntegrator:
             est = REGISTRY[token]
             if r.size == n and np.all(r == np.arange(n)):
                 # One group covering every point in order (e.g. a single light): no row copies.
-                q = DirectQuery(ctx, s, t, wo_l, bsdf, light[g], eps, control)
+                q = DirectQuery(ctx, s, t, wo_l, bsdf, light[g], eps, control, pmf[g])
             else:
-                q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r])
+                q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r], pmf[g])
             Nk = int(N[g[0]])
-            res = est.estimate(q, lights, self._tracer_for(int(group[g[0]]) - 1), Nk, DirectRandom.draw(rng, g.size, Nk),
-                               ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])
+            trace = self._tracer_for(int(group[g[0]]) - 1)
+            u = DirectRandom.draw(rng, g.size, Nk)
+            if half[g[0]]:
+                res = mis_light_half(q, lights, trace, Nk, u, HEURISTIC_TOKENS[heur[g[0]]])
+            else:
+                res = est.estimate(q, lights, trace, Nk, u, ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])
             contrib = beta[r] * safe_div(res.Ld, pmf[g])
             np.add.at(L, path[r], contrib)
+
+
+class _Emission:
+    """How much of a light's emission a ray adds when it reaches that light.
+
+    Unsampled rays (camera rays, and their cutout pass-throughs) add it in full. A continuation
+    ray adds h(p_b, pmf·p_l) of it for the lights whose MIS BSDF half it carries at the vertex
+    it left (cont > 0, see the module docstring), and nothing for the others, whose estimators
+    covered them already. Arrays are the live rows of the tracing loop.
+    """
+
+    def __init__(self, integ: "PathIntegrator", path, beta, d, unsampled, cont, prev, prev_mesh):
+        self.integ = integ
+        self.path, self.beta, self.d = path, beta, d
+        self.unsampled, self.cont, self.prev, self.prev_mesh = unsampled, cont, prev, prev_mesh
+
+    def weight(self, rows: np.ndarray, light: np.ndarray) -> np.ndarray:
+        """(m,) weight of each (row, light) pair's emission."""
+        integ = self.integ
+        w = self.unsampled[rows].astype(np.float64)
+        cont = self.cont[rows]
+        mis = (cont > 0) & integ.cont_ok[light] & ((cont == 1) | integ.samples_one[light])
+        if integ.scene.illuminates is not None:
+            mis &= integ.scene.illuminates[light, self.prev_mesh[rows]]
+        k = np.nonzero(mis)[0]
+        if not k.size:
+            return w
+        rk, lk = rows[k], light[k]
+        pv = self.prev[rk]
+        ctx = ShadingContext(pv[:, 0:3], pv[:, 3:6], pv[:, 6:9])
+        p_l = integ.lights.pdf_li(lk, ctx, self.d[rk])
+        sampler = integ.scene.light_sampler
+        if not getattr(sampler, "exhaustive", False):
+            p_l = p_l * sampler.pmf(ctx, lk)
+        p_b = pv[:, 9]
+        power = integ.est_heuristic[lk] == HEURISTIC_TOKENS.index("power")
+        w[k] = np.where(power, power_heuristic(1, p_b, 1, p_l), balance_heuristic(1, p_b, 1, p_l))
+        return w
 
 
 def _take(obj, mask):
