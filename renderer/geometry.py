@@ -202,3 +202,67 @@ def offset_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, eps: np.ndarray 
     if e.ndim == 1:
         e = e[:, None]
     return p + ng * (side[:, None] * e)
+
+
+# --------------------------------------------------------------------------------------
+# Surface interaction from a hit (prim, barycentrics)
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d, p, ng, ns, st):
+    """One pass per hit: float64 point, normals facing wo = -d, interpolated st.
+
+    The shading normal is interpolated and normalised, flipped to the geometric normal's side,
+    and replaced by the geometric normal where it faces away from wo (it would give a black or
+    negative cosine). Same formulas as ``surface_interaction``'s numpy path.
+    """
+    for i in range(prim.shape[0]):
+        k = prim[i]
+        w1 = b1[i]
+        w2 = b2[i]
+        w0 = 1.0 - w1 - w2
+        for c in range(3):
+            p[i, c] = vertices[k, 0, c] * w0 + vertices[k, 1, c] * w1 + vertices[k, 2, c] * w2
+        sx = normals[k, 0, 0] * w0 + normals[k, 1, 0] * w1 + normals[k, 2, 0] * w2
+        sy = normals[k, 0, 1] * w0 + normals[k, 1, 1] * w1 + normals[k, 2, 1] * w2
+        sz = normals[k, 0, 2] * w0 + normals[k, 1, 2] * w1 + normals[k, 2, 2] * w2
+        length = np.sqrt(sx * sx + sy * sy + sz * sz)
+        s = length if length > 0.0 else 1.0
+        sx /= s
+        sy /= s
+        sz /= s
+        for c in range(2):
+            st[i, c] = st_tab[k, 0, c] * w0 + st_tab[k, 1, c] * w1 + st_tab[k, 2, c] * w2
+        gx = face_normal[k, 0]
+        gy = face_normal[k, 1]
+        gz = face_normal[k, 2]
+        # Two-sided shading: both normals face the viewer (wo = -d).
+        if -(gx * d[i, 0] + gy * d[i, 1] + gz * d[i, 2]) < 0.0:
+            gx, gy, gz = -gx, -gy, -gz
+        if sx * gx + sy * gy + sz * gz < 0.0:
+            sx, sy, sz = -sx, -sy, -sz
+        if -(sx * d[i, 0] + sy * d[i, 1] + sz * d[i, 2]) <= 0.0:
+            sx, sy, sz = gx, gy, gz
+        ng[i, 0] = gx
+        ng[i, 1] = gy
+        ng[i, 2] = gz
+        ns[i, 0] = sx
+        ns[i, 1] = sy
+        ns[i, 2] = sz
+
+
+def surface_interaction(vertices, face_normal, normals, st_tab, prim, b1, b2, d):
+    """Hit points of rays with direction d (n, 3) on triangles prim (n,) at barycentrics b1, b2.
+
+    vertices, normals: (T, 3, 3) float64; face_normal: (T, 3); st_tab: (T, 3, 2).
+    Returns p (n, 3) float64 rebuilt from the float64 triangle (so the ray offset only has to
+    cover embree's float32 rounding), ng and ns (n, 3) unit and facing wo = -d, st (n, 2).
+    """
+    n = prim.shape[0]
+    p = np.zeros((n, 3))
+    ng = np.zeros((n, 3))
+    ns = np.zeros((n, 3))
+    st = np.zeros((n, 2))
+    _interaction_kernel(vertices, face_normal, normals, st_tab, np.ascontiguousarray(prim, dtype=np.int64),
+                        np.ascontiguousarray(b1, dtype=np.float64), np.ascontiguousarray(b2, dtype=np.float64),
+                        np.ascontiguousarray(d, dtype=np.float64), p, ng, ns, st)
+    return p, ng, ns, st

@@ -118,25 +118,27 @@ def light_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRando
     """
     n = q.n
     r = _flat(q, N)
-    ctx = q.ctx.take(r)
-    light = q.light[r]
+    # One sample per row (every vertex but the first): the rows are the query's own, uncopied.
+    rep = (lambda a: a) if N == 1 else (lambda a: a[r])
+    ctx = q.ctx if N == 1 else q.ctx.take(r)
+    light = rep(q.light)
     ls = lights.sample_li(light, ctx, u.u_light.reshape(-1, 2))
-    wi_l = to_local(ls.wi, q.s[r], q.t[r], ctx.ns)
+    wi_l = to_local(ls.wi, rep(q.s), rep(q.t), ctx.ns)
     cos_i = np.abs(wi_l[:, 2])
     above = (wi_l[:, 2] > 0.0) & (dot(ls.wi, ctx.n) > 0.0)
     valid = ls.pdf > 0.0
     bsdf = q.bsdf if N == 1 else q.bsdf.take(r)
-    fd, fs, p_b = split_integrand(bsdf, q.wo_l[r], wi_l, (cos_i * above)[:, None] * ls.L, lights, light,
-                                  control=q.control[r])
+    fd, fs, p_b = split_integrand(bsdf, rep(q.wo_l), wi_l, (cos_i * above)[:, None] * ls.L, lights, light,
+                                  control=rep(q.control))
     v = np.zeros(r.size)
     rays = 0
     if need_visibility:
         want = valid & above & (np.any(fd > 0.0, axis=1) | np.any(fs > 0.0, axis=1))
         if trace_mask is not None:
-            want &= trace_mask[r]
+            want &= rep(trace_mask)
         idx = np.nonzero(want)[0]
         if idx.size:
-            v[idx] = trace(ctx.p[idx], ctx.n[idx], ls.wi[idx], ls.dist[idx], q.eps[r][idx]).astype(np.float64)
+            v[idx] = trace(ctx.p[idx], ctx.n[idx], ls.wi[idx], ls.dist[idx], rep(q.eps)[idx]).astype(np.float64)
             rays = idx.size
     delta = lights.delta[light]
     # Delta lights cannot be hit by BSDF samples: their light pdf is "infinite" for MIS.

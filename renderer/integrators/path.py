@@ -46,7 +46,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..film import Film
-from ..geometry import coordinate_frame, dot, normalize, offset_origin, to_local, to_world
+from ..geometry import coordinate_frame, dot, offset_origin, surface_interaction, to_local, to_world
 from ..lights.base import ShadingContext
 from ..materials import make_bsdf
 from ..errors import SettingsError
@@ -368,26 +368,8 @@ class PathIntegrator:
     # ---------------------------------------------------------------------- pieces
     def _interaction(self, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray, d: np.ndarray) -> Interaction:
         g = self.scene.geometry
-        b0 = 1.0 - b1 - b2
-        v = g.vertices[prim]
-        # Rebuild the hit point in float64 from barycentrics: it lies on the float64 triangle,
-        # so the offset only has to cover embree's float32 rounding of the triangle itself.
-        p = v[:, 0] * b0[:, None] + v[:, 1] * b1[:, None] + v[:, 2] * b2[:, None]
-        ng = g.face_normal[prim]
-        nn = g.normals[prim]
-        ns = normalize(nn[:, 0] * b0[:, None] + nn[:, 1] * b1[:, None] + nn[:, 2] * b2[:, None])
-        stc = g.st[prim]
-        st = stc[:, 0] * b0[:, None] + stc[:, 1] * b1[:, None] + stc[:, 2] * b2[:, None]
-        wo = -d
-        # Two-sided shading: face both normals toward the viewer.
-        flip = dot(ng, wo) < 0.0
-        ng = np.where(flip[:, None], -ng, ng)
-        ns = np.where((dot(ns, ng) < 0.0)[:, None], -ns, ns)
-        # A shading normal that faces away from wo would give a black or negative cosine:
-        # fall back to the geometric normal there.
-        bad = dot(ns, wo) <= 0.0
-        ns = np.where(bad[:, None], ng, ns)
-        return Interaction(p=p, ng=ng, ns=ns, wo=wo, st=st, mat=g.material[prim], mesh=g.mesh[prim])
+        p, ng, ns, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, prim, b1, b2, d)
+        return Interaction(p=p, ng=ng, ns=ns, wo=-d, st=st, mat=g.material[prim], mesh=g.mesh[prim])
 
     def _add_light_hits(self, L, em: "_Emission", o, t_limit, seen) -> None:
         """Add emission of every finite light crossed before t_limit by the rows in ``seen``

@@ -160,9 +160,21 @@ class LightSet:
             if rows.size:
                 yield obj, rows, self.local_of[light[rows]]
 
+    def _single_kind(self, light: np.ndarray):
+        """The kind object when the scene has lights of one kind only (so every row of light is
+        of that kind), else None."""
+        present = [obj for obj in self.kinds if obj.count]
+        if len(present) == 1:
+            return present[0]
+        return None
+
     def sample_li(self, light: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """Sample each row's light (global index (n,)) from ctx with u (n, 2)."""
         n = np.asarray(light).size
+        single = self._single_kind(light)
+        if single is not None:
+            # Every row is one kind (the common case of a one-kind scene): no row copies.
+            return single.sample_li(self.local_of[light], ctx, u)
         L = np.zeros((n, 3))
         wi = np.zeros((n, 3))
         wi[:, 2] = 1.0
