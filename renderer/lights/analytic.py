@@ -301,14 +301,23 @@ def _far_polygon(Q, D2, rho_o, z_o, m, h, orient, order):
     return orient * h * tot
 
 
-def _polygon_core(p, nrm, verts, front):
-    """Shared polygon evaluation; front (n,) bool marks rows that may be non-zero."""
+def _polygon_core(p, nrm, verts, front, o=None, rel=None, plane_n=None):
+    """Shared polygon evaluation; front (n,) bool marks rows that may be non-zero.
+
+    o, rel, plane_n: optional exact centre (n, 3), vertex offsets from it (n, k, 3) and plane
+    normal (n, 3). A rect light passes its own (centre, ±ex/2 ± ey/2, ex × ey): rebuilding
+    them from the float64 corners loses the offsets' low bits when the light is small and far
+    from the origin, and the Newell normal's error then times the distance to p swamps p's
+    height above a light seen edge-on (the stress suite's grazing case was off 3000x).
+    """
     n = p.shape[0]
     k = verts.shape[1]
-    o = verts.mean(axis=1)
-    rel = verts - o[:, None, :]                                    # vertex offsets, accurate
-    nraw = np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1)     # Newell normal (2·area·N)
-    N, nlen = _unit(nraw)
+    if o is None:
+        o = verts.mean(axis=1)
+        rel = verts - o[:, None, :]                                # vertex offsets, accurate
+    if plane_n is None:
+        plane_n = np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1)  # Newell normal (2·area·N)
+    N, nlen = _unit(plane_n)
     D = o - p
     hs = -_dot(N, D)                                               # height of p along N
     sgn = np.where(hs < 0.0, -1.0, 1.0)
@@ -394,9 +403,10 @@ def projected_solid_angle_rect(p, nrm, center, ex, ey, e_n) -> np.ndarray:
     c = _rows(center, n)
     hx = 0.5 * _rows(ex, n)
     hy = 0.5 * _rows(ey, n)
-    verts = np.stack([c - hx - hy, c + hx - hy, c + hx + hy, c - hx + hy], axis=1)
+    rel = np.stack([-hx - hy, hx - hy, hx + hy, -hx + hy], axis=1)
+    verts = c[:, None, :] + rel
     front = _dot(p - c, _rows(e_n, n)) > 0.0
-    return _polygon_core(p, _unit(_rows(nrm, n))[0], verts, front)
+    return _polygon_core(p, _unit(_rows(nrm, n))[0], verts, front, o=c, rel=rel, plane_n=np.cross(hx, hy))
 
 
 # ----------------------------------------------------------------------------------------
