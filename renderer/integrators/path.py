@@ -111,18 +111,10 @@ def resolve_estimators(lights, opt: IntegratorOptions) -> list[dict]:
 
 
 def auto_estimator(lights, i: int, samples: int) -> str:
-    """The `auto` rule (documented in the README):
-
-    * delta lights (point, zero-angle distant): light sampling, the only technique that reaches them;
-    * lights with an exact unshadowed integral F and N >= 2: the control variate with α = v̄ and the
-      unbiased 1/(N-1) rescaling -- zero variance wherever the light is fully visible or hidden,
-      so the noise is confined to penumbrae;
-    * everything else: MIS, the robust default.
-    """
+    """The `auto` choice before the pilot (integrators/auto.py) refines it: light sampling for
+    delta lights (the only technique that reaches them), MIS, the robust default, otherwise."""
     if lights.delta[i]:
         return "lightSampling"
-    if lights.has_exact_integral[i] and samples >= 2:
-        return "controlVariate"
     return "mis"
 
 
@@ -175,6 +167,16 @@ class PathIntegrator:
         self.rule_counts = {"own_samples": 0, "alpha_one_fallback": 0}
         self.light_settings = resolve_estimators(self.lights, options) if self.has_lights else []
         ls = self.light_settings
+        auto_lights = [i for i, x in enumerate(ls) if x["auto"] and not self.lights.delta[i]]
+        if auto_lights:
+            # `auto` is decided by a pilot on this scene (integrators/auto.py); its shadow rays
+            # are not the render's, so the counters restart after it.
+            from . import auto as auto_mod
+
+            for i, pick in auto_mod.choose(self, auto_lights, ls).items():
+                ls[i]["estimator"] = pick["estimator"]
+                ls[i]["auto_scores"] = pick["scores"]
+            self.rays = RayCounters()
         self.est_token = np.array([ESTIMATOR_TOKENS.index(x["estimator"]) for x in ls], dtype=np.int64)
         self.est_alpha = np.array([ALPHA_TOKENS.index(x["cv_alpha"]) for x in ls], dtype=np.int64)
         self.est_samples = np.array([x["samples"] for x in ls], dtype=np.int64)
