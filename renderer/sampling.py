@@ -261,3 +261,50 @@ class Distribution2D:
         if total <= 0.0:
             return np.ones(uv.shape[0])
         return self.func[iy, ix] / total
+
+
+# --------------------------------------------------------------------------------------
+# Progressive pixel samples: a rank-1 lattice sequence per pixel
+# --------------------------------------------------------------------------------------
+def _sobol2(k: int) -> tuple[int, int]:
+    """Point k of the 2D Sobol' (0,2)-sequence as two 32-bit integers: the first coordinate is
+    the base-2 radical inverse of k, the second uses Sobol's direction numbers for x + 1
+    (v_1 = 2^31, v_i = v_(i-1) xor v_(i-1) >> 1). Every power-of-two prefix stratifies both
+    axes and the unit square's elementary intervals, which a progressive film needs (it may
+    stop after any pass)."""
+    x = int(f"{k & 0xFFFFFFFF:032b}"[::-1], 2)
+    y, v = 0, 1 << 31
+    while k:
+        if k & 1:
+            y ^= v
+        k >>= 1
+        v ^= v >> 1
+    return x, y
+
+
+def _hash_uniform(keys: np.ndarray, stream: int) -> np.ndarray:
+    """Deterministic uniforms in [0, 1) from uint64 keys (splitmix64 finaliser), one per key."""
+    z = keys.astype(np.uint64) + np.uint64((0x9E3779B97F4A7C15 * (stream + 1)) & 0xFFFFFFFFFFFFFFFF)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def pixel_sequence(seed: int, pixel: np.ndarray, index: int) -> np.ndarray:
+    """Sample ``index`` (the pass number) of each pixel's own 2D Sobol' sequence -> (n, 2) in [0, 1).
+
+    Each pixel's sequence is XOR-scrambled by a random 32-bit key per axis hashed from
+    (seed, pixel) (a random digital shift), so every pass is uniformly distributed and the
+    progressive estimate stays unbiased, while the passes of one pixel fill the pixel filter's
+    domain evenly: anti-aliasing noise falls faster than 1/N, which matters where a subpixel
+    emitter (a firefly of hundreds of nits) covers part of a pixel. Only the filter uses it: a
+    second sequence for the lens, indexed alike, would be correlated with the first.
+    """
+    keys = np.asarray(pixel, dtype=np.uint64) * np.uint64(4) + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x100000001B3)
+    x, y = _sobol2(int(index))
+    out = np.empty((keys.size, 2))
+    for axis, bits in enumerate((x, y)):
+        key = (_hash_uniform(keys, axis) * 4294967296.0).astype(np.uint64)
+        out[:, axis] = (key ^ np.uint64(bits)).astype(np.float64) * (1.0 / 4294967296.0)
+    return out

@@ -52,7 +52,7 @@ from ..materials import make_bsdf
 from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
 from ..estimators.mis import mis_light_half
-from ..sampling import balance_heuristic, power_heuristic, safe_div
+from ..sampling import balance_heuristic, pixel_sequence, power_heuristic, safe_div
 
 ESTIMATOR_TOKENS = tuple(t for t in TOKENS if t != "auto")
 ALPHA_TOKENS = ALPHAS
@@ -212,7 +212,7 @@ class PathIntegrator:
         def work(job):
             c, a, b = job
             rng = np.random.default_rng([self.opt.seed, pass_index, c])
-            L = self.trace_paths(px[a:b], py[a:b], rng)
+            L = self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width)
             # The camera's exposure scales the image (UsdGeomCamera exposure, 2^exposure).
             return a, b, L * self.camera.desc.exposure_scale
 
@@ -221,10 +221,18 @@ class PathIntegrator:
             film.add(np.arange(a, b), L)
 
     # ---------------------------------------------------------------------- paths
-    def trace_paths(self, px: np.ndarray, py: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Radiance estimates (m, 3) for one path through each pixel (px, py)."""
+    def trace_paths(self, px: np.ndarray, py: np.ndarray, rng: np.random.Generator, pass_index: int | None = None,
+                    width: int = 0) -> np.ndarray:
+        """Radiance estimates (m, 3) for one path through each pixel (px, py).
+
+        With pass_index, the filter samples are that pass's point of each pixel's own
+        low-discrepancy sequence (sampling.pixel_sequence); without, independent uniforms.
+        """
         m = px.size
-        rays = self.camera.generate(px, py, rng.random((m, 2)), rng.random((m, 2)))
+        u_filter, u_lens = rng.random((m, 2)), rng.random((m, 2))
+        if pass_index is not None:
+            u_filter = pixel_sequence(self.opt.seed, py.astype(np.int64) * max(width, 1) + px, pass_index)
+        rays = self.camera.generate(px, py, u_filter, u_lens)
         self.rays.add(camera=m)
         # Near clip: start the ray at the near plane.
         return self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng)
