@@ -169,10 +169,50 @@ class EstimatorSettings:
 
 
 @dataclass(frozen=True)
+class ShapingDesc:
+    """UsdLuxShapingAPI inputs of one light, validated by the reader (fallbacks = the schema's).
+
+    cone_angle: degrees in [0, 180]; cone_softness: in [0, 1] (the reader clamps, as the doc
+    says); focus: the authored exponent (values < 0 are ignored by the renderer, as the doc
+    says); ies_file: absolute path or ''; ies_profile: the parsed IesProfile (the reader parses
+    it so that a malformed file is reported against the prim), or None to parse on build.
+    """
+
+    focus: float = 0.0
+    focus_tint: tuple = (0.0, 0.0, 0.0)
+    cone_angle: float = 90.0
+    cone_softness: float = 0.0
+    ies_file: str = ""
+    ies_angle_scale: float = 0.0
+    ies_normalize: bool = False
+    ies_profile: Optional[object] = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class ShadowDesc:
+    """UsdLuxShadowAPI inputs of one light (fallbacks = the schema's).
+
+    distance: world units, <= 0 means no limit; falloff: world units, <= 0 means no falloff
+    zone (the reader clamps it to distance); falloff_gamma: >= 0.
+    """
+
+    enable: bool = True
+    color: tuple = (0.0, 0.0, 0.0)
+    distance: float = -1.0
+    falloff: float = -1.0
+    falloff_gamma: float = 1.0
+
+    @property
+    def is_default(self) -> bool:
+        """True when shadows behave exactly as without the API (full, black, unlimited)."""
+        return self.enable and not any(self.color) and not self.distance > 0.0
+
+
+@dataclass(frozen=True)
 class LightDesc:
     """One UsdLux light, with its raw radiometric inputs (the render core applies the spec formula).
 
-    kind: 'rect' | 'disk' | 'sphere' | 'dome' | 'distant' | 'cylinder'.
+    kind: 'rect' | 'disk' | 'sphere' | 'dome' | 'distant' | 'cylinder' | 'mesh'.
     light_to_world: (4, 4) float64; for domes it includes the poleAxis / up-axis correction.
     texture_file: absolute path ('' when none); texture_format for domes.
     """
@@ -201,6 +241,24 @@ class LightDesc:
     # Light linking, resolved against the stage's gprims by the reader: None means "everything".
     light_link_excludes: Optional[frozenset] = None  # mesh paths NOT illuminated
     shadow_link_excludes: Optional[frozenset] = None  # mesh paths that cast NO shadow
+    # UsdLux ShapingAPI / ShadowAPI opinions; None when the light has neither the API nor any
+    # authored attribute of it (the light emits and shadows as if unshaped / by default).
+    shaping: Optional["ShapingDesc"] = None
+    shadow: Optional["ShadowDesc"] = None
+    # Mesh lights (kind 'mesh': a gprim with LightAPI / MeshLightAPI). mesh_path names the
+    # MeshDesc that is the light's geometry; mesh_triangles (T, 3, 3) float64 are exactly that
+    # MeshDesc's world-space triangles (front = counter-clockwise); mesh_two_sided is the gprim's
+    # doubleSided; material_sync_mode the resolved light:materialSyncMode token. ``color`` already
+    # includes the material glow tint (materialGlowTintsLight).
+    mesh_path: str = ""
+    mesh_triangles: Optional[np.ndarray] = None
+    mesh_two_sided: bool = False
+    material_sync_mode: str = ""
+    # Dome portals: (K, 4, 4) float64 world matrices of the targeted PortalLights with their
+    # width and height folded in (local X/Y span [-1/2, 1/2]; light passes toward local -Z),
+    # and their prim paths. None when the dome has no (usable) portals.
+    portals: Optional[np.ndarray] = None
+    portal_paths: tuple = ()
 
 
 # --------------------------------------------------------------------------------------

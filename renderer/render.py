@@ -190,6 +190,7 @@ def render(
     r_sec = max(phases["render"], 1e-9)
     h, w = film.shape
     light_info = integrator.light_settings
+    fallback_notes = _exactness_notes(scene.lights, light_info)
     stats = {
         "illum_version": VERSION,
         "stage": os.path.abspath(stage_path),
@@ -214,7 +215,7 @@ def render(
         "direct_rule": {"rule": "first vertex: each picked light takes its own N samples (alpha = v_bar "
                                 "formed per light); deeper vertices: N = 1, control variate alpha = 1",
                         **integrator.rule_counts},
-        "warnings": list(scene.warnings),
+        "warnings": list(scene.warnings) + fallback_notes,
         "triangles": int(scene.geometry.count),
         "machine": {"platform": platform.platform(), "python": platform.python_version(),
                     "cpus": os.cpu_count()},
@@ -233,6 +234,28 @@ def render(
         "worldToScreen": camera.projection_matrix() @ camera.world_to_camera(),
     }
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings))
+
+
+def _exactness_notes(lights, light_info: list[dict]) -> list[str]:
+    """Mark the lights whose ShapingAPI emission or ShadowAPI shadow colour rules out an exact
+    unshadowed integral F (LightSet.inexact_reason): each such entry of the stats' "lights"
+    gets ``exact_integral: false`` and the reason, and a light whose estimator wanted F
+    (controlVariate, ratio, or auto with N >= 2) yields a note that it falls back to MIS."""
+    reasons = getattr(lights, "inexact_reason", None) or {}
+    notes = []
+    for i, li in enumerate(light_info):
+        reason = reasons.get(i)
+        if reason is None:
+            continue
+        li["exact_integral"] = False
+        li["no_exact_integral_because"] = reason
+        est = li.get("estimator")
+        if est in ("controlVariate", "ratio"):
+            notes.append(f"{li['path']}: {reason} has no exact unshadowed integral; {est} falls back to MIS")
+        elif li.get("auto") and est == "mis" and li.get("samples", 1) >= 2:
+            notes.append(f"{li['path']}: {reason} has no exact unshadowed integral; auto chose MIS instead "
+                         f"of the control variate")
+    return notes
 
 
 def _data_window(ndc, width: int, height: int) -> tuple[int, int, int, int]:

@@ -101,9 +101,16 @@ class Scene:
     # Light linking (UsdLux collection:lightLink / collection:shadowLink), resolved per light:
     # illuminates: (count, meshes) bool or None when every light lights everything;
     # shadow_accel: (count,) int index into shadow_accels (-1: the full scene BVH).
+    # shadow_params: per shadow group, the UsdLux ShadowAPI ray behaviour (None: plain rays).
     illuminates: np.ndarray | None = None
     shadow_group: np.ndarray | None = None
     shadow_accels: list = field(default_factory=list)
+    shadow_params: list = field(default_factory=list)
+    # Mesh lights (lights/mesh.py) are geometry: tri_light (T,) int64 is the global light index
+    # of each triangle that is part of one (-1 elsewhere), tri_absorb (T,) bool marks those whose
+    # materialSyncMode is noMaterialResponse (the surface reflects nothing). None without mesh lights.
+    tri_light: np.ndarray | None = None
+    tri_absorb: np.ndarray | None = None
 
     def close(self) -> None:
         self.accel.close()
@@ -144,13 +151,15 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
     textures = TextureCache()
     materials = MaterialTable.build(desc.materials, textures)
     lights = LightSet.build(desc.lights, center, radius)
+    tri_light, tri_absorb = mesh_light_tables(lights, geo)
     warnings = list(desc.warnings) + list(getattr(lights, "warnings", [])) + list(getattr(textures, "warnings", []))
     skipped = []
     for path in getattr(lights, "dropped", []):
         skipped.append(f"light {path}: emits nothing or is degenerate; dropped before the lighting services")
     light_accel = None
     light_owner = None
-    finite = np.nonzero(~lights.is_infinite)[0] if lights.count else np.zeros(0, np.int64)
+    # Mesh lights are in the scene BVH already: no proxies, no light BVH for them.
+    finite = np.nonzero(~lights.is_infinite & ~lights.is_geometry)[0] if lights.count else np.zeros(0, np.int64)
     if finite.size > BRUTE_FORCE_LIGHTS:
         tris, owner = lights.proxy_triangles()
         light_accel = Accel(tris, threads=threads)
@@ -159,7 +168,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         skipped.append("no lights: next-event estimation disabled")
     if not np.any(lights.is_infinite) if lights.count else True:
         skipped.append("no dome or distant light: escaped rays do no environment work")
-    illuminates, shadow_group, shadow_accels = build_linking(lights, geo, threads)
+    illuminates, shadow_group, shadow_accels, shadow_params = build_linking(lights, geo, threads, accel)
     if illuminates is None and not shadow_accels:
         skipped.append("no light linking: one shared BVH for every shadow ray, no per-light masks")
     sampler_name = light_sampler if light_sampler not in ("", "auto") else (desc.settings.light_sampler or "auto")
@@ -180,12 +189,36 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         illuminates=illuminates,
         shadow_group=shadow_group,
         shadow_accels=shadow_accels,
+        shadow_params=shadow_params,
+        tri_light=tri_light,
+        tri_absorb=tri_absorb,
     )
     scene.build_seconds = time.perf_counter() - t0
     return scene
 
 
-def build_linking(lights, geo: GeometryTables, threads: int | None):
+def mesh_light_tables(lights, geo: GeometryTables):
+    """(tri_light (T,) int64, tri_absorb (T,) bool) for the mesh lights, or (None, None).
+
+    A mesh light names its MeshDesc (LightDesc.mesh_path); the reader gave it exactly that
+    mesh's triangles, so every triangle of that mesh belongs to the light.
+    """
+    geometry = np.nonzero(getattr(lights, "is_geometry", np.zeros(0, bool)))[0]
+    if not geometry.size or not geo.count:
+        return None, None
+    mesh_light = np.full(len(geo.mesh_paths), -1, dtype=np.int64)
+    by_path = {lights.descs[g].mesh_path: g for g in geometry}
+    for i, path in enumerate(geo.mesh_paths):
+        mesh_light[i] = by_path.get(path, -1)
+    tri_light = mesh_light[geo.mesh]
+    if not np.any(tri_light >= 0):
+        return None, None
+    absorbing = np.array([lights.descs[g].material_sync_mode == "noMaterialResponse" for g in range(lights.count)])
+    tri_absorb = np.where(tri_light >= 0, absorbing[np.maximum(tri_light, 0)], False)
+    return tri_light, tri_absorb
+
+
+def build_linking(lights, geo: GeometryTables, threads: int | None, accel: Accel | None = None):
     """Resolve UsdLux light linking into render-side tables.
 
     lightLink: ``illuminates[light, mesh]`` is False where the light's collection excludes the
@@ -193,7 +226,13 @@ def build_linking(lights, geo: GeometryTables, threads: int | None):
     shadowLink: geometry a light's shadowLink excludes casts no shadow from that light, so each
     distinct excluded set gets its own BVH without those meshes; ``shadow_group[light]`` picks it
     (-1: the full scene). Lights sharing an excluded set share the BVH.
+    ShadowAPI: lights whose shadow rays differ (shadow:enable off, shadow:distance/falloff) get
+    a group of their own key (excluded set, ShadowParams); ``shadow_params[group]`` holds the
+    params (None for plain rays) and a group without excluded meshes reuses ``accel``, the
+    scene BVH. Returns (illuminates, shadow_group or None, shadow_accels, shadow_params).
     """
+    from .integrators.shadow_api import shadow_params as params_of
+
     descs = getattr(lights, "descs", [])
     n_mesh = len(geo.mesh_paths)
     index_of: dict[str, list[int]] = {}
@@ -214,15 +253,25 @@ def build_linking(lights, geo: GeometryTables, threads: int | None):
                 illuminates[i] = ~mesh_mask(d.light_link_excludes)
     shadow_group = np.full(len(descs), -1, dtype=np.int64)
     accels: list[Accel] = []
-    groups: dict[frozenset, int] = {}
+    params: list = []
+    groups: dict[tuple, int] = {}
+    built: dict[frozenset, Accel] = {}
     for i, d in enumerate(descs):
-        ex = d.shadow_link_excludes
-        if not ex:
+        ex = frozenset(d.shadow_link_excludes) if d.shadow_link_excludes else None
+        sp = params_of(getattr(d, "shadow", None))
+        if ex is None and sp is None:
             continue
-        key = frozenset(ex)
+        key = (ex, sp)
         if key not in groups:
-            casts = ~mesh_mask(key)[geo.mesh]  # per triangle
+            if ex is None:
+                bvh = accel if accel is not None else Accel(geo.vertices, threads=threads)
+            elif ex in built:
+                bvh = built[ex]
+            else:
+                casts = ~mesh_mask(ex)[geo.mesh]  # per triangle
+                bvh = built[ex] = Accel(geo.vertices[casts], threads=threads)
             groups[key] = len(accels)
-            accels.append(Accel(geo.vertices[casts], threads=threads))
+            accels.append(bvh)
+            params.append(sp)
         shadow_group[i] = groups[key]
-    return illuminates, (shadow_group if accels else None), accels
+    return illuminates, (shadow_group if accels else None), accels, params

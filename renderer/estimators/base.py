@@ -140,6 +140,8 @@ def light_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRando
         if idx.size:
             v[idx] = trace(ctx.p[idx], ctx.n[idx], ls.wi[idx], ls.dist[idx], rep(q.eps)[idx]).astype(np.float64)
             rays = idx.size
+            if getattr(lights, "shadow_tint", None) is not None:
+                tint_shadows(lights.shadow_tint, light[idx], idx, v, fd, fs)
     delta = lights.delta[light]
     # Delta lights cannot be hit by BSDF samples: their light pdf is "infinite" for MIS.
     p_l = np.where(delta, np.inf, ls.pdf)
@@ -194,9 +196,34 @@ def bsdf_samples(q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom
             # The shadow ray stops at the light (finite) or runs to infinity (dome, distant).
             vk[w_idx] = trace(ctx.p[w_idx], ctx.n[w_idx], wi[w_idx], t_l[w_idx], q.eps[rk][w_idx]).astype(np.float64)
             rays = w_idx.size
+            if getattr(lights, "shadow_tint", None) is not None:
+                tint_shadows(lights.shadow_tint, light[w_idx], w_idx, vk, fdk, fsk)
         fd[k], fs[k], p_l[k], p_b[k], v[k], valid[k] = fdk, fsk, pl, bs.pdf, vk, ok
     return SampleSet(fd.reshape(n, N, 3), fs.reshape(n, N, 3), p_l.reshape(n, N), p_b.reshape(n, N),
                      v.reshape(n, N), valid.reshape(n, N)), rays
+
+
+def tint_shadows(tint: np.ndarray, light: np.ndarray, idx: np.ndarray, v: np.ndarray, fd: np.ndarray,
+                 fs: np.ndarray) -> None:
+    """UsdLux ShadowAPI ``shadow:color``: fold a light's shadow colour c into the integrand.
+
+    The shadowed fraction 1 - v of a sample shows c, so channel k sees v + (1 - v) c_k. For
+    the traced samples idx (m,) of lights light (m,) with a non-black tint (count, 3), fd and
+    fs (rows, 3) are scaled by that per-channel visibility and v (rows,) set to 1, in place.
+    MIS, light and BSDF sampling only use the product f v, so they stay exact; the control
+    variate cannot (its alpha is one scalar), and those lights report no exact F
+    (LightSet.inexact), so it falls back to MIS for them.
+    """
+    c = tint[light]
+    has = np.any(c != 0.0, axis=1)
+    if not np.any(has):
+        return
+    k = idx[has]
+    vk = v[k][:, None]
+    t = vk + (1.0 - vk) * c[has]
+    fd[k] *= t
+    fs[k] *= t
+    v[k] = 1.0
 
 
 def split_integrand(bsdf, wo_l, wi_l, weight, lights, light, control, with_pdf=True):

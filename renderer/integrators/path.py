@@ -53,6 +53,7 @@ from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
 from ..estimators.mis import mis_light_half
 from ..sampling import balance_heuristic, pixel_sequence, power_heuristic, safe_div
+from .shadow_api import visibility as shadow_visibility
 
 ESTIMATOR_TOKENS = tuple(t for t in TOKENS if t != "auto")
 ALPHA_TOKENS = ALPHAS
@@ -161,7 +162,9 @@ class PathIntegrator:
         self.lights = scene.lights
         self.has_lights = scene.lights.count > 0
         self.infinite = np.nonzero(scene.lights.is_infinite)[0] if self.has_lights else np.zeros(0, np.int64)
-        self.finite = np.nonzero(~scene.lights.is_infinite)[0] if self.has_lights else np.zeros(0, np.int64)
+        # Finite lights that rays cross (transparent); mesh lights are met as surfaces instead.
+        self.finite = (np.nonzero(~scene.lights.is_infinite & ~scene.lights.is_geometry)[0] if self.has_lights
+                       else np.zeros(0, np.int64))
         self.pool = ThreadPoolExecutor(max(1, options.threads)) if options.threads > 1 else None
         self.skipped: list[str] = []
         self.rule_counts = {"own_samples": 0, "alpha_one_fallback": 0}
@@ -276,6 +279,11 @@ class PathIntegrator:
                     escaped = ~hits.hit & seen
                     if np.any(escaped):
                         self._add_escaped(L, em, escaped)
+                if scene.tri_light is not None:
+                    self._add_mesh_light_hits(L, em, hits.prim, seen)
+            if scene.tri_absorb is not None:
+                # noMaterialResponse mesh lights reflect nothing: the path ends at them.
+                beta[hits.hit & scene.tri_absorb[np.maximum(hits.prim, 0)]] = 0.0
 
             # ---- surfaces ----------------------------------------------------------------
             keep = np.nonzero(hits.hit)[0]
@@ -395,6 +403,25 @@ class PathIntegrator:
         Le = self.lights.le(light, o[rows] + em.d[rows] * t_hit[:, None], em.d[rows])
         np.add.at(L, em.path[rows], em.beta[rows] * (Le * w[:, None]))
 
+    def _add_mesh_light_hits(self, L, em: "_Emission", prim, seen) -> None:
+        """Emission of mesh lights whose triangle is the surface hit (prim (n,) embree ids) by the
+        rows in ``seen``, weighted by em: mesh lights are geometry, so they are counted here, at
+        the hit, and never by the light-crossing test (self.finite excludes them)."""
+        rows = np.nonzero(seen & (prim >= 0))[0]
+        if not rows.size:
+            return
+        light = self.scene.tri_light[prim[rows]]
+        k = light >= 0
+        rows, light = rows[k], light[k]
+        if not rows.size:
+            return
+        w = em.weight(rows, light)
+        if not np.any(w > 0.0):
+            return
+        cos_front = -dot(em.d[rows], self.scene.geometry.face_normal[prim[rows]])
+        Le, _ = self.lights.surface_emission(light, cos_front, em.d[rows])
+        np.add.at(L, em.path[rows], em.beta[rows] * (Le * w[:, None]))
+
     def _light_hits(self, o, d, t_limit):
         """All (row, light, t) with an exact light hit at t < t_limit."""
         lights = self.lights
@@ -464,14 +491,20 @@ class PathIntegrator:
             Le = self.lights.le_escaped(light, em.d[rows])
             np.add.at(L, em.path[rows], em.beta[rows] * (Le * w[:, None]))
 
-    def _visible(self, p, ng, wi, dist, eps, accel=None) -> np.ndarray:
+    def _visible(self, p, ng, wi, dist, eps, accel=None, shadow=None) -> np.ndarray:
         """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf).
 
         accel: the BVH to test (a light's shadowLink BVH), default the whole scene.
+        shadow: the light group's ShadowAPI params (integrators/shadow_api.py), or None for
+        plain rays; with them the result is a fractional visibility (m,) float in [0, 1].
         """
         o = offset_origin(p, ng, wi, eps)
         # Stop short of the light's surface by a relative margin and the origin offset.
         t_max = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - eps, np.inf)
+        if shadow is not None:
+            v, traced = shadow_visibility(accel or self.scene.accel, o, wi, t_max, shadow)
+            self.rays.add(shadow=traced)
+            return v
         self.rays.add(shadow=p.shape[0])
         return ~(accel or self.scene.accel).occluded(o, wi, t_max)
 
@@ -479,7 +512,8 @@ class PathIntegrator:
         if shadow_group < 0:
             return self._visible
         accel = self.scene.shadow_accels[shadow_group]
-        return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel)
+        params = self.scene.shadow_params[shadow_group] if self.scene.shadow_params else None
+        return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel, params)
 
     def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary, mesh, continues) -> None:
         """Direct lighting at n shading points: lights picked by the lighting service, each

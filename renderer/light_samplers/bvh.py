@@ -8,8 +8,14 @@ Adaptive Tree Splitting") in the form pbrt-v4 gives it (``BVHLightSampler``):
   ``(w, theta_o, theta_e)``: all normals lie within theta_o of the axis w, and every normal
   emits within theta_e of itself. Rect and disk lights are one-sided: w = emitting normal,
   theta_o = 0, theta_e = pi/2. Sphere lights (and treatAsPoint point lights) emit everywhere:
-  theta_o = pi, theta_e = pi/2. A kind this module does not know yet is bounded by the AABB
-  of its proxy triangles with theta_o = pi (always valid, merely loose).
+  theta_o = pi, theta_e = pi/2; so do cylinder (and line) lights, whose normals circle their
+  axis. A mesh light gets its triangles' AABB and the cone of their front normals (pbrt's
+  TriangleLight bounds for the whole mesh; theta_o = pi when two-sided). A kind this module does not know yet is bounded by the AABB
+  of its proxy triangles with theta_o = pi (always valid, merely loose). Lights shaped by
+  UsdLux ShapingAPI (lights/shaping.py) get their shaped power and, where their transform
+  preserves angles, the cone they actually emit into: w = the light axis and
+  theta_o + theta_e = the largest off-axis angle with non-zero emission (cone angle, IES
+  support), theta_o being the part where the cone term is still 1 (pbrt-v4's spot bounds).
 * a binary tree whose leaves hold one light each; an interior node holds the union of its
   lights' bounds. At a shading point p with shading normal ns the *importance* of a node,
 
@@ -168,6 +174,19 @@ def light_bounds(lights) -> LightBounds:
             r = np.where(obj.delta, 0.0, obj.radius)[:, None]
             lo, hi = obj.center - r, obj.center + r
             theta_o = np.full(m, np.pi)
+        elif kind == "cylinder":
+            # Side c + s a + cos(phi) b1 + sin(phi) b2, |s| <= l: per axis l |a_k| + |(b1_k, b2_k)|
+            # (line lights: the segment). Normals circle the axis: emits all around (theta_o = pi).
+            half = obj.half[:, None] * np.abs(obj.a) + np.where(
+                obj.delta[:, None], 0.0, np.sqrt(obj.b1**2 + obj.b2**2))
+            lo, hi = obj.center - half, obj.center + half
+            theta_o = np.full(m, np.pi)
+        elif kind == "mesh":
+            # One bounds per mesh light: the triangles' AABB and the cone of their front normals
+            # (lights/mesh.py; pi for two-sided lights).
+            lo, hi = obj.lo, obj.hi
+            w = np.asarray(obj.cone_w, dtype=np.float64)
+            theta_o = np.asarray(obj.cone_theta, dtype=np.float64)
         else:
             # Unknown finite kind: the AABB of its conservative proxy triangles, emitting everywhere.
             tris, owner = obj.proxy_triangles()
@@ -176,6 +195,11 @@ def light_bounds(lights) -> LightBounds:
             np.minimum.at(lo, owner, tris.min(axis=1))
             np.maximum.at(hi, owner, tris.max(axis=1))
             theta_o = np.full(m, np.pi)
+        shaping = getattr(lights, "shaping", None)
+        if shaping is not None and getattr(lights, "shaping_aware", True):
+            # ShapingAPI: the emission cone of a spot (cone angle, IES support) about the light axis.
+            w, theta_o, theta_e = shaping.tighten_bounds(glob, np.asarray(w, float), theta_o, theta_e,
+                                                         one_sided=kind in ("rect", "disk"))
         parts.append(LightBounds(glob, np.asarray(lo, float), np.asarray(hi, float), phi_all[glob],
                                  np.asarray(w, float), theta_o, theta_e))
     if not parts:

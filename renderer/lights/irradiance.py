@@ -5,6 +5,11 @@ Exact where the light's radiance is uniform over its surface (untextured rect/pa
 circular disk, sphere, constant dome, distant light with angle > 0): the geometric part comes
 from lights/analytic.py. Elsewhere (textured rects, elliptical disks, textured domes without a
 preconvolved irradiance, delta lights) ``exact`` is False and the estimators fall back to MIS.
+Mesh lights are exact up to EXACT_MAX_TRIANGLES triangles (Lambert per facing triangle);
+cylinder lights and domes with portals never are. Shaped lights (ShapingAPI focus, cone or IES that change the emission) and lights with a
+ShadowAPI shadow colour are never exact (``LightSet.inexact``): the directional factor has no
+closed-form integral, and a tinted shadow needs a per-channel visibility the control variate's
+scalar alpha cannot carry.
 """
 
 from __future__ import annotations
@@ -60,10 +65,19 @@ def _dome(obj, idx, ctx):
             e, ok = irr(idx[tex_rows], ctx.ns[tex_rows])
             E[tex_rows] = e
             exact[tex_rows] = ok
+    # With portals the light samples need not cover the sphere: no exact F (dome.py).
+    exact &= ~getattr(obj, "has_portals", np.zeros(obj.count, dtype=bool))[idx]
     return E, exact
 
 
-_BY_KIND = {"rect": _rect, "disk": _disk, "sphere": _sphere, "distant": _distant, "dome": _dome}
+def _mesh(obj, idx, ctx):
+    # Lambert's polygon formula per facing triangle (lights/mesh.py; exact up to a size limit).
+    return obj.irradiance(idx, ctx)
+
+
+# CylinderLight has no entry: no exact F, the estimators use MIS.
+_BY_KIND = {"rect": _rect, "disk": _disk, "sphere": _sphere, "distant": _distant, "dome": _dome,
+            "mesh": _mesh}
 
 
 def irradiance(lights, light: np.ndarray, ctx: ShadingContext) -> tuple[np.ndarray, np.ndarray]:
@@ -78,6 +92,9 @@ def irradiance(lights, light: np.ndarray, ctx: ShadingContext) -> tuple[np.ndarr
         e, ok = fn(obj, local, ctx.take(rows))
         E[rows] = e
         exact[rows] = ok
+    if getattr(lights, "inexact_reason", None):
+        # ShapingAPI emission or a ShadowAPI shadow colour: no exact F (see light_set.py).
+        exact &= ~lights.inexact[light]
     return E, exact
 
 
@@ -98,4 +115,12 @@ def has_exact_integral(lights) -> np.ndarray:
             out[g] = (obj.theta_max > 0.0) & (obj.theta_max < 0.5 * np.pi)
         elif obj.name == "dome":
             out[g] = (obj.tex < 0) | bool(getattr(obj, "irradiance_lookup", None) is not None)
+            out[g] &= ~getattr(obj, "has_portals", np.zeros(obj.count, dtype=bool))
+        elif obj.name == "mesh":
+            from .mesh import EXACT_MAX_TRIANGLES
+
+            out[g] = obj.tri_count <= EXACT_MAX_TRIANGLES
+    inexact = getattr(lights, "inexact", None)
+    if inexact is not None and inexact.size:
+        out &= ~inexact
     return out

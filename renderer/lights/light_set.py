@@ -1,9 +1,9 @@
 """LightSet: every light of the scene, grouped by kind, behind one global index.
 
 ``LightSet.build(descs, scene_center, scene_radius)`` drops lights that cannot emit (radiance
-exactly zero, e.g. intensity 0; zero world area; a degenerate transform) and kinds that illum
-does not render yet (CylinderLight), listing their paths in ``dropped`` (with a warning for
-unsupported kinds), then builds one structure-of-arrays object per kind. The remaining lights
+exactly zero, e.g. intensity 0; zero world area; a degenerate transform) and unknown kinds,
+listing their paths in ``dropped`` (with a warning for unknown kinds), then builds one
+structure-of-arrays object per kind. The remaining lights
 keep the order of ``descs`` and get global indices 0..count-1:
 
 * ``kind_of`` (count,) int8 -- index into ``kinds`` (the tuple of kind objects, KIND_NAMES order);
@@ -11,8 +11,16 @@ keep the order of ``descs`` and get global indices 0..count-1:
 * ``delta`` (count,) bool -- point-like lights (sphere treatAsPoint, distant angle 0): their
   sample_li has pdf 1 with L the irradiance-style term, pdf_li is 0, never hit by rays;
 * ``infinite`` (k,) int64 -- global indices of the infinite lights (dome, distant);
+* ``is_geometry`` (count,) bool -- mesh lights: real geometry in the scene BVH, so rays meet
+  them as surfaces (``surface_emission``), not through proxies or ``intersect`` on camera rays;
 * ``paths`` (count,) prim paths; ``estimators`` the per-light EstimatorSettings;
-* ``warnings`` human-readable, aggregated from the kinds and the build.
+* ``warnings`` human-readable, aggregated from the kinds and the build;
+* ``shaping`` -- UsdLux ShapingAPI (lights/shaping.py): a ShapingTable or None; ``sample_li``
+  and ``le`` multiply each shaped row's radiance by its directional factor, ``phi`` returns
+  the shaped power (``shaping_aware = False`` turns that off for comparisons);
+* ``plain_shadows`` (count,) bool, ``shadow_tint`` (count, 3) or None -- UsdLux ShadowAPI;
+  ``inexact`` (count,) bool with ``inexact_reason`` -- lights whose shaping or shadow colour
+  rules out an exact unshadowed integral (the control variate falls back to MIS).
 
 The dispatching methods take GLOBAL light indices (one per row) and group rows by kind with
 boolean masks (a Python loop over the <= 5 kinds, never over rows or lights).
@@ -24,9 +32,11 @@ import numpy as np
 
 from renderer.description import EstimatorSettings, LightDesc
 from renderer.lights.base import LightLiSample, ShadingContext
+from renderer.lights.cylinder import CylinderLight
 from renderer.lights.disk import DiskLight
 from renderer.lights.distant import DistantLight
 from renderer.lights.dome import DomeLight
+from renderer.lights.mesh import MeshLight
 from renderer.lights.radiometry import emitted_radiance
 from renderer.lights.rect import RectLight
 from renderer.lights.sphere import SphereLight
@@ -37,9 +47,11 @@ KIND_CLASSES = {
     "sphere": SphereLight,
     "distant": DistantLight,
     "dome": DomeLight,
+    "cylinder": CylinderLight,
+    "mesh": MeshLight,
 }
 KIND_NAMES = tuple(KIND_CLASSES)
-UNSUPPORTED_KINDS = ("cylinder",)
+UNSUPPORTED_KINDS: tuple = ()
 
 
 def _degenerate(desc: LightDesc, cls) -> bool:
@@ -51,7 +63,18 @@ def _degenerate(desc: LightDesc, cls) -> bool:
         return not np.any(DistantLight.world_axis(desc))
     if desc.kind == "dome":
         return False
+    hook = getattr(cls, "is_degenerate", None)  # kinds with their own rule (cylinder: line lights)
+    if hook is not None:
+        return bool(hook(desc))
     return not cls.world_area(desc) > 0.0
+
+
+def _radiance(desc: LightDesc, cls) -> np.ndarray:
+    """(3,) the light's emitted quantity, to drop lights that emit nothing."""
+    hook = getattr(cls, "radiance", None)  # kinds whose quantity is not L / area (line lights)
+    if hook is not None:
+        return hook(desc)
+    return emitted_radiance(desc, cls.world_area(desc))
 
 
 class LightSet:
@@ -66,9 +89,18 @@ class LightSet:
         self.delta = np.zeros(0, dtype=bool)
         self.infinite = np.zeros(0, dtype=np.int64)
         self.is_infinite = np.zeros(0, dtype=bool)
+        self.is_geometry = np.zeros(0, dtype=bool)
         self.diffuse_scale = np.zeros(0)
         self.specular_scale = np.zeros(0)
         self.has_exact_integral = np.zeros(0, dtype=bool)
+        # ShapingAPI (lights/shaping.py) and ShadowAPI: see _build_shaping_and_shadows.
+        self.shaping = None
+        self.shaped = np.zeros(0, dtype=bool)
+        self.shaping_aware = True
+        self.plain_shadows = np.zeros(0, dtype=bool)
+        self.shadow_tint = None
+        self.inexact_reason: dict[int, str] = {}
+        self.inexact = np.zeros(0, dtype=bool)
         self.estimators: list[EstimatorSettings] = []
         self.descs: list[LightDesc] = []
         self.dropped: list[str] = []
@@ -98,7 +130,7 @@ class LightSet:
                 ls.dropped.append(d.path)
                 ls.warnings.append(f"{d.path}: degenerate light (zero area or singular transform) ignored")
                 continue
-            if not np.any(emitted_radiance(d, kind_cls.world_area(d)) != 0.0):
+            if not np.any(_radiance(d, kind_cls) != 0.0):
                 ls.dropped.append(d.path)  # emits nothing (intensity 0, black colour): silently skipped
                 continue
             if d.enable_color_temperature and not (1000.0 <= float(d.color_temperature) <= 10000.0):
@@ -132,9 +164,14 @@ class LightSet:
         )[0].astype(np.int64)
         ls.is_infinite = np.zeros(ls.count, dtype=bool)
         ls.is_infinite[ls.infinite] = True
+        # Mesh lights are scene geometry: rays find them in the BVH, not by a light-crossing test.
+        ls.is_geometry = np.zeros(ls.count, dtype=bool)
+        for k, obj in enumerate(ls.kinds):
+            ls.is_geometry[ls._global_of[k]] = bool(getattr(obj, "geometry", False))
         # UsdLux's non-physical per-light multipliers of the diffuse and specular response.
         ls.diffuse_scale = np.array([float(d.diffuse) for d in kept], dtype=np.float64)
         ls.specular_scale = np.array([float(d.specular) for d in kept], dtype=np.float64)
+        ls._build_shaping_and_shadows(names)
         from .irradiance import has_exact_integral
 
         ls.has_exact_integral = has_exact_integral(ls)
@@ -174,7 +211,10 @@ class LightSet:
         single = self._single_kind(light)
         if single is not None:
             # Every row is one kind (the common case of a one-kind scene): no row copies.
-            return single.sample_li(self.local_of[light], ctx, u)
+            s = single.sample_li(self.local_of[light], ctx, u)
+            if self.shaping is not None:
+                self.shaping.apply(light, -s.wi, s.L)  # emission direction: light -> receiver
+            return s
         L = np.zeros((n, 3))
         wi = np.zeros((n, 3))
         wi[:, 2] = 1.0
@@ -184,6 +224,8 @@ class LightSet:
         for obj, rows, loc in self._groups(light):
             s = obj.sample_li(loc, ctx.take(rows), u[rows])
             L[rows], wi[rows], pdf[rows], dist[rows], p_light[rows] = s.L, s.wi, s.pdf, s.dist, s.p_light
+        if self.shaping is not None:
+            self.shaping.apply(light, -wi, L)  # emission direction: light -> receiver
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_light)
 
     def pdf_li(self, light: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
@@ -199,6 +241,8 @@ class LightSet:
         for obj, rows, loc in self._groups(light):
             if not obj.infinite:
                 out[rows] = obj.le(loc, p_light[rows], wi[rows])
+        if self.shaping is not None:
+            self.shaping.apply(np.asarray(light, dtype=np.int64), -wi, out)
         return out
 
     def intersect(self, light: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -217,6 +261,25 @@ class LightSet:
                 out[rows] = obj.le_escaped(loc, d[rows])
         return out
 
+    def surface_emission(self, light: np.ndarray, cos_front: np.ndarray,
+                         d: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Emission of geometry lights (mesh lights) at surface hits: (Le (n, 3), absorbing (n,)).
+
+        light: (n,) global index of the light whose triangle was hit; cos_front: (n,) = -d . n
+        with n the hit triangle's front normal; d: (n, 3) the ray directions (for ShapingAPI).
+        absorbing: the light's materialSyncMode is noMaterialResponse (its surface reflects nothing).
+        """
+        light = np.asarray(light, dtype=np.int64)
+        Le = np.zeros((light.size, 3))
+        absorbing = np.zeros(light.size, dtype=bool)
+        for obj, rows, loc in self._groups(light):
+            fn = getattr(obj, "surface_emission", None)
+            if fn is not None:
+                Le[rows], absorbing[rows] = fn(loc, cos_front[rows])
+        if self.shaping is not None and d is not None:
+            self.shaping.apply(light, -np.asarray(d, dtype=np.float64), Le)  # emission direction: light -> viewer
+        return Le, absorbing
+
     def le_escaped_all(self, d: np.ndarray) -> np.ndarray:
         """(n, 3) sum over every infinite light of le_escaped (what an escaped ray sees)."""
         n = d.shape[0]
@@ -232,6 +295,10 @@ class LightSet:
         for k, obj in enumerate(self.kinds):
             if obj.count:
                 out[self._global_of[k]] = obj.phi()
+        if self.shaping is not None and self.shaping_aware:
+            # The shaped power (ShapingTable.ratio): what power sampling and the light BVH use.
+            sh = self.shaping
+            out[sh.light] *= sh.power_luminance_scale(self._base_rgb[sh.light])
         return out
 
     def proxy_triangles(self) -> tuple[np.ndarray, np.ndarray]:
@@ -243,6 +310,42 @@ class LightSet:
                 tris.append(t)
                 owners.append(self._global_of[k][o])
         return np.concatenate(tris), np.concatenate(owners)
+
+    def _build_shaping_and_shadows(self, names: list[str]) -> None:
+        """ShapingAPI tables and ShadowAPI flags of the kept lights.
+
+        shaping: ShapingTable or None; shaped (count,) bool: the shaping changes the emission.
+        plain_shadows (count,) bool: shadows as without ShadowAPI. shadow_tint (count, 3) or
+        None: shadow:color of lights with shadows enabled and a non-black colour (estimators
+        fold it into the integrand, see estimators/base.py). inexact_reason: {light: why the
+        light has no exact unshadowed integral F} for the shaped and tinted lights.
+        """
+        from .shaping import ShapingTable
+
+        kept = self.descs
+        for d in kept:
+            if getattr(d, "shaping", None) is not None and d.kind in ("distant", "dome"):
+                self.warnings.append(f"{d.path}: ShapingAPI on a {d.kind} light is ignored")
+        self.shaping = ShapingTable.build(kept, names)
+        self.shaped = self.shaping.shaped(self.count) if self.shaping is not None else np.zeros(self.count, bool)
+        self._base_rgb = np.zeros((self.count, 3))
+        if self.shaping is not None:
+            for i in self.shaping.light:
+                d = kept[i]
+                self._base_rgb[i] = emitted_radiance(d, KIND_CLASSES[d.kind].world_area(d))
+            for j, i in enumerate(self.shaping.light):
+                self.inexact_reason[int(i)] = f"ShapingAPI ({self.shaping.descriptions[j]})"
+        shadows = [getattr(d, "shadow", None) for d in kept]
+        self.plain_shadows = np.array([s is None or s.is_default for s in shadows], dtype=bool)
+        tint = np.zeros((self.count, 3))
+        for i, s in enumerate(shadows):
+            if s is not None and s.enable and any(c != 0.0 for c in s.color):
+                tint[i] = s.color
+                self.inexact_reason[i] = (self.inexact_reason.get(i, "") + "; " if i in self.inexact_reason
+                                          else "") + "ShadowAPI shadow:color"
+        self.shadow_tint = tint if np.any(tint != 0.0) else None
+        self.inexact = np.zeros(self.count, dtype=bool)
+        self.inexact[list(self.inexact_reason)] = True
 
     @property
     def estimator(self) -> list[EstimatorSettings]:

@@ -33,7 +33,7 @@ from renderer.color import blackbody_rgb
 from renderer.description import LightDesc
 from renderer.errors import StageError
 
-AREA_KINDS = ("rect", "disk", "sphere", "cylinder")
+AREA_KINDS = ("rect", "disk", "sphere", "cylinder", "mesh")
 
 
 def distant_half_angle(angle_deg: float) -> float:

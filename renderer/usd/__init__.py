@@ -10,9 +10,11 @@ Modules: ``stage_reader`` (traversal, pruning, meshes, implicit prims, instancin
 What is read and what is not (each unsupported feature gives one warning per stage):
 * Subdivision meshes render as their control cage; BasisCurves, Points, NURBS and other
   non-mesh, non-implicit gprims are skipped.
-* Lights: Rect, Disk, Sphere, Cylinder, Distant, DomeLight, DomeLight_1. PortalLight,
-  GeometryLight, PluginLight, MeshLightAPI/VolumeLightAPI emission, light filters, ShapingAPI
-  and ShadowAPI are skipped or ignored; lights inside PointInstancer prototypes are skipped.
+* Lights: Rect, Disk, Sphere, Cylinder, Distant, DomeLight, DomeLight_1, mesh lights (a Mesh
+  or implicit gprim with MeshLightAPI / LightAPI, with light:materialSyncMode) and the
+  PortalLights a dome's ``portals`` targets. GeometryLight, PluginLight, VolumeLightAPI
+  emission and light filters (one warning per light) are skipped or ignored; lights inside
+  PointInstancer prototypes are skipped. ShapingAPI and ShadowAPI are read by ``lux_shaping``.
 * Materials: UsdPreviewSurface (universal render context) with UsdUVTexture and
   UsdPrimvarReader_float2; UsdTransform2d is followed but its transform ignored; normal,
   displacement, clearcoat and occlusion inputs are ignored; UDIM paths use the fallback.

@@ -68,6 +68,11 @@ class MaterialTable:
             self._index[desc] = idx
         return idx
 
+    def add(self, desc: MaterialDesc) -> int:
+        """Index of ``desc`` in the table, adding it when new (e.g. a mesh light's material
+        after light:materialSyncMode, usd/lux.py)."""
+        return self._add(desc)
+
     def index_for(self, prim: Usd.Prim) -> tuple[int, str | None]:
         """Material of a gprim: bound material by purpose order, else displayColor, else grey."""
         material = self._bound_material(prim)

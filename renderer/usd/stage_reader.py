@@ -32,7 +32,7 @@ from . import implicit
 from .camera import find_camera, read_camera
 from .common import ReadContext, one_line
 from .estimator_api import check_light_api_target
-from .lux import read_light, resolve_light_links
+from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
 from .mesh import expand_primvar, primvar_element_count, triangulate
 from .render_settings import find_settings_prim, read_render_settings
@@ -117,6 +117,7 @@ def _read(ctx: ReadContext, camera: str | None, settings: str | None,
     camera_desc = read_camera(cam_prim, ctx)
     if dof_off:
         camera_desc = dataclasses.replace(camera_desc, f_stop=0.0)
+    warn_unused_portals(reader.portal_paths, reader.lights, ctx)
     lights = resolve_light_links(reader.light_prims, reader.lights, [m.path for m in reader.meshes])
     ctx.stats["meshes"] = len(reader.meshes)
     ctx.stats["lights"] = len(lights)
@@ -206,6 +207,7 @@ class _Traversal:
         self.materials = MaterialTable(ctx, binding_purposes)
         self.meshes: list[MeshDesc] = []
         self.lights = []
+        self.portal_paths: list[str] = []
         self.light_prims: dict[str, Usd.Prim] = {}
         self.first_camera: str | None = None
 
@@ -252,25 +254,40 @@ class _Traversal:
                 if light is not None:
                     self.lights.append(light)
                     self.light_prims[light.path] = prim
+                if prim.IsA(UsdLux.PortalLight):
+                    self.portal_paths.append(str(prim.GetPath()))
             if prim.IsA(UsdGeom.Camera):
                 if self.first_camera is None:
                     self.first_camera = str(prim.GetPath())
             elif prim.IsA(UsdGeom.Gprim):
                 lm = self._local_geometry(prim)
                 if lm is not None:
-                    self._emit(lm, ctx.local_to_world(prim)[None])
+                    mesh = self._emit(lm, ctx.local_to_world(prim)[None])
+                    if mesh is not None and prim.HasAPI(UsdLux.LightAPI):
+                        self._geometry_light(prim, mesh)
 
-    def _emit(self, lm: _LocalMesh, mats: np.ndarray) -> None:
+    def _geometry_light(self, prim: Usd.Prim, mesh: MeshDesc) -> None:
+        """A gprim with LightAPI (MeshLightAPI): its just-emitted MeshDesc is also a light."""
+        light, material = read_geometry_light(prim, self.ctx, mesh, self.materials.materials[mesh.material])
+        if material is not None:
+            # materialSyncMode changed what the surface itself does (lux.read_geometry_light).
+            self.meshes[-1] = dataclasses.replace(mesh, material=self.materials.add(material))
+        if light is not None:
+            self.lights.append(light)
+            self.light_prims[light.path] = prim
+
+    def _emit(self, lm: _LocalMesh, mats: np.ndarray) -> MeshDesc | None:
         finite = np.isfinite(mats).all(axis=(1, 2))
         if not finite.all():
             raise self.ctx.error("world transform is not finite", lm.path, "xformOpOrder")
         # Zero-scale instances (a common way to hide some) have no surface: drop them.
         mats = mats[np.abs(np.linalg.det(mats[:, :3, :3])) > 0.0]
         if len(mats) == 0 or len(lm.triangles) == 0:
-            return
+            return None
         desc = _place(lm, mats)
         self.meshes.append(desc)
         self.ctx.stats["triangles"] += len(desc.triangles)
+        return desc
 
     # ---- point instancers ------------------------------------------------------------
     def _top_instancer(self, prim: Usd.Prim, info) -> None:

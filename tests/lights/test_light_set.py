@@ -25,6 +25,7 @@ def scene():
         L("/Bulb", "sphere", translate(-2, 0, 2), radius=0.1, treat_as_point=True, intensity=100.0),
         L("/Sky", "dome", intensity=0.2),
         L("/Tube", "cylinder", translate(0, 1, 2)),
+        L("/Blob", "blob", translate(0, 1, 2)),
         L("/Spot", "disk", translate(0, -1, 2.5), radius=0.4, intensity=4.0),
         L("/Rim", "distant", look_down((0, 1.0, 0)), angle=0.0, intensity=2.0),
     ]
@@ -32,20 +33,20 @@ def scene():
 
 
 def test_build_indexing(scene):
-    assert scene.count == 7
-    assert scene.paths == ["/Key", "/Fill", "/Sun", "/Bulb", "/Sky", "/Spot", "/Rim"]
-    assert scene.dropped == ["/Off", "/Flat", "/Tube"]
+    assert scene.count == 8
+    assert scene.paths == ["/Key", "/Fill", "/Sun", "/Bulb", "/Sky", "/Tube", "/Spot", "/Rim"]
+    assert scene.dropped == ["/Off", "/Flat", "/Blob"]
     names = [KIND_NAMES[k] for k in scene.kind_of]
-    assert names == ["rect", "sphere", "distant", "sphere", "dome", "disk", "distant"]
-    np.testing.assert_array_equal(scene.local_of, [0, 0, 0, 1, 0, 0, 1])
-    np.testing.assert_array_equal(scene.delta, [False, False, False, True, False, False, True])
-    np.testing.assert_array_equal(scene.infinite, [2, 4, 6])
+    assert names == ["rect", "sphere", "distant", "sphere", "dome", "cylinder", "disk", "distant"]
+    np.testing.assert_array_equal(scene.local_of, [0, 0, 0, 1, 0, 0, 0, 1])
+    np.testing.assert_array_equal(scene.delta, [False, False, False, True, False, False, False, True])
+    np.testing.assert_array_equal(scene.infinite, [2, 4, 7])
     assert scene.kind_of.dtype == np.int8 and scene.local_of.dtype == np.int64
     assert scene.estimators[0].estimator == "controlVariate"
-    assert any("/Tube" in w and "not supported" in w for w in scene.warnings)
+    assert any("/Blob" in w and "unknown light kind" in w for w in scene.warnings)
     assert any("/Flat" in w for w in scene.warnings)
     phi = scene.phi()
-    assert phi.shape == (7,) and np.all(phi > 0)
+    assert phi.shape == (8,) and np.all(phi > 0)
 
 
 def test_dispatch_matches_kinds(scene):
@@ -91,7 +92,7 @@ def test_le_escaped_all_sums_infinite_lights(scene):
 
 def test_proxy_triangles_global_owner(scene):
     tris, owner = scene.proxy_triangles()
-    assert set(owner.tolist()) == {0, 1, 5}  # rect, sphere, disk; not the point light nor infinite
+    assert set(owner.tolist()) == {0, 1, 5, 6}  # rect, sphere, cylinder, disk; not the point light nor infinite
     # A ray at the sphere light's centre hits one of its proxies.
     o = np.array([[2.0, 0.0, 0.0]])
     d = np.array([[0.0, 0.0, 1.0]])

@@ -219,13 +219,21 @@ def test_unsupported_texture_format(stage):
 
 
 def test_unsupported_light_types_warn_and_skip(stage):
-    UsdLux.PortalLight.Define(stage, "/Portal")
     UsdLux.PluginLight.Define(stage, "/Plugin")
     UsdLux.GeometryLight.Define(stage, "/Geo")
+    d = read(stage)
+    assert d.lights == []
+    text = " ".join(d.warnings)
+    assert all(k in text for k in ("PluginLight", "GeometryLight"))
+
+
+def test_mesh_light_and_unused_portal(stage):
+    # MeshLightAPI makes the mesh a light as well (tests/usd/test_mesh_lights.py has the details);
+    # a PortalLight no dome targets is no light and says it has no effect.
+    UsdLux.PortalLight.Define(stage, "/Portal")
     glow = add_quad(stage, "/Glow")
     UsdLux.MeshLightAPI.Apply(glow.GetPrim())
     d = read(stage)
-    assert d.lights == []
+    assert [(light.path, light.kind) for light in d.lights] == [("/Glow", "mesh")]
     assert [m.path for m in d.meshes] == ["/Glow"]  # the mesh itself still renders
-    text = " ".join(d.warnings)
-    assert all(k in text for k in ("PortalLight", "PluginLight", "GeometryLight", "MeshLightAPI"))
+    assert [w for w in d.warnings if "/Portal" in w and "not a target" in w]

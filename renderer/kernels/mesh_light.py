@@ -1,0 +1,297 @@
+"""Per-row kernels of the mesh lights (``renderer/lights/mesh.py``): exact ray / triangle tests
+over a light's triangles, and per-triangle sampling with its matching pdf.
+
+Conventions as in ``renderer.kernels`` (njit, cache, nogil, no cross-module numba imports).
+Triangles are a (T, 3, 3) float64 table; a light owns the contiguous range
+[start[light], start[light] + count[light]). ``nrm`` (T, 3) are unit front normals
+(counter-clockwise winding), ``area`` (T,) world areas, ``pmf`` (T,) the probability that the
+light picks the triangle (area-proportional, summing to 1 over the light).
+
+Sampling of one triangle seen from p (pbrt-v4's rule, decided from the (triangle, point) pair
+only so that the pdf kernel makes the same choice): spherical-triangle sampling (Arvo 1995),
+pdf_w = 1 / Omega, when the solid angle Omega is within [min_sa, max_sa] (3e-4 and 6.22 sr: below,
+the spherical construction loses precision; above, the triangle nearly fills a hemisphere);
+otherwise uniform area sampling, pdf_w = d^2 / (A |cos theta_l|). The solid angle is
+Van Oosterom & Strackee's tan(Omega / 2) = |a . (b x c)| / (1 + a.b + b.c + c.a), which stays
+accurate for tiny triangles (the angle-excess form cancels).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+_PI = math.pi
+
+
+@njit(cache=True, nogil=True)
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit(cache=True, nogil=True)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, nogil=True)
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, nogil=True)
+def _norm(a):
+    return math.sqrt(_dot(a, a))
+
+
+@njit(cache=True, nogil=True)
+def _unit(a):
+    n = _norm(a)
+    if n > 0.0:
+        return (a[0] / n, a[1] / n, a[2] / n), n
+    return (0.0, 0.0, 0.0), 0.0
+
+
+@njit(cache=True, nogil=True)
+def _vert(tris, t, k):
+    return (tris[t, k, 0], tris[t, k, 1], tris[t, k, 2])
+
+
+@njit(cache=True, nogil=True)
+def _row(a, r):
+    return (a[r, 0], a[r, 1], a[r, 2])
+
+
+@njit(cache=True, nogil=True)
+def _tri_hit(o, d, v0, v1, v2):
+    """Moller-Trumbore, both sides: hit distance t > 0 or inf."""
+    e1 = _sub(v1, v0)
+    e2 = _sub(v2, v0)
+    pv = _cross(d, e2)
+    det = _dot(e1, pv)
+    if det == 0.0 or not math.isfinite(det):
+        return math.inf
+    inv = 1.0 / det
+    tv = _sub(o, v0)
+    u = _dot(tv, pv) * inv
+    if u < 0.0 or u > 1.0:
+        return math.inf
+    qv = _cross(tv, e1)
+    v = _dot(d, qv) * inv
+    if v < 0.0 or u + v > 1.0:
+        return math.inf
+    t = _dot(e2, qv) * inv
+    if t > 0.0:
+        return t
+    return math.inf
+
+
+@njit(cache=True, nogil=True)
+def mesh_hit_kernel(idx, o, d, start, count, tris, out_t, out_tri):
+    """First hit (t, global triangle) of rays o + t d with light idx's triangles (inf, -1: none)."""
+    for r in range(idx.shape[0]):
+        li = idx[r]
+        orr = _row(o, r)
+        dr = _row(d, r)
+        best = math.inf
+        which = -1
+        s = start[li]
+        for t in range(s, s + count[li]):
+            th = _tri_hit(orr, dr, _vert(tris, t, 0), _vert(tris, t, 1), _vert(tris, t, 2))
+            if th < best:
+                best = th
+                which = t
+        out_t[r] = best
+        out_tri[r] = which
+
+
+@njit(cache=True, nogil=True)
+def plane_distance_kernel(tri, o, d, tris, nrm, out_t):
+    """Distance t (n,) along o + t d to the plane of triangle tri[r] (inf where parallel / none)."""
+    for r in range(tri.shape[0]):
+        t = tri[r]
+        if t < 0:
+            out_t[r] = math.inf
+            continue
+        nn = _row(nrm, t)
+        den = _dot(nn, _row(d, r))
+        if den == 0.0:
+            out_t[r] = math.inf
+            continue
+        x = _dot(nn, _sub(_vert(tris, t, 0), _row(o, r))) / den
+        out_t[r] = x if (x > 0.0 and math.isfinite(x)) else math.inf
+
+
+@njit(cache=True, nogil=True)
+def _solid_angle(a, b, c):
+    """Solid angle of the spherical triangle of unit vectors a, b, c (Van Oosterom-Strackee)."""
+    num = abs(_dot(a, _cross(b, c)))
+    den = 1.0 + _dot(a, b) + _dot(b, c) + _dot(c, a)
+    om = 2.0 * math.atan2(num, den)
+    return om if om > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _corner_angle(a, b, c):
+    """Interior angle at vertex a of the spherical triangle (a, b, c) (unit vectors)."""
+    tb = _sub(b, (a[0] * _dot(a, b), a[1] * _dot(a, b), a[2] * _dot(a, b)))
+    tc = _sub(c, (a[0] * _dot(a, c), a[1] * _dot(a, c), a[2] * _dot(a, c)))
+    return math.atan2(_norm(_cross(tb, tc)), _dot(tb, tc))
+
+
+@njit(cache=True, nogil=True)
+def _orth_unit(x, a):
+    """normalize(x - (x . a) a) for unit a."""
+    k = _dot(x, a)
+    return _unit((x[0] - k * a[0], x[1] - k * a[1], x[2] - k * a[2]))[0]
+
+
+@njit(cache=True, nogil=True)
+def _sph_tri_sample(a, b, c, u0, u1):
+    """Arvo's uniform sample of the spherical triangle (a, b, c): a unit direction.
+
+    A sub-triangle (a, b, c') of area u0 * Omega is cut off along the arc a -> c (its vertex c'
+    solves the spherical law of cosines for the prescribed area), then the direction is drawn
+    on the arc b -> c' with cos linear in u1, which makes the density uniform.
+    """
+    alpha = _corner_angle(a, b, c)
+    beta = _corner_angle(b, c, a)
+    gamma = _corner_angle(c, a, b)
+    area = alpha + beta + gamma - _PI
+    sub = u0 * area
+    s = math.sin(sub - alpha)
+    t = math.cos(sub - alpha)
+    ca = math.cos(alpha)
+    sa = math.sin(alpha)
+    uu = t - ca
+    vv = s + sa * _dot(a, b)
+    den = (vv * s + uu * t) * sa
+    q = ((vv * t - uu * s) * ca - vv) / den if den != 0.0 else 1.0
+    q = min(max(q, -1.0), 1.0)
+    w = _orth_unit(c, a)
+    sq = math.sqrt(max(0.0, 1.0 - q * q))
+    cp = (q * a[0] + sq * w[0], q * a[1] + sq * w[1], q * a[2] + sq * w[2])
+    z = 1.0 - u1 * (1.0 - _dot(cp, b))
+    z = min(max(z, -1.0), 1.0)
+    w2 = _orth_unit(cp, b)
+    sz = math.sqrt(max(0.0, 1.0 - z * z))
+    out = (z * b[0] + sz * w2[0], z * b[1] + sz * w2[1], z * b[2] + sz * w2[2])
+    return _unit(out)[0]
+
+
+@njit(cache=True, nogil=True)
+def _tri_pdf(p, tri, x, dist, tris, nrm, area, pmf, two_sided, min_sa, max_sa):
+    """Solid-angle pdf of the sampler for the point x (at distance dist) on triangle tri.
+    0 where the triangle faces away from p (one-sided lights)."""
+    v0 = _vert(tris, tri, 0)
+    nn = _row(nrm, tri)
+    h = _dot(nn, _sub(p, v0))
+    if area[tri] <= 0.0 or pmf[tri] <= 0.0 or h == 0.0 or (h < 0.0 and not two_sided):
+        return 0.0
+    a = _unit(_sub(v0, p))[0]
+    b = _unit(_sub(_vert(tris, tri, 1), p))[0]
+    c = _unit(_sub(_vert(tris, tri, 2), p))[0]
+    om = _solid_angle(a, b, c)
+    if om >= min_sa and om <= max_sa:
+        return pmf[tri] / om
+    if not (dist > 0.0):
+        return 0.0
+    cos_l = abs(h) / dist  # = |n . (p - x)| / |p - x| for x in the plane
+    if cos_l <= 0.0:
+        return 0.0
+    out = pmf[tri] * dist * dist / (area[tri] * cos_l)
+    return out if math.isfinite(out) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def mesh_sample_kernel(idx, tri, p, u, tris, nrm, area, pmf, two_sided, Lrad, min_sa, max_sa,
+                       out_L, out_wi, out_pdf, out_dist, out_p):
+    """Sample a point of triangle tri[r] (already picked, global index) of light idx[r] from p.
+
+    u (n, 2) are fresh uniforms (the triangle pick's were remapped by the caller). Outputs are
+    fully written; a failed sample has pdf 0, L 0.
+    """
+    for r in range(idx.shape[0]):
+        li = idx[r]
+        t = tri[r]
+        pr = _row(p, r)
+        out_L[r, 0] = 0.0
+        out_L[r, 1] = 0.0
+        out_L[r, 2] = 0.0
+        out_wi[r, 0] = 0.0
+        out_wi[r, 1] = 0.0
+        out_wi[r, 2] = 1.0
+        out_pdf[r] = 0.0
+        out_dist[r] = 0.0
+        out_p[r, 0] = pr[0]
+        out_p[r, 1] = pr[1]
+        out_p[r, 2] = pr[2]
+        if t < 0:
+            continue
+        v0 = _vert(tris, t, 0)
+        v1 = _vert(tris, t, 1)
+        v2 = _vert(tris, t, 2)
+        nn = _row(nrm, t)
+        h = _dot(nn, _sub(pr, v0))
+        ts = two_sided[li]
+        if area[t] <= 0.0 or h == 0.0 or (h < 0.0 and not ts):
+            continue
+        a = _unit(_sub(v0, pr))[0]
+        b = _unit(_sub(v1, pr))[0]
+        c = _unit(_sub(v2, pr))[0]
+        om = _solid_angle(a, b, c)
+        if om >= min_sa and om <= max_sa:
+            w = _sph_tri_sample(a, b, c, u[r, 0], u[r, 1])
+            den = _dot(nn, w)
+            if den == 0.0:
+                continue
+            dist = -h / den
+            if not (dist > 0.0 and math.isfinite(dist)):
+                continue
+            x = (pr[0] + dist * w[0], pr[1] + dist * w[1], pr[2] + dist * w[2])
+            pdf = pmf[t] / om
+        else:
+            su = math.sqrt(u[r, 0])
+            b0 = 1.0 - su
+            b1 = u[r, 1] * su
+            b2 = 1.0 - b0 - b1
+            x = (b0 * v0[0] + b1 * v1[0] + b2 * v2[0],
+                 b0 * v0[1] + b1 * v1[1] + b2 * v2[1],
+                 b0 * v0[2] + b1 * v1[2] + b2 * v2[2])
+            w, dist = _unit(_sub(x, pr))
+            if not (dist > 0.0):
+                continue
+            cos_l = abs(h) / dist
+            if cos_l <= 0.0:
+                continue
+            pdf = pmf[t] * dist * dist / (area[t] * cos_l)
+            if not math.isfinite(pdf):
+                continue
+        if not (pdf > 0.0):
+            continue
+        out_L[r, 0] = Lrad[li, 0]
+        out_L[r, 1] = Lrad[li, 1]
+        out_L[r, 2] = Lrad[li, 2]
+        out_wi[r, 0] = w[0]
+        out_wi[r, 1] = w[1]
+        out_wi[r, 2] = w[2]
+        out_pdf[r] = pdf
+        out_dist[r] = dist
+        out_p[r, 0] = x[0]
+        out_p[r, 1] = x[1]
+        out_p[r, 2] = x[2]
+
+
+@njit(cache=True, nogil=True)
+def mesh_pdf_kernel(idx, tri, t_hit, p, wi, tris, nrm, area, pmf, two_sided, min_sa, max_sa, out_pdf):
+    """pdf (n,) of sampling wi: the density of the first-hit triangle tri[r] at distance t_hit[r]."""
+    for r in range(idx.shape[0]):
+        t = tri[r]
+        if t < 0 or not math.isfinite(t_hit[r]):
+            out_pdf[r] = 0.0
+            continue
+        pr = _row(p, r)
+        d = t_hit[r]
+        x = (pr[0] + d * wi[r, 0], pr[1] + d * wi[r, 1], pr[2] + d * wi[r, 2])
+        out_pdf[r] = _tri_pdf(pr, t, x, d, tris, nrm, area, pmf, two_sided[idx[r]], min_sa, max_sa)

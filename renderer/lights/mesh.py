@@ -1,0 +1,319 @@
+"""Mesh lights: a gprim with UsdLuxMeshLightAPI (or LightAPI) that is both geometry and a light.
+
+**Geometry.** The reader hands over exactly the world-space triangles of the gprim's MeshDesc
+(same triangulation, same winding), so the light and the surface the BVH holds are one shape.
+The gprim stays in the scene BVH: it occludes, and it is shaded by its material (see the
+materialSyncMode notes below). Consequences for the integrator (path.py):
+
+* its emission on camera rays is added *at the surface hit* (the hit triangle names the light,
+  ``Scene.tri_light``), never by a light-ray crossing test, so it is counted exactly once; the
+  kind therefore has no proxy triangles and LightSet marks it ``geometry``;
+* shadow rays toward a sampled point stop short of it by the usual relative margin
+  (dist (1 - 1e-5) - eps), so the emitting triangle does not shadow itself.
+
+**Emission.** Radiance L = the LightAPI formula (intensity, exposure, color, colorTemperature,
+``normalize`` over the *world* surface area of all triangles). The UsdLux docs do not say which
+side a mesh light emits from; illum follows the area lights ("emit from their front side") and
+the geometry: the front side of each triangle (counter-clockwise winding after the reader has
+applied ``orientation``), and both sides when the gprim is ``doubleSided`` (the area used by
+``normalize`` is still the surface area, counted once).
+
+**Sampling** (per (light, point) row): a triangle is picked in proportion to its area (an alias
+table per light), then a point on it with pbrt-v4's rule: spherical-triangle sampling (Arvo)
+when the triangle's solid angle from p is in [3e-4, 6.22] sr, uniform area sampling otherwise
+(kernels/mesh_light.py). The reported pdf is pmf(triangle) * (that triangle's solid-angle
+density) -- the density of the sampled *point*, which is what MIS and the estimators need
+(a direction that crosses several triangles of the mesh also has samples on the farther ones,
+but those are shadowed by the nearer one, so their weight never matters). Triangles facing away
+from p give failed samples (pdf 0) unless the light is two-sided.
+
+pdf_li(wi) uses the *first* triangle of the light hit along wi (``intersect``): exact float64
+Moller-Trumbore over the light's triangles in a numba kernel for lights of up to
+BRUTE_FORCE_TRIANGLES triangles; larger lights get their own embree BVH (renderer/accel.py) to
+find the triangle, then the distance is recomputed in float64 on that triangle's plane.
+
+**le(p_light, wi)** needs the triangle under p_light only for its side: it is found by casting
+from just before p_light along wi (a relative back-off of 1e-6 of the light's size).
+
+**Light BVH** (light_samplers/bvh.py): one bounds per mesh light -- the triangles' AABB and
+the cone of their front normals (axis = normalised area-weighted mean normal, theta_o = the
+largest angle to a normal; pi for two-sided lights), as pbrt bounds a TriangleLight but for the
+whole mesh. Per-triangle lights would give tighter cones but multiply the lighting service's
+work by the triangle count; a mesh light is one UsdLux light with one estimator setting.
+
+**Analytic F** (irradiance.py): Lambert's polygon formula per triangle clipped to the horizon
+(lights/analytic.py), summed over the triangles that face p -- exact for a mesh light of
+uniform radiance, and what the light samples estimate (they sample every facing triangle,
+shadowed or not). Its cost is linear in the triangle count, so only lights of at most
+EXACT_MAX_TRIANGLES triangles report an exact F; larger ones fall back to MIS.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from renderer.color import luminance
+from renderer.description import LightDesc
+from renderer.kernels import mesh_light as kern
+from renderer.lights._common import as_points, dot, invalid_sample
+from renderer.lights.base import LightLiSample, ShadingContext
+from renderer.lights.radiometry import emitted_radiance
+from renderer.sampling import AliasTable
+
+# pbrt-v4's solid-angle window for spherical triangle sampling (sr).
+MIN_SPHERICAL_SOLID_ANGLE = 3e-4
+MAX_SPHERICAL_SOLID_ANGLE = 6.22
+# Lights with more triangles find their first hit with a per-light embree BVH.
+BRUTE_FORCE_TRIANGLES = 64
+# Lights with more triangles report no exact unshadowed integral (MIS fallback).
+EXACT_MAX_TRIANGLES = 64
+
+
+def mesh_triangles(desc: LightDesc) -> np.ndarray:
+    """(T, 3, 3) float64 world triangles of a mesh light (empty when none)."""
+    if desc.mesh_triangles is None:
+        return np.zeros((0, 3, 3))
+    return np.asarray(desc.mesh_triangles, dtype=np.float64).reshape(-1, 3, 3)
+
+
+def triangle_areas(tris: np.ndarray) -> np.ndarray:
+    return 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+
+
+class MeshLight:
+    """All mesh lights as structure-of-arrays.
+
+    tris: (T, 3, 3) every light's triangles, light i owning [start[i], start[i] + tri_count[i]);
+    nrm: (T, 3) unit front normals; area, pmf, alias_q: (T,); alias: (T,) int64 global triangle
+    indices; tri_owner: (T,) local light index; L: (count, 3) radiance; two_sided, absorbing:
+    (count,) bool (absorbing: materialSyncMode noMaterialResponse, the surface reflects nothing);
+    total_area: (count,); lo, hi: (count, 3) AABBs; cone_w (count, 3), cone_theta (count,):
+    bounding cone of the emitting normals.
+    """
+
+    name = "mesh"
+    infinite = False
+    geometry = True
+
+    def __init__(self, paths, mesh_paths, tris, start, tri_count, L, two_sided, absorbing, accels):
+        self.paths = list(paths)
+        self.count = len(self.paths)
+        self.mesh_paths = list(mesh_paths)
+        self.tris = np.ascontiguousarray(tris, dtype=np.float64).reshape(-1, 3, 3)
+        self.start = np.ascontiguousarray(start, dtype=np.int64)
+        self.tri_count = np.ascontiguousarray(tri_count, dtype=np.int64)
+        self.L = as_points(L)
+        self.two_sided = np.ascontiguousarray(two_sided, dtype=bool)
+        self.absorbing = np.ascontiguousarray(absorbing, dtype=bool)
+        self.delta = np.zeros(self.count, dtype=bool)
+        self.warnings: list[str] = []
+        self._accels = accels  # per light: renderer.accel.Accel or None
+        T = self.tris.shape[0]
+        cr = np.cross(self.tris[:, 1] - self.tris[:, 0], self.tris[:, 2] - self.tris[:, 0]) if T else np.zeros((0, 3))
+        ln = np.linalg.norm(cr, axis=1)
+        self.area = 0.5 * ln
+        self.nrm = np.ascontiguousarray(cr / np.where(ln > 0.0, ln, 1.0)[:, None])
+        self.tri_owner = np.repeat(np.arange(self.count, dtype=np.int64), self.tri_count)
+        self.pmf = np.zeros(T)
+        self.alias_q = np.zeros(T)
+        self.alias = np.zeros(T, dtype=np.int64)
+        self.total_area = np.zeros(self.count)
+        self.lo = np.zeros((self.count, 3))
+        self.hi = np.zeros((self.count, 3))
+        self.cone_w = np.zeros((self.count, 3))
+        self.cone_w[:, 2] = 1.0
+        self.cone_theta = np.full(self.count, np.pi)
+        self.size = np.ones(self.count)
+        for i in range(self.count):  # per light, not per row: building the tables
+            s, c = int(self.start[i]), int(self.tri_count[i])
+            a = self.area[s:s + c]
+            self.total_area[i] = a.sum()
+            table = AliasTable.build(a)
+            self.pmf[s:s + c] = table.pmf
+            self.alias_q[s:s + c] = table.q
+            self.alias[s:s + c] = table.alias + s
+            pts = self.tris[s:s + c].reshape(-1, 3)
+            self.lo[i], self.hi[i] = pts.min(axis=0), pts.max(axis=0)
+            self.size[i] = max(float(np.linalg.norm(self.hi[i] - self.lo[i])), 1e-30)
+            if not self.two_sided[i]:
+                mean = (self.nrm[s:s + c] * a[:, None]).sum(axis=0)
+                m = float(np.linalg.norm(mean))
+                if m > 0.0:
+                    w = mean / m
+                    cosines = np.clip(self.nrm[s:s + c][a > 0.0] @ w, -1.0, 1.0)
+                    self.cone_w[i] = w
+                    self.cone_theta[i] = float(np.arccos(cosines.min())) if cosines.size else np.pi
+
+    # ----------------------------------------------------------------------------------
+    # Build
+    # ----------------------------------------------------------------------------------
+    @staticmethod
+    def world_area(desc: LightDesc) -> float:
+        """World-space surface area of the light's triangles (each counted once)."""
+        return float(triangle_areas(mesh_triangles(desc)).sum())
+
+    @classmethod
+    def build(cls, descs: list[LightDesc], scene_center=None, scene_radius: float = 1.0) -> "MeshLight":
+        from renderer.accel import Accel
+
+        k = len(descs)
+        tris, counts, L, two, absorb, accels = [], [], np.zeros((k, 3)), [], [], []
+        for i, d in enumerate(descs):
+            t = mesh_triangles(d)
+            tris.append(t)
+            counts.append(t.shape[0])
+            L[i] = emitted_radiance(d, cls.world_area(d))
+            two.append(bool(d.mesh_two_sided))
+            absorb.append(d.material_sync_mode == "noMaterialResponse")
+            accels.append(Accel(t, threads=1) if t.shape[0] > BRUTE_FORCE_TRIANGLES else None)
+        counts = np.asarray(counts, dtype=np.int64)
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64) if k else np.zeros(0, np.int64)
+        all_tris = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+        return cls([d.path for d in descs], [d.mesh_path for d in descs], all_tris, start, counts, L,
+                   two, absorb, accels)
+
+    # ----------------------------------------------------------------------------------
+    # Geometry queries
+    # ----------------------------------------------------------------------------------
+    def _hit(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """First hit (t (n,), global triangle (n,) or -1) of rays o + t d with light idx."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        n = idx.size
+        t = np.full(n, np.inf)
+        tri = np.full(n, -1, dtype=np.int64)
+        if n == 0:
+            return t, tri
+        o = as_points(o)
+        d = as_points(d)
+        big = np.array([a is not None for a in self._accels], dtype=bool)[idx] if self.count else np.zeros(n, bool)
+        small = np.nonzero(~big)[0]
+        if small.size:
+            ts = np.empty(small.size)
+            trs = np.empty(small.size, dtype=np.int64)
+            kern.mesh_hit_kernel(np.ascontiguousarray(idx[small]), np.ascontiguousarray(o[small]),
+                                 np.ascontiguousarray(d[small]), self.start, self.tri_count, self.tris, ts, trs)
+            t[small], tri[small] = ts, trs
+        if big.any():
+            for li in np.unique(idx[big]):  # one embree query per large light present
+                rows = np.nonzero(idx == li)[0]
+                h = self._accels[li].intersect(o[rows], d[rows])
+                g = np.where(h.prim >= 0, h.prim + self.start[li], -1)
+                tp = np.empty(rows.size)
+                kern.plane_distance_kernel(np.ascontiguousarray(g), np.ascontiguousarray(o[rows]),
+                                           np.ascontiguousarray(d[rows]), self.tris, self.nrm, tp)
+                ok = (g >= 0) & np.isfinite(tp)
+                t[rows] = np.where(ok, tp, np.inf)
+                tri[rows] = np.where(ok, g, -1)
+        return t, tri
+
+    def _triangle_at(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """Global triangle (n,) under the points p_light, found from just before them along wi."""
+        back = 1e-6 * self.size[idx]
+        t, tri = self._hit(idx, p_light - wi * back[:, None], wi)
+        return np.where(t <= 3.0 * back, tri, -1)
+
+    # ----------------------------------------------------------------------------------
+    # LightKind protocol
+    # ----------------------------------------------------------------------------------
+    def _pick(self, idx: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Alias-table triangle pick per row: (global triangle (n,), remapped uniform (n,))."""
+        cnt = self.tri_count[idx]
+        x = u0 * cnt
+        i = np.minimum(x.astype(np.int64), np.maximum(cnt - 1, 0))
+        frac = x - i
+        g = self.start[idx] + i
+        q = self.alias_q[g]
+        accept = frac < q
+        tri = np.where(accept, g, self.alias[g])
+        u_new = np.where(accept, np.divide(frac, q, out=np.zeros_like(frac), where=q > 0.0),
+                         np.divide(frac - q, 1.0 - q, out=np.zeros_like(frac), where=q < 1.0))
+        tri = np.where(cnt > 0, tri, -1)
+        return tri, np.clip(u_new, 0.0, np.nextafter(1.0, 0.0))
+
+    def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
+        """Pick a triangle by area, then a point on it (spherical or area sampling). u (n, 2)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        n = idx.size
+        if n == 0:
+            return invalid_sample(0)
+        u = as_points(u, 2)
+        tri, u0 = self._pick(idx, u[:, 0])
+        uu = np.ascontiguousarray(np.stack([u0, u[:, 1]], axis=1))
+        L = np.empty((n, 3))
+        wi = np.empty((n, 3))
+        pdf = np.empty(n)
+        dist = np.empty(n)
+        p_l = np.empty((n, 3))
+        kern.mesh_sample_kernel(idx, np.ascontiguousarray(tri), as_points(ctx.p), uu, self.tris, self.nrm,
+                                self.area, self.pmf, self.two_sided, self.L, MIN_SPHERICAL_SOLID_ANGLE,
+                                MAX_SPHERICAL_SOLID_ANGLE, L, wi, pdf, dist, p_l)
+        return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
+
+    def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
+        """pdf (n,) of sample_li producing wi, from the first triangle hit along wi (0: none, or
+        it faces away from a one-sided light)."""
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        n = idx.size
+        if n == 0:
+            return np.zeros(0)
+        p = as_points(ctx.p)
+        wi = as_points(wi)
+        t, tri = self._hit(idx, p, wi)
+        out = np.empty(n)
+        kern.mesh_pdf_kernel(idx, tri, t, p, wi, self.tris, self.nrm, self.area, self.pmf, self.two_sided,
+                             MIN_SPHERICAL_SOLID_ANGLE, MAX_SPHERICAL_SOLID_ANGLE, out)
+        return out
+
+    def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """First hit distance (n,) with the light's triangles (either side), inf where none."""
+        return self._hit(idx, o, d)[0]
+
+    def le(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """L toward -wi from the triangle under p_light when wi arrives on its emitting side."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if idx.size == 0:
+            return np.zeros((0, 3))
+        tri = self._triangle_at(idx, as_points(p_light), as_points(wi))
+        cos_front = -dot(wi, self.nrm[np.maximum(tri, 0)])
+        return self.surface_emission(idx, np.where(tri >= 0, cos_front, 0.0))[0]
+
+    def surface_emission(self, idx: np.ndarray, cos_front: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Le (n, 3), absorbing (n,)) at surface hits of light idx, where cos_front = -d . n_front
+        of the hit triangle (> 0: the ray arrives on the front)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        emits = (cos_front > 0.0) | (self.two_sided[idx] & (cos_front != 0.0))
+        return np.where(emits[:, None], self.L[idx], 0.0), self.absorbing[idx]
+
+    def phi(self) -> np.ndarray:
+        """(count,) luminance power pi * A * lum(L) (twice that for two-sided lights)."""
+        return np.pi * self.total_area * luminance(self.L) * np.where(self.two_sided, 2.0, 1.0)
+
+    def proxy_triangles(self) -> tuple[np.ndarray, np.ndarray]:
+        """None: mesh lights are real geometry in the scene BVH (see the module docstring)."""
+        return np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
+
+    def irradiance(self, idx: np.ndarray, ctx: ShadingContext) -> tuple[np.ndarray, np.ndarray]:
+        """Unshadowed irradiance (n, 3) about ctx.ns and exact (n,) bool (see the module docstring)."""
+        from renderer.lights.analytic import projected_solid_angle_polygon
+
+        idx = np.asarray(idx, dtype=np.int64)
+        n = idx.size
+        E = np.zeros((n, 3))
+        exact = self.tri_count[idx] <= EXACT_MAX_TRIANGLES
+        rows = np.nonzero(exact)[0]
+        if rows.size:
+            cnt = self.tri_count[idx[rows]]
+            pair_row = np.repeat(rows, cnt)
+            offs = np.arange(pair_row.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            tri = np.repeat(self.start[idx[rows]], cnt) + offs
+            two = self.two_sided[idx[pair_row]]
+            G = np.zeros(pair_row.size)
+            for sided in (False, True):  # one-sided and two-sided triangles
+                k = np.nonzero(two == sided)[0]
+                if k.size:
+                    G[k] = projected_solid_angle_polygon(
+                        ctx.p[pair_row[k]], ctx.ns[pair_row[k]], self.tris[tri[k]],
+                        None if sided else self.nrm[tri[k]])
+            g = np.bincount(pair_row, weights=G, minlength=n)
+            E[rows] = g[rows][:, None] * self.L[idx[rows]]
+        return E, exact
