@@ -33,7 +33,8 @@ BRUTE_FORCE_TRIANGLES triangles; larger lights get their own embree BVH (rendere
 find the triangle, then the distance is recomputed in float64 on that triangle's plane.
 
 **le(p_light, wi)** needs the triangle under p_light only for its side: it is found by casting
-from just before p_light along wi (a relative back-off of 1e-6 of the light's size).
+from just before p_light along wi (a back-off of 1e-6 of the light's size plus a few float32
+ulps of the coordinates, so an embree-traced light sees the origin in front of its surface).
 
 **Light BVH** (light_samplers/bvh.py): one bounds per mesh light -- the triangles' AABB and
 the cone of their front normals (axis = normalised area-weighted mean normal, theta_o = the
@@ -65,8 +66,10 @@ MIN_SPHERICAL_SOLID_ANGLE = 3e-4
 MAX_SPHERICAL_SOLID_ANGLE = 6.22
 # Lights with more triangles find their first hit with a per-light embree BVH.
 BRUTE_FORCE_TRIANGLES = 64
-# Lights with more triangles report no exact unshadowed integral (MIS fallback).
-EXACT_MAX_TRIANGLES = 64
+# Lights with more triangles report no exact unshadowed integral (MIS fallback): the polygon
+# formula costs ~9 us per (shading point, triangle) in numpy, so only small panels (a quad, a
+# few facets) are worth it.
+EXACT_MAX_TRIANGLES = 16
 
 
 def mesh_triangles(desc: LightDesc) -> np.ndarray:
@@ -208,9 +211,23 @@ class MeshLight:
 
     def _triangle_at(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """Global triangle (n,) under the points p_light, found from just before them along wi."""
-        back = 1e-6 * self.size[idx]
-        t, tri = self._hit(idx, p_light - wi * back[:, None], wi)
-        return np.where(t <= 3.0 * back, tri, -1)
+        # Relative to the light's size, plus a few float32 ulps of the coordinates: a large light
+        # is found by its embree BVH, which must see the origin strictly in front of the surface.
+        back = 1e-6 * self.size[idx] + 4e-6 * np.abs(p_light).max(axis=1)
+        o = as_points(p_light - wi * back[:, None])
+        t, tri = self._hit(idx, o, wi)
+        found = t <= 3.0 * back
+        miss = np.nonzero(~found)[0]
+        if miss.size:
+            # The point is on the light, so a miss is float32 (embree) disagreeing with float64
+            # at a grazing silhouette: ask the exact kernel for those few rows.
+            tm = np.empty(miss.size)
+            trm = np.empty(miss.size, dtype=np.int64)
+            kern.mesh_hit_kernel(np.ascontiguousarray(idx[miss], dtype=np.int64), np.ascontiguousarray(o[miss]),
+                                 as_points(wi[miss]), self.start, self.tri_count, self.tris, tm, trm)
+            t[miss], tri[miss] = tm, trm
+            found = t <= 3.0 * back
+        return np.where(found, tri, -1)
 
     # ----------------------------------------------------------------------------------
     # LightKind protocol

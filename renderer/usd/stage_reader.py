@@ -265,6 +265,10 @@ class _Traversal:
                     mesh = self._emit(lm, ctx.local_to_world(prim)[None])
                     if mesh is not None and prim.HasAPI(UsdLux.LightAPI):
                         self._geometry_light(prim, mesh)
+                if (prim.HasAPI(UsdLux.LightAPI) and not prim.HasAPI(UsdLux.VolumeLightAPI)
+                        and (lm is None or mesh is None)):
+                    ctx.warn(f"light-degenerate-{prim.GetPath()}",
+                             f"{prim.GetPath()}: mesh light has no surface to emit from; skipped")
 
     def _geometry_light(self, prim: Usd.Prim, mesh: MeshDesc) -> None:
         """A gprim with LightAPI (MeshLightAPI): its just-emitted MeshDesc is also a light."""

@@ -255,3 +255,19 @@ def test_light_bvh_bounds_cone_and_box():
     assert b.theta_o[1] > 0.6 * np.pi
     assert ls.is_geometry.all()
     assert ls.proxy_triangles()[0].shape == (0, 3, 3)
+
+
+def test_le_of_a_large_light_far_from_the_origin():
+    """le() finds the triangle under p_light with embree (float32) even 1e4 units away."""
+    c = np.array([1e4, -2e4, 5e3])
+    tris = sphere_mesh(c, 0.7)
+    light = MeshLight.build([mesh_desc(tris)])
+    assert light._accels[0] is not None
+    n = 2000
+    p = c + np.array([0.3, -0.2, -3.0])
+    s = light.sample_li(np.zeros(n, dtype=np.int64), ctx(p, count=n), np.random.default_rng(9).random((n, 2)))
+    ok = s.pdf > 0
+    Le = light.le(np.zeros(ok.sum(), dtype=np.int64), s.p_light[ok], s.wi[ok])
+    # Only a ray through an edge between a facing and a turned-away triangle (the silhouette, at
+    # grazing angles that carry almost no light) may pick the wrong side.
+    assert np.mean(np.all(Le == s.L[ok], axis=1)) > 0.995

@@ -202,3 +202,10 @@ def test_light_filters_one_warning_per_light_with_types(stage):
     tube = [w for w in msgs if w.startswith("/Tube")][0]
     assert "/Filters/Gel (LightFilter)" in tube and "/Filters/Barn (PluginLightFilter)" in tube and "ignored" in tube
     assert any(w.startswith("/Glow") for w in msgs)
+
+
+def test_empty_mesh_light_warns(stage):
+    m = UsdGeom.Mesh.Define(stage, "/Empty")
+    UsdLux.MeshLightAPI.Apply(m.GetPrim())
+    d = read(stage)
+    assert d.lights == [] and any("/Empty" in w and "no surface" in w for w in d.warnings)

@@ -1,0 +1,324 @@
+"""Mitsuba 3 side of bench/bench_mitsuba.py. Runs in a *separate* Python (a scratch venv with
+``mitsuba``), never in the project's venv: Mitsuba is not a dependency of illum.
+
+    python mitsuba_side.py JOB.json
+
+JOB.json: {"scene": "scene.npz", "variant": "llvm_ad_rgb", "threads": 2, "tasks": [...], "out": "result.npz"}.
+The scene file is written by bench_mitsuba.py (``export_scene``): world-space triangles per mesh
+(unshared vertices, optional per-corner shading normals), a diffuse albedo per mesh, the lights in
+UsdLux conventions with their final radiance (computed by illum's radiometry), and the camera as
+USD's camera-to-world matrix plus the conformed screen window. All conversions to Mitsuba's
+conventions happen here:
+
+* rect light: UsdLux spans width x height in local XY and emits toward local -Z, one-sided.
+  Mitsuba's ``rectangle`` spans [-1, 1]^2 and emits toward its +Z normal, so to_world has columns
+  (ex / 2, ey / 2, n, centre) with the pair (ex, ey) ordered so that ex x ey points along the
+  emission normal n.
+* disk light: same with Mitsuba's unit ``disk`` and columns (e1, e2, n, centre), e1/e2 the
+  world radius vectors.
+* sphere light: ``sphere`` (centre, radius), emits outward.
+* constant dome: ``constant`` emitter. Lat-long dome: ``envmap`` whose bitmap (8x the source
+  resolution) is filled from the UsdLux/OpenEXR convention with nearest-texel lookups (as illum
+  does); ``probe_envmap`` checks Mitsuba's radiance against that lookup at random directions.
+* emitter shapes get the ``null`` BSDF: illum's lights are transparent to every ray (a ray
+  crossing a light picks up its emission and continues), and Mitsuba's ``path`` integrator
+  continues through null surfaces. Difference: Mitsuba counts that crossing as one path vertex
+  (depth and Russian roulette), illum does not (bench_mitsuba.py reports pixels that see a
+  light directly separately).
+* camera: USD cameras look down -Z with +Y up and +X to the right of the image; Mitsuba's
+  ``perspective`` looks down +Z with +Y up and +X to the image's *left*. A 180 degree turn about
+  Y maps one onto the other: to_world = C @ diag(-1, 1, -1, 1). The window's horizontal extent
+  gives the x field of view (only symmetric windows are exported).
+* surfaces: ``twosided`` ``diffuse`` (illum shades both sides of every surface).
+
+Tasks
+-----
+* {"kind": "crosscheck", "spp": N, "pass_spp": k, "seed": s, "max_depth": D+1, "rr_depth": r, "name": ...}:
+  a custom render loop that draws every camera sample's film position exactly as illum does
+  (truncated Gaussian pixel filter importance-sampled from the tabulated inverse CDF exported
+  with the scene, each sample counted with weight 1 in its own pixel), traces it with Mitsuba's
+  own sensor and ``path`` integrator, and keeps per-pixel sums and sums of squares, so the
+  result has a mean and a variance of the mean like illum's film.
+* {"kind": "lightmask", "name": ...}: pixels whose centre ray hits an emitter shape.
+* {"kind": "render", "spp": N, "seed": s, "max_depth": ..., "rr_depth": ..., "repeat": R, "name": ...}:
+  ``mi.render`` with Mitsuba's own film and ``gaussian`` rfilter (stddev 0.5, radius 2), timed;
+  the first call is a warm-up (kernel compilation) and is reported separately.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+
+def _write_ply(path: str, points: np.ndarray, normals: np.ndarray | None) -> None:
+    """Binary little-endian PLY with unshared vertices (3 per triangle) and optional normals."""
+    v = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    nv = v.shape[0]
+    nf = nv // 3
+    props = ["property float x", "property float y", "property float z"]
+    cols = [v]
+    if normals is not None:
+        props += ["property float nx", "property float ny", "property float nz"]
+        cols.append(np.asarray(normals, dtype=np.float32).reshape(-1, 3))
+    header = "\n".join(["ply", "format binary_little_endian 1.0", f"element vertex {nv}", *props,
+                        f"element face {nf}", "property list uchar int vertex_indices", "end_header"]) + "\n"
+    vert = np.ascontiguousarray(np.concatenate(cols, axis=1), dtype="<f4")
+    faces = np.zeros(nf, dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    faces["n"] = 3
+    faces["i"] = np.arange(nv, dtype=np.int32).reshape(nf, 3)
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(vert.tobytes())
+        fh.write(faces.tobytes())
+
+
+def _frame_to_world(mi, e1, e2, n, c):
+    """Mitsuba to_world with columns (e1, e2, unit n, c), e1/e2 swapped if needed so e1 x e2 ~ +n."""
+    e1, e2, n, c = (np.asarray(x, dtype=np.float64) for x in (e1, e2, n, c))
+    if np.dot(np.cross(e1, e2), n) < 0.0:
+        e1, e2 = e2, e1
+    M = np.eye(4)
+    M[:3, 0], M[:3, 1], M[:3, 2], M[:3, 3] = e1, e2, n / np.linalg.norm(n), c
+    return mi.ScalarTransform4f(M.tolist())
+
+
+def build_scene_dict(mi, scene: dict, arrays: dict, tmpdir: str, max_depth: int, rr_depth: int,
+                     rfilter: dict | None = None) -> dict:
+    """The Mitsuba scene dict for an exported scene (see the module docstring)."""
+    W, H = scene["resolution"]
+    cam = scene["camera"]
+    C = np.asarray(cam["camera_to_world"], dtype=np.float64)
+    # Orthonormalise (a camera scale would only rescale clip distances, which we pass in world units).
+    R = C[:3, :3] / np.linalg.norm(C[:3, :3], axis=0)
+    flip = np.diag([-1.0, 1.0, -1.0])
+    T = np.eye(4)
+    T[:3, :3] = R @ flip
+    T[:3, 3] = C[:3, 3]
+    wx0, wx1, wy0, wy1 = cam["window"]
+    fov_x = 2.0 * np.degrees(np.arctan(wx1))
+    d = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": int(max_depth), "rr_depth": int(rr_depth)},
+        "sensor": {
+            "type": "perspective",
+            "fov": float(fov_x),
+            "fov_axis": "x",
+            "near_clip": float(cam["near"]),
+            "far_clip": float(cam["far"]),
+            "to_world": mi.ScalarTransform4f(T.tolist()),
+            "sampler": {"type": "independent", "sample_count": 1},
+            "film": {
+                "type": "hdrfilm", "width": int(W), "height": int(H), "pixel_format": "rgb",
+                "component_format": "float32",
+                "rfilter": rfilter or {"type": "gaussian", "stddev": 0.5},
+            },
+        },
+    }
+    for i, m in enumerate(scene["meshes"]):
+        ply = os.path.join(tmpdir, f"mesh{i}.ply")
+        normals = arrays.get(f"mesh{i}_normals")
+        _write_ply(ply, arrays[f"mesh{i}_points"], normals)
+        shape = {
+            "type": "ply", "filename": ply,
+            "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse",
+                                                  "reflectance": {"type": "rgb", "value": list(m["albedo"])}}},
+        }
+        if normals is None:
+            shape["face_normals"] = True
+        d[f"mesh{i}"] = shape
+    for i, lt in enumerate(scene["lights"]):
+        L = [float(x) for x in lt["L"]]
+        em = {"type": "area", "radiance": {"type": "rgb", "value": L}}
+        if lt["kind"] == "rect":
+            d[f"light{i}"] = {"type": "rectangle", "emitter": em, "bsdf": {"type": "null"},
+                              "to_world": _frame_to_world(mi, np.asarray(lt["ex"]) / 2, np.asarray(lt["ey"]) / 2,
+                                                          lt["n"], lt["center"])}
+        elif lt["kind"] == "disk":
+            d[f"light{i}"] = {"type": "disk", "emitter": em, "bsdf": {"type": "null"},
+                              "to_world": _frame_to_world(mi, lt["e1"], lt["e2"], lt["n"], lt["center"])}
+        elif lt["kind"] == "sphere":
+            d[f"light{i}"] = {"type": "sphere", "emitter": em, "bsdf": {"type": "null"},
+                              "center": [float(x) for x in lt["center"]], "radius": float(lt["radius"])}
+        elif lt["kind"] == "dome" and f"light{i}_latlong" in arrays:
+            img = envmap_bitmap(arrays[f"light{i}_latlong"], np.asarray(lt["rot"]), np.asarray(L),
+                                int(lt.get("upsample", 8)))
+            d[f"light{i}"] = {"type": "envmap", "bitmap": mi.Bitmap(img.astype(np.float32))}
+        elif lt["kind"] == "dome":
+            d[f"light{i}"] = {"type": "constant", "radiance": {"type": "rgb", "value": L}}
+        else:
+            raise ValueError(f"light kind {lt['kind']!r} is not exported")
+    return d
+
+
+def spec_latlong(img: np.ndarray, rot: np.ndarray, L: np.ndarray, d_world: np.ndarray) -> np.ndarray:
+    """Radiance (n, 3) of a UsdLux lat-long dome toward world directions d (n, 3), nearest texel, from
+    the OpenEXR convention that UsdLux cites: pixel (0, 0) at latitude +pi/2, longitude +pi; longitude 0
+    is +Z, +pi/2 is +X; the top pole is the dome's local +Y (``rot`` is local-to-world)."""
+    H, W = img.shape[:2]
+    v = d_world @ rot  # world -> local (rot is orthonormal)
+    lon = np.arctan2(v[:, 0], v[:, 2])
+    lat = np.arcsin(np.clip(v[:, 1], -1.0, 1.0))
+    col = np.floor((np.pi - lon) / (2.0 * np.pi) * W).astype(np.int64) % W
+    row = np.clip(np.floor((np.pi / 2.0 - lat) / np.pi * H).astype(np.int64), 0, H - 1)
+    return img[row, col] * L
+
+
+def _mitsuba_envmap_dirs(hb: int, wb: int) -> np.ndarray:
+    """World directions (hb*wb, 3) of Mitsuba envmap texel centres (to_world = identity), from the
+    envmap's lookup uv = (atan2(x, -z) / 2pi, acos(y) / pi); checked by ``probe_envmap``."""
+    u = (np.arange(wb) + 0.5) / wb
+    v = (np.arange(hb) + 0.5) / hb
+    phi, theta = np.meshgrid(2.0 * np.pi * u, np.pi * v)
+    st = np.sin(theta)
+    return np.stack([st * np.sin(phi), np.cos(theta), -st * np.cos(phi)], axis=-1).reshape(-1, 3)
+
+
+def envmap_bitmap(img: np.ndarray, rot: np.ndarray, L: np.ndarray, up: int) -> np.ndarray:
+    """A Mitsuba envmap bitmap, ``up`` times the source resolution, whose texels hold the UsdLux dome's
+    nearest-texel radiance: Mitsuba interpolates bilinearly, illum looks up the nearest texel, and the
+    finer grid confines the difference to thin bands along the source texel edges."""
+    H, W = img.shape[:2]
+    hb, wb = H * up, W * up
+    return spec_latlong(img, rot, L, _mitsuba_envmap_dirs(hb, wb)).reshape(hb, wb, 3)
+
+
+def probe_envmap(mi, sc, scene, arrays, n: int = 200000, seed: int = 5) -> dict:
+    """Compare Mitsuba's envmap radiance with the spec lookup at random directions."""
+    for i, lt in enumerate(scene["lights"]):
+        if lt["kind"] == "dome" and f"light{i}_latlong" in arrays:
+            break
+    else:
+        return {}
+    env = sc.environment()
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    si = mi.SurfaceInteraction3f()
+    si.wi = mi.Vector3f(mi.Float(-d[:, 0]), mi.Float(-d[:, 1]), mi.Float(-d[:, 2]))
+    val = env.eval(si)
+    got = np.stack([np.array(val[c], dtype=np.float64) for c in range(3)], axis=1)
+    want = spec_latlong(arrays[f"light{i}_latlong"], np.asarray(lt["rot"]), np.asarray(lt["L"]), d)
+    rel = np.abs(got - want).sum(axis=1) / np.maximum(want.sum(axis=1), 1e-12)
+    return {"env_mean_ratio": got.mean() / want.mean(), "env_median_rel": float(np.median(rel)),
+            "env_frac_rel_gt_5pct": float(np.mean(rel > 0.05))}
+
+
+def _filter_positions(rng, px, py, xs, cdf):
+    """Film positions in [0,1]^2 of one sample per entry of (px, py), drawn like illum's camera:
+    pixel centre + an offset from the tabulated truncated-Gaussian inverse CDF, per axis."""
+    u = rng.random((px.size, 2))
+    off = np.interp(u, cdf, xs)
+    return px + 0.5 + off[:, 0], py + 0.5 + off[:, 1]
+
+
+def crosscheck(mi, dr, scene, arrays, task, tmpdir):
+    W, H = scene["resolution"]
+    d = build_scene_dict(mi, scene, arrays, tmpdir, task["max_depth"], task["rr_depth"])
+    sc = mi.load_dict(d)
+    probe = probe_envmap(mi, sc, scene, arrays)
+    sensor = sc.sensors()[0]
+    integrator = sc.integrator()
+    sampler = mi.load_dict({"type": "independent"})
+    xs, cdf = arrays["filter_x"], arrays["filter_cdf"]
+    npix = W * H
+    pass_spp = int(task["pass_spp"])
+    passes = max(1, int(np.ceil(task["spp"] / pass_spp)))
+    pix = np.tile(np.arange(npix), pass_spp)
+    px = (pix % W).astype(np.float64)
+    py = (pix // W).astype(np.float64)
+    s = np.zeros((npix, 3))
+    s2 = np.zeros((npix, 3))
+    rng = np.random.default_rng(task["seed"])
+    t0 = time.perf_counter()
+    for p in range(passes):
+        fx, fy = _filter_positions(rng, px, py, xs, cdf)
+        pos = mi.Point2f(mi.Float(fx / W), mi.Float(fy / H))
+        sampler.seed(int(task["seed"]) * 1_000_003 + p, pix.size)
+        ray, w = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        spec, valid, _ = integrator.sample(sc, sampler, mi.RayDifferential3f(ray))
+        spec = spec * w
+        Lc = np.stack([np.array(spec[c], dtype=np.float64) for c in range(3)], axis=1)
+        for c in range(3):
+            s[:, c] += np.bincount(pix, weights=Lc[:, c], minlength=npix)
+            s2[:, c] += np.bincount(pix, weights=Lc[:, c] ** 2, minlength=npix)
+    secs = time.perf_counter() - t0
+    n = passes * pass_spp
+    mean = s / n
+    var = np.maximum(s2 / n - mean ** 2, 0.0) * n / (n - 1) / n
+    expo = float(scene["camera"]["exposure_scale"])
+    return {"mean": (mean * expo).reshape(H, W, 3), "var": (var * expo * expo).reshape(H, W, 3),
+            "spp": n, "seconds": secs, **probe}
+
+
+def lightmask(mi, dr, scene, arrays, task, tmpdir):
+    W, H = scene["resolution"]
+    sc = mi.load_dict(build_scene_dict(mi, scene, arrays, tmpdir, 2, 5))
+    sensor = sc.sensors()[0]
+    pix = np.arange(W * H)
+    pos = mi.Point2f(mi.Float(((pix % W) + 0.5) / W), mi.Float(((pix // W) + 0.5) / H))
+    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+    si = sc.ray_intersect(ray)
+    hit = np.array(si.is_valid() & (si.emitter(sc) != None), dtype=bool)  # noqa: E711 (drjit compare)
+    return {"mask": hit.reshape(H, W)}
+
+
+def render(mi, dr, scene, arrays, task, tmpdir):
+    """mi.render with Mitsuba's own film and Gaussian filter; time each call."""
+    sc = mi.load_dict(build_scene_dict(mi, scene, arrays, tmpdir, task["max_depth"], task["rr_depth"]))
+    out = {}
+    spp = int(task["spp"])
+    seed = int(task["seed"])
+    expo = float(scene["camera"]["exposure_scale"])
+    t0 = time.perf_counter()
+    img = np.array(mi.render(sc, spp=spp, seed=seed + 99991), dtype=np.float64)  # warm-up: compiles kernels
+    out["warmup_seconds"] = time.perf_counter() - t0
+    times, cpu = [], []
+    acc = None
+    for r in range(int(task.get("repeat", 1))):
+        t0, c0 = time.perf_counter(), time.process_time()
+        img = np.array(mi.render(sc, spp=spp, seed=seed + r), dtype=np.float64)
+        times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)  # all of Dr.Jit's worker threads are in this process
+        acc = img if acc is None else acc + img
+        if task.get("keep_each"):
+            out[f"image{r}"] = img[..., :3] * expo
+    out["image"] = acc[..., :3] / int(task.get("repeat", 1)) * expo
+    out["seconds"] = np.array(times)
+    out["cpu_seconds"] = np.array(cpu)
+    out["spp"] = spp
+    return out
+
+
+def main() -> int:
+    job = json.load(open(sys.argv[1]))
+    import drjit as dr
+    import mitsuba as mi
+
+    mi.set_variant(job.get("variant", "llvm_ad_rgb"))
+    if job.get("threads"):
+        dr.set_thread_count(int(job["threads"]))
+    data = np.load(job["scene"], allow_pickle=False)
+    scene = json.loads(str(data["scene_json"]))
+    arrays = {k: data[k] for k in data.files if k != "scene_json"}
+    results = {"mitsuba_version": np.array(mi.__version__), "drjit_version": np.array(dr.__version__),
+               "variant": np.array(mi.variant())}
+    with tempfile.TemporaryDirectory() as tmpdir:
+        for task in job["tasks"]:
+            fn = {"crosscheck": crosscheck, "lightmask": lightmask, "render": render}[task["kind"]]
+            res = fn(mi, dr, scene, arrays, task, tmpdir)
+            for k, v in res.items():
+                results[f"{task['name']}/{k}"] = np.asarray(v)
+            print(f"mitsuba_side: {task['name']} done", {k: (float(v) if np.ndim(v) == 0 else np.shape(v))
+                                                         for k, v in res.items()}, flush=True)
+    np.savez_compressed(job["out"], **results)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
