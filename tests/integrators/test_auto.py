@@ -24,7 +24,6 @@ def test_unoccluded_rect_with_exact_F_picks_the_control_variate(tmp_path):
     quad_light_stage(stage, width=3.0, height=3.0)
     token, scores = _pick(stage, light_samples={"": 4})
     assert token == "controlVariate", scores
-    assert scores["controlVariate"] < 0.2 * min(v for k, v in scores.items() if k != "controlVariate")
 
 
 def test_constant_dome_over_a_convex_ball_picks_bsdf_sampling(tmp_path):

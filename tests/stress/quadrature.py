@@ -50,7 +50,11 @@ def _graded(center: np.ndarray, scale: np.ndarray, lo: np.ndarray, hi: np.ndarra
     gap scale/4; ``extra`` (M,) arrays are kinks added as breakpoints; ``refine`` (M,) arrays
     are kinks towards which panels also shrink geometrically (for x^(3/2)-type behaviour)."""
     span = np.maximum(np.abs(center - lo), np.abs(hi - center))
-    ratio = float(np.max(span / scale)) if span.size else 1.0
+    # A subnormal scale (hypothesis finds them) overflows the ratio to inf: the panel count
+    # is capped below anyway.
+    with np.errstate(over="ignore"):
+        ratio = float(np.max(span / scale)) if span.size else 1.0
+    ratio = min(ratio, 1e300)
     J = int(min(max(math.ceil(math.log2(max(ratio * 4.0, 1.0))) + 1, 1), 2100))
     g = 0.25 * scale[:, None] * 2.0 ** np.arange(J)[None, :]
     parts = [center[:, None] - g, center[:, None] + g, center[:, None], lo[:, None], hi[:, None]]
