@@ -58,6 +58,11 @@ term, here an equiangular sample s of the segment: L = (dI/ds)(theta) / d^2 / pd
 phi() is pi * area * lum(L) (one-sided Lambertian side), and pi^2 * length * lum(I_lin) for a
 line (the same number for the cylinder a line replaces). There is no exact unshadowed integral
 F: the estimators fall back to MIS (irradiance.py).
+
+Implementation: sample_li and pdf_li are numba kernels (``renderer.kernels.cylinder``); the
+numpy helpers below (_frame, _param_pdf, _to_solid_angle, _jacobian, _world_normal) state the
+same formulas; le() and the tests use them (tests/lights/test_cylinder.py checks the kernels
+against them).
 """
 
 from __future__ import annotations
@@ -68,9 +73,9 @@ import numpy as np
 
 from renderer.color import luminance
 from renderer.description import LightDesc
+from renderer.kernels import cylinder as kern
 from renderer.lights._common import (
     as_points,
-    direction_and_distance,
     dot,
     invalid_sample,
     linear_part,
@@ -152,10 +157,11 @@ class CylinderLight:
         det = np.linalg.det(self.m3) if self.count else np.zeros(0)
         safe = np.where((np.abs(det) > 0.0)[:, None, None], self.m3, np.eye(3))
         self.m3_inv = np.linalg.inv(safe) if self.count else np.zeros((0, 3, 3))
-        self.normal_m = np.transpose(self.m3_inv, (0, 2, 1))
-        self.a = self.m3[:, :, 0].copy()
-        self.b1 = self.m3[:, :, 1] * self.radius[:, None]
-        self.b2 = self.m3[:, :, 2] * self.radius[:, None]
+        self.m3_inv = np.ascontiguousarray(self.m3_inv)
+        self.normal_m = np.ascontiguousarray(np.transpose(self.m3_inv, (0, 2, 1)))
+        self.a = np.ascontiguousarray(self.m3[:, :, 0])
+        self.b1 = np.ascontiguousarray(self.m3[:, :, 1] * self.radius[:, None])
+        self.b2 = np.ascontiguousarray(self.m3[:, :, 2] * self.radius[:, None])
 
     # ----------------------------------------------------------------------------------
     # Build
@@ -280,117 +286,27 @@ class CylinderLight:
     def sample_li(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """Sample light idx (n,) from ctx.p with u (n, 2): the facing band of the side (tubes),
         an equiangular point of the segment (lines). Fails (pdf 0) from inside a tube."""
-        idx = np.asarray(idx, dtype=np.int64)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
         n = idx.size
-        out = invalid_sample(n, ctx.p)
         if n == 0:
-            return out
-        L, wi, pdf, dist, p_l = out.L, out.wi, out.pdf, out.dist, out.p_light
-        line = self.delta[idx]
-        rows = np.nonzero(~line)[0]
-        if rows.size:
-            self._sample_tube(idx[rows], ctx.p[rows], u[rows], rows, L, wi, pdf, dist, p_l)
-        rows = np.nonzero(line)[0]
-        if rows.size:
-            self._sample_line(idx[rows], ctx.p[rows], u[rows], rows, L, wi, pdf, dist, p_l)
+            return invalid_sample(0)
+        L = np.empty((n, 3))
+        wi = np.empty((n, 3))
+        pdf = np.empty(n)
+        dist = np.empty(n)
+        p_l = np.empty((n, 3))
+        kern.cylinder_sample_kernel(idx, as_points(ctx.p), as_points(u, 2), self.center, self.m3, self.m3_inv,
+                                    self.normal_m, self.a, self.b1, self.b2, self.radius, self.half, self.L,
+                                    self.delta, L, wi, pdf, dist, p_l)
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
-
-    def _sample_tube(self, i, p, u, rows, L, wi, pdf, dist, p_l) -> None:
-        r = self.radius[i]
-        hl = self.half[i]
-        s_p, rho, phi_p, ok = self._frame(i, p)
-        rho_s = np.where(ok, rho, 2.0 * r + 1.0)
-        ratio = np.clip(r / rho_s, 0.0, 1.0)
-        alpha = (2.0 * u[:, 0] - 1.0) * np.arcsin(ratio)
-        sa, ca = np.sin(alpha), np.cos(alpha)
-        root = np.sqrt(np.maximum(r * r - (rho_s * sa) ** 2, 0.0))
-        # Near hit of the 2-D ray from p (at (rho, 0), looking at the axis) with the circle, in
-        # cancellation-free form: x = rho sin^2 a + root cos a, y = sin a (rho cos a - root).
-        t2 = (rho_s - r) * (rho_s + r) / np.maximum(rho_s * ca + root, 1e-300)
-        qx = rho_s * sa * sa + root * ca
-        qy = sa * t2
-        psi = np.arctan2(qy, qx)
-        h = self._lateral(rho_s, r, psi)
-        th_a = np.arctan2(-hl - s_p, np.where(h > 0.0, h, 1.0))
-        th_b = np.arctan2(hl - s_p, np.where(h > 0.0, h, 1.0))
-        theta = th_a + u[:, 1] * (th_b - th_a)
-        s = np.clip(s_p + h * np.tan(theta), -hl, hl)
-        phi = phi_p + psi
-        x_l = np.stack([s, r * np.cos(phi), r * np.sin(phi)], axis=1)
-        x_w = self._to_world(i, x_l)
-        w, d = direction_and_distance(p, x_w)
-        pw = self._to_solid_angle(i, self._param_pdf(i, s, psi, s_p, rho_s), phi, w, d)
-        good = ok & (pw > 0.0)
-        pw = np.where(good, pw, 0.0)
-        L[rows] = np.where(good[:, None], self.L[i], 0.0)
-        wi[rows] = np.where(good[:, None], w, wi[rows])
-        pdf[rows] = pw
-        dist[rows] = np.where(good, d, 0.0)
-        p_l[rows] = x_w
-
-    def _sample_line(self, i, p, u, rows, L, wi, pdf, dist, p_l) -> None:
-        a = self.a[i]
-        la = np.linalg.norm(a, axis=1)
-        ah = a / np.where(la > 0.0, la, 1.0)[:, None]
-        hl = self.half[i] * la
-        rel = p - self.center[i]
-        s_p = dot(rel, ah)
-        perp = rel - s_p[:, None] * ah
-        h = np.linalg.norm(perp, axis=1)
-        ok = h > 1e-12 * np.maximum(hl, 1e-300)
-        hs = np.where(ok, h, 1.0)
-        th_a = np.arctan2(-hl - s_p, hs)
-        th_b = np.arctan2(hl - s_p, hs)
-        theta = th_a + u[:, 0] * (th_b - th_a)
-        s = np.clip(s_p + hs * np.tan(theta), -hl, hl)
-        x_w = self.center[i] + s[:, None] * ah
-        w, d = direction_and_distance(p, x_w)
-        ok &= d > 0.0
-        # (dI/ds)(theta) / d^2 / pdf(s) with dI/ds = I_lin h / d and pdf(s) = h / (span d^2).
-        Le = self.L[i] * ((th_b - th_a) / np.where(ok, d, 1.0))[:, None]
-        L[rows] = np.where(ok[:, None], Le, 0.0)
-        wi[rows] = np.where(ok[:, None], w, wi[rows])
-        pdf[rows] = np.where(ok, 1.0, 0.0)
-        dist[rows] = np.where(ok, d, 0.0)
-        p_l[rows] = x_w
-
-    def _front_hit(self, idx, o, d):
-        """Front (outside) crossing of rays o + t d with the side: (t (n,), s (n,), phi (n,)),
-        t = inf where the ray starts inside, misses, or enters the tube beyond its ends."""
-        ol = _einsum_rows(self.m3_inv[idx], o - self.center[idx])
-        dl = _einsum_rows(self.m3_inv[idx], d)
-        r = self.radius[idx]
-        a2 = dl[:, 1] ** 2 + dl[:, 2] ** 2
-        b2 = ol[:, 1] * dl[:, 1] + ol[:, 2] * dl[:, 2]
-        c2 = (np.hypot(ol[:, 1], ol[:, 2]) - r) * (np.hypot(ol[:, 1], ol[:, 2]) + r)
-        disc = b2 * b2 - a2 * c2
-        ok = (a2 > 0.0) & (c2 > 0.0) & (b2 < 0.0) & (disc >= 0.0)
-        q = -b2 + np.sqrt(np.maximum(disc, 0.0))  # > 0 where ok
-        t = np.where(ok, np.minimum(c2 / np.where(ok, q, 1.0), q / np.where(ok, a2, 1.0)), np.inf)
-        s = ol[:, 0] + np.where(ok, t, 0.0) * dl[:, 0]
-        ok &= np.abs(s) <= self.half[idx]
-        yz = ol[:, 1:] + np.where(ok, t, 0.0)[:, None] * dl[:, 1:]
-        phi = np.arctan2(yz[:, 1], yz[:, 0])
-        return np.where(ok, t, np.inf), s, phi
 
     def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (n,) of sample_li producing wi: evaluated at the side's front crossing;
         0 for misses, from inside, and for line lights."""
-        idx = np.asarray(idx, dtype=np.int64)
-        out = np.zeros(idx.size)
-        rows = np.nonzero(~self.delta[idx])[0]
-        if not rows.size:
-            return out
-        i = idx[rows]
-        p = ctx.p[rows]
-        w = wi[rows]
-        t, s, phi = self._front_hit(i, p, w)
-        s_p, rho, phi_p, outside = self._frame(i, p)
-        hit = np.isfinite(t) & outside
-        psi = np.angle(np.exp(1j * (phi - phi_p)))  # wrapped to (-pi, pi]
-        pp = self._param_pdf(i, s, psi, s_p, np.where(outside, rho, 2.0 * self.radius[i] + 1.0))
-        pw = self._to_solid_angle(i, pp, phi, w, np.where(hit, t, 0.0))
-        out[rows] = np.where(hit, pw, 0.0)
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        out = np.empty(idx.size)
+        kern.cylinder_pdf_kernel(idx, as_points(ctx.p), as_points(wi), self.center, self.m3_inv, self.normal_m,
+                                 self.a, self.b1, self.b2, self.radius, self.half, self.delta, out)
         return out
 
     def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ Outputs (deterministic; committed):
     ``materialGlowTintsLight``): its light colour is inputs:color (white) times the bound
     material's emissiveColor (1, 0.25, 0.6), intensity 10 nits;
   - ``/World/Lamp/Shade``: a warm lampshade on a stand, an open truncated cone of 24 quads
-    (48 triangles: brute-force intersection and an exact control-variate F), ``doubleSided`` so
+    (48 triangles: exact float64 brute-force intersection), ``doubleSided`` so
     it emits inside and out, ``materialSyncMode = "independent"``: the light is inputs:color
     (1, 0.8, 0.55) x 6 nits, and the shade's material keeps its faint own glow
     (emissiveColor 0.05) as ordinary surface emission;

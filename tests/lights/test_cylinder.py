@@ -244,3 +244,21 @@ def test_line_light_with_zero_radius_needs_normalize():
     ls = LightSet.build([cyl(np.eye(4), radius=0.0, treat_as_line=True, normalize=False),
                          cyl(np.eye(4), radius=0.0, treat_as_line=True, normalize=True)], np.zeros(3), 2.0)
     assert ls.count == 1 and ls.kinds[ls.kind_of[0]].delta[0]
+
+
+def test_kernel_pdf_matches_the_numpy_statement():
+    """The numba pdf equals the module's numpy densities (frame, band and equiangular pdfs, the
+    area element and the cosine), evaluated at sampled points."""
+    desc, p = CONFIGS["oblique_elliptic"]
+    light = CylinderLight.build([desc])
+    n = 3000
+    c = ctx(p, count=n)
+    idx = np.zeros(n, dtype=np.int64)
+    s = light.sample_li(idx, c, np.random.default_rng(12).random((n, 2)))
+    xl = np.einsum("nij,nj->ni", light.m3_inv[idx], s.p_light - light.center[idx])
+    phi = np.arctan2(xl[:, 2], xl[:, 1])
+    s_p, rho, phi_p, outside = light._frame(idx, c.p)
+    assert outside.all()
+    psi = np.angle(np.exp(1j * (phi - phi_p)))
+    ref = light._to_solid_angle(idx, light._param_pdf(idx, xl[:, 0], psi, s_p, rho), phi, s.wi, s.dist)
+    np.testing.assert_allclose(s.pdf, ref, rtol=1e-9)
