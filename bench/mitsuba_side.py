@@ -17,9 +17,9 @@ conventions happen here:
 * disk light: same with Mitsuba's unit ``disk`` and columns (e1, e2, n, centre), e1/e2 the
   world radius vectors.
 * sphere light: ``sphere`` (centre, radius), emits outward.
-* constant dome: ``constant`` emitter. Lat-long dome: ``envmap`` whose bitmap (8x the source
-  resolution) is filled from the UsdLux/OpenEXR convention with nearest-texel lookups (as illum
-  does); ``probe_envmap`` checks Mitsuba's radiance against that lookup at random directions.
+* constant dome: ``constant`` emitter. Lat-long dome: ``envmap`` whose bitmap (16x the source
+  resolution) follows the UsdLux/OpenEXR convention with nearest-texel lookups, as illum does
+  (``envmap_bitmap``); ``probe_envmap`` checks Mitsuba's radiance against that lookup.
 * emitter shapes get the ``null`` BSDF: illum's lights are transparent to every ray (a ray
   crossing a light picks up its emission and continues), and Mitsuba's ``path`` integrator
   continues through null surfaces. Difference: Mitsuba counts that crossing as one path vertex
@@ -147,7 +147,7 @@ def build_scene_dict(mi, scene: dict, arrays: dict, tmpdir: str, max_depth: int,
                               "center": [float(x) for x in lt["center"]], "radius": float(lt["radius"])}
         elif lt["kind"] == "dome" and f"light{i}_latlong" in arrays:
             img = envmap_bitmap(arrays[f"light{i}_latlong"], np.asarray(lt["rot"]), np.asarray(L),
-                                int(lt.get("upsample", 8)))
+                                int(lt.get("upsample", 16)))
             d[f"light{i}"] = {"type": "envmap", "bitmap": mi.Bitmap(img.astype(np.float32))}
         elif lt["kind"] == "dome":
             d[f"light{i}"] = {"type": "constant", "radiance": {"type": "rgb", "value": L}}
@@ -169,23 +169,38 @@ def spec_latlong(img: np.ndarray, rot: np.ndarray, L: np.ndarray, d_world: np.nd
     return img[row, col] * L
 
 
-def _mitsuba_envmap_dirs(hb: int, wb: int) -> np.ndarray:
-    """World directions (hb*wb, 3) of Mitsuba envmap texel centres (to_world = identity), from the
-    envmap's lookup uv = (atan2(x, -z) / 2pi, acos(y) / pi); checked by ``probe_envmap``."""
-    u = (np.arange(wb) + 0.5) / wb
-    v = (np.arange(hb) + 0.5) / hb
+def _mitsuba_envmap_dirs(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """World directions (len(v), len(u), 3) of Mitsuba envmap lookup coordinates (to_world =
+    identity), inverting its lookup uv = (atan2(x, -z) / 2pi, acos(y) / pi)."""
     phi, theta = np.meshgrid(2.0 * np.pi * u, np.pi * v)
     st = np.sin(theta)
-    return np.stack([st * np.sin(phi), np.cos(theta), -st * np.cos(phi)], axis=-1).reshape(-1, 3)
+    return np.stack([st * np.sin(phi), np.cos(theta), -st * np.cos(phi)], axis=-1)
 
 
-def envmap_bitmap(img: np.ndarray, rot: np.ndarray, L: np.ndarray, up: int) -> np.ndarray:
-    """A Mitsuba envmap bitmap, ``up`` times the source resolution, whose texels hold the UsdLux dome's
-    nearest-texel radiance: Mitsuba interpolates bilinearly, illum looks up the nearest texel, and the
-    finer grid confines the difference to thin bands along the source texel edges."""
+def envmap_bitmap(img: np.ndarray, rot: np.ndarray, L: np.ndarray, k: int) -> np.ndarray:
+    """A Mitsuba envmap bitmap whose bilinear reconstruction follows the UsdLux dome's nearest-texel
+    radiance (illum's lookup) except in thin, symmetric bands along the source texel edges.
+
+    Where Mitsuba samples its bitmap (measured on Mitsuba 3.9 with a bitmap holding its own row and
+    column indices): columns at texel centres, u = (i + 0.5) / wb; rows corner-aligned,
+    v = j / (hb - 1), row 0 on the +Y pole. With wb = k W and hb = k H + 1, every source column
+    edge falls midway between two bitmap columns and every source row edge falls on a bitmap row,
+    which gets the mean of the two source rows; so each edge's interpolation ramp is centred on the
+    edge and the error in any smooth integral (irradiance) is second order in 1/k.
+    ``probe_envmap`` compares the result with the spec lookup on every run.
+    """
     H, W = img.shape[:2]
-    hb, wb = H * up, W * up
-    return spec_latlong(img, rot, L, _mitsuba_envmap_dirs(hb, wb)).reshape(hb, wb, 3)
+    hb, wb = k * H + 1, k * W
+    u = (np.arange(wb) + 0.5) / wb
+    v = np.arange(hb) / (hb - 1)
+    half = 0.25 / (k * H)  # a quarter of a bitmap row: safely inside the neighbouring source rows
+    lo = _mitsuba_envmap_dirs(u, np.clip(v - half, 0.0, 1.0)).reshape(-1, 3)
+    hi = _mitsuba_envmap_dirs(u, np.clip(v + half, 0.0, 1.0)).reshape(-1, 3)
+    edge = (np.arange(hb) % k == 0)[:, None, None]
+    val_lo = spec_latlong(img, rot, L, lo).reshape(hb, wb, 3)
+    val_hi = spec_latlong(img, rot, L, hi).reshape(hb, wb, 3)
+    mid = spec_latlong(img, rot, L, _mitsuba_envmap_dirs(u, v).reshape(-1, 3)).reshape(hb, wb, 3)
+    return np.where(edge, 0.5 * (val_lo + val_hi), mid)
 
 
 def probe_envmap(mi, sc, scene, arrays, n: int = 200000, seed: int = 5) -> dict:
@@ -209,15 +224,9 @@ def probe_envmap(mi, sc, scene, arrays, n: int = 200000, seed: int = 5) -> dict:
             "env_frac_rel_gt_5pct": float(np.mean(rel > 0.05))}
 
 
-def _filter_positions(rng, px, py, xs, cdf):
-    """Film positions in [0,1]^2 of one sample per entry of (px, py), drawn like illum's camera:
-    pixel centre + an offset from the tabulated truncated-Gaussian inverse CDF, per axis."""
-    u = rng.random((px.size, 2))
-    off = np.interp(u, cdf, xs)
-    return px + 0.5 + off[:, 0], py + 0.5 + off[:, 1]
-
-
 def crosscheck(mi, dr, scene, arrays, task, tmpdir):
+    """Mitsuba's sensor and ``path`` integrator with illum's pixel-filter sampling, accumulated per pixel
+    (sum and sum of squares) on the Dr.Jit side; see the module docstring."""
     W, H = scene["resolution"]
     d = build_scene_dict(mi, scene, arrays, tmpdir, task["max_depth"], task["rr_depth"])
     sc = mi.load_dict(d)
@@ -225,35 +234,46 @@ def crosscheck(mi, dr, scene, arrays, task, tmpdir):
     sensor = sc.sensors()[0]
     integrator = sc.integrator()
     sampler = mi.load_dict({"type": "independent"})
-    xs, cdf = arrays["filter_x"], arrays["filter_cdf"]
+    # illum's filter: x = np.interp(u, cdf, xs) on a uniform grid xs, i.e. a piecewise-constant pdf
+    # with bin masses diff(cdf): pick the bin, then place u's remainder linearly inside it.
+    xs, cdf = np.asarray(arrays["filter_x"]), np.asarray(arrays["filter_cdf"])
+    dx = float(xs[1] - xs[0])
+    if not np.allclose(np.diff(xs), dx, rtol=1e-9, atol=0.0):
+        raise ValueError("the exported filter table is not on a uniform grid")
+    bins = mi.DiscreteDistribution(mi.Float(np.diff(cdf).astype(np.float32)))
+    x0 = float(xs[0])
     npix = W * H
     pass_spp = int(task["pass_spp"])
     passes = max(1, int(np.ceil(task["spp"] / pass_spp)))
-    pix = np.tile(np.arange(npix), pass_spp)
-    px = (pix % W).astype(np.float64)
-    py = (pix // W).astype(np.float64)
-    s = np.zeros((npix, 3))
-    s2 = np.zeros((npix, 3))
-    rng = np.random.default_rng(task["seed"])
-    t0 = time.perf_counter()
+    n_pass = npix * pass_spp
+    s = dr.zeros(mi.Float, 3 * npix)
+    s2 = dr.zeros(mi.Float, 3 * npix)
+    t0, c0 = time.perf_counter(), time.process_time()
     for p in range(passes):
-        fx, fy = _filter_positions(rng, px, py, xs, cdf)
-        pos = mi.Point2f(mi.Float(fx / W), mi.Float(fy / H))
-        sampler.seed(int(task["seed"]) * 1_000_003 + p, pix.size)
-        ray, w = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
-        spec, valid, _ = integrator.sample(sc, sampler, mi.RayDifferential3f(ray))
+        sampler.seed((int(task["seed"]) * 1_000_003 + p) % 2**32, n_pass)
+        pix = dr.arange(mi.UInt32, n_pass) % npix
+        u = sampler.next_2d()
+        ix, rx = bins.sample_reuse(u.x)
+        iy, ry = bins.sample_reuse(u.y)
+        fx = mi.Float(pix % W) + 0.5 + x0 + (mi.Float(ix) + rx) * dx
+        fy = mi.Float(pix // W) + 0.5 + x0 + (mi.Float(iy) + ry) * dx
+        ray, w = sensor.sample_ray(0.0, 0.5, mi.Point2f(fx / W, fy / H), mi.Point2f(0.5, 0.5))
+        spec, _, _ = integrator.sample(sc, sampler, mi.RayDifferential3f(ray))
         spec = spec * w
-        Lc = np.stack([np.array(spec[c], dtype=np.float64) for c in range(3)], axis=1)
         for c in range(3):
-            s[:, c] += np.bincount(pix, weights=Lc[:, c], minlength=npix)
-            s2[:, c] += np.bincount(pix, weights=Lc[:, c] ** 2, minlength=npix)
+            dr.scatter_reduce(dr.ReduceOp.Add, s, spec[c], pix * 3 + c)
+            dr.scatter_reduce(dr.ReduceOp.Add, s2, spec[c] * spec[c], pix * 3 + c)
+        dr.eval(s, s2)
+    s_np = np.array(s, dtype=np.float64).reshape(npix, 3)
+    s2_np = np.array(s2, dtype=np.float64).reshape(npix, 3)
     secs = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     n = passes * pass_spp
-    mean = s / n
-    var = np.maximum(s2 / n - mean ** 2, 0.0) * n / (n - 1) / n
+    mean = s_np / n
+    var = np.maximum(s2_np / n - mean ** 2, 0.0) * n / (n - 1) / n
     expo = float(scene["camera"]["exposure_scale"])
     return {"mean": (mean * expo).reshape(H, W, 3), "var": (var * expo * expo).reshape(H, W, 3),
-            "spp": n, "seconds": secs, **probe}
+            "spp": n, "seconds": secs, "cpu_seconds": cpu, **probe}
 
 
 def lightmask(mi, dr, scene, arrays, task, tmpdir):
