@@ -197,6 +197,9 @@ class PathIntegrator:
         else:
             self.cont_ok = np.zeros(0, dtype=bool)
         self.samples_one = self.est_samples == 1
+        # Whether a continuation ray can carry any light's MIS half, from a deeper vertex (1)
+        # or from the first one (2). Where none can, continuation rays skip the light probes.
+        self.cont_from = (bool(self.cont_ok.any()), bool((self.cont_ok & self.samples_one).any()))
         if options.max_depth <= 1:
             self.skipped.append("max depth <= 1: no extension rays are traced (unless emissive geometry needs them)")
 
@@ -357,7 +360,9 @@ class PathIntegrator:
                 ok = (bs.pdf > 0.0) & (dot(wi, si.ng) > 0.0)
                 beta = beta * safe_div(bs.f * cos_i[:, None], bs.pdf)
                 ok &= np.any(beta > 0.0, axis=1) & np.all(np.isfinite(beta), axis=1)
-                next_cont = np.where(continues, np.where(depth == 0, 2, 1), 0).astype(np.int8)
+                deep_ok, first_ok = self.cont_from
+                next_cont = np.where(continues & np.where(depth == 0, first_ok, deep_ok),
+                                     np.where(depth == 0, 2, 1), 0).astype(np.int8)
                 depth = depth + 1
 
                 # ---- Russian roulette, driven by throughput -------------------------------
