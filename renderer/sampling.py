@@ -282,13 +282,12 @@ def _sobol2(k: int) -> tuple[int, int]:
     return x, y
 
 
-def _hash_uniform(keys: np.ndarray, stream: int) -> np.ndarray:
-    """Deterministic uniforms in [0, 1) from uint64 keys (splitmix64 finaliser), one per key."""
+def _hash_bits(keys: np.ndarray, stream: int) -> np.ndarray:
+    """Deterministic 64 random bits per uint64 key (splitmix64 finaliser)."""
     z = keys.astype(np.uint64) + np.uint64((0x9E3779B97F4A7C15 * (stream + 1)) & 0xFFFFFFFFFFFFFFFF)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    z = z ^ (z >> np.uint64(31))
-    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+    return z ^ (z >> np.uint64(31))
 
 
 def pixel_sequence(seed: int, pixel: np.ndarray, index: int) -> np.ndarray:
@@ -303,8 +302,5 @@ def pixel_sequence(seed: int, pixel: np.ndarray, index: int) -> np.ndarray:
     """
     keys = np.asarray(pixel, dtype=np.uint64) * np.uint64(4) + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x100000001B3)
     x, y = _sobol2(int(index))
-    out = np.empty((keys.size, 2))
-    for axis, bits in enumerate((x, y)):
-        key = (_hash_uniform(keys, axis) * 4294967296.0).astype(np.uint64)
-        out[:, axis] = (key ^ np.uint64(bits)).astype(np.float64) * (1.0 / 4294967296.0)
-    return out
+    scrambled = [(_hash_bits(keys, axis) >> np.uint64(32)) ^ np.uint64(bits) for axis, bits in enumerate((x, y))]
+    return np.stack(scrambled, axis=1).astype(np.float64) * (1.0 / 4294967296.0)
