@@ -101,6 +101,23 @@ def _frame(m3_inv, center, li, p, r):
     return pl[0], rho, math.atan2(pl[2], pl[1]), rho > r * (1.0 + 1e-12)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _store(r, L, k, w, pdf, d, x, out_L, out_wi, out_pdf, out_dist, out_p):
+    """Write row r of a light sample: radiance L (3-tuple or row) times k, direction w,
+    pdf, distance d and the point x on the light."""
+    out_L[r, 0] = L[0] * k
+    out_L[r, 1] = L[1] * k
+    out_L[r, 2] = L[2] * k
+    out_wi[r, 0] = w[0]
+    out_wi[r, 1] = w[1]
+    out_wi[r, 2] = w[2]
+    out_pdf[r] = pdf
+    out_dist[r] = d
+    out_p[r, 0] = x[0]
+    out_p[r, 1] = x[1]
+    out_p[r, 2] = x[2]
+
+
 @njit(cache=True, nogil=True)
 def cylinder_sample_kernel(idx, p, u, center, m3, m3_inv, normal_m, a, b1, b2, radius, half, Lrad, delta,
                            out_L, out_wi, out_pdf, out_dist, out_p):
@@ -109,17 +126,7 @@ def cylinder_sample_kernel(idx, p, u, center, m3, m3_inv, normal_m, a, b1, b2, r
     for r in range(idx.shape[0]):
         li = idx[r]
         pr = _row(p, r)
-        out_L[r, 0] = 0.0
-        out_L[r, 1] = 0.0
-        out_L[r, 2] = 0.0
-        out_wi[r, 0] = 0.0
-        out_wi[r, 1] = 0.0
-        out_wi[r, 2] = 1.0
-        out_pdf[r] = 0.0
-        out_dist[r] = 0.0
-        out_p[r, 0] = pr[0]
-        out_p[r, 1] = pr[1]
-        out_p[r, 2] = pr[2]
+        _store(r, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 1.0), 0.0, 0.0, pr, out_L, out_wi, out_pdf, out_dist, out_p)
         c = _row(center, li)
         if delta[li]:
             ax = _row(a, li)
@@ -143,18 +150,8 @@ def cylinder_sample_kernel(idx, p, u, center, m3, m3_inv, normal_m, a, b1, b2, r
             d = math.sqrt(_dot(v, v))
             if not (d > 0.0):
                 continue
-            k = (th_b - th_a) / d
-            out_L[r, 0] = Lrad[li, 0] * k
-            out_L[r, 1] = Lrad[li, 1] * k
-            out_L[r, 2] = Lrad[li, 2] * k
-            out_wi[r, 0] = v[0] / d
-            out_wi[r, 1] = v[1] / d
-            out_wi[r, 2] = v[2] / d
-            out_pdf[r] = 1.0
-            out_dist[r] = d
-            out_p[r, 0] = x[0]
-            out_p[r, 1] = x[1]
-            out_p[r, 2] = x[2]
+            w = (v[0] / d, v[1] / d, v[2] / d)
+            _store(r, _row(Lrad, li), (th_b - th_a) / d, w, 1.0, d, x, out_L, out_wi, out_pdf, out_dist, out_p)
             continue
         rad = radius[li]
         hl = half[li]
@@ -186,17 +183,7 @@ def cylinder_sample_kernel(idx, p, u, center, m3, m3_inv, normal_m, a, b1, b2, r
         pw = _solid_angle_pdf(a, b1, b2, normal_m, li, _param_pdf(s, psi, s_p, rho, rad, hl), phi, w, d)
         if not (pw > 0.0):
             continue
-        out_L[r, 0] = Lrad[li, 0]
-        out_L[r, 1] = Lrad[li, 1]
-        out_L[r, 2] = Lrad[li, 2]
-        out_wi[r, 0] = w[0]
-        out_wi[r, 1] = w[1]
-        out_wi[r, 2] = w[2]
-        out_pdf[r] = pw
-        out_dist[r] = d
-        out_p[r, 0] = x[0]
-        out_p[r, 1] = x[1]
-        out_p[r, 2] = x[2]
+        _store(r, _row(Lrad, li), 1.0, w, pw, d, x, out_L, out_wi, out_pdf, out_dist, out_p)
 
 
 @njit(cache=True, nogil=True)

@@ -204,6 +204,23 @@ def _tri_pdf(p, tri, x, dist, tris, nrm, area, pmf, two_sided, min_sa, max_sa):
     return out if math.isfinite(out) else 0.0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _store(r, L, k, w, pdf, d, x, out_L, out_wi, out_pdf, out_dist, out_p):
+    """Write row r of a light sample: radiance L (3-tuple) times k, direction w, pdf,
+    distance d and the point x on the light."""
+    out_L[r, 0] = L[0] * k
+    out_L[r, 1] = L[1] * k
+    out_L[r, 2] = L[2] * k
+    out_wi[r, 0] = w[0]
+    out_wi[r, 1] = w[1]
+    out_wi[r, 2] = w[2]
+    out_pdf[r] = pdf
+    out_dist[r] = d
+    out_p[r, 0] = x[0]
+    out_p[r, 1] = x[1]
+    out_p[r, 2] = x[2]
+
+
 @njit(cache=True, nogil=True)
 def mesh_sample_kernel(idx, tri, p, u, tris, nrm, area, pmf, two_sided, Lrad, min_sa, max_sa,
                        out_L, out_wi, out_pdf, out_dist, out_p):
@@ -216,17 +233,7 @@ def mesh_sample_kernel(idx, tri, p, u, tris, nrm, area, pmf, two_sided, Lrad, mi
         li = idx[r]
         t = tri[r]
         pr = _row(p, r)
-        out_L[r, 0] = 0.0
-        out_L[r, 1] = 0.0
-        out_L[r, 2] = 0.0
-        out_wi[r, 0] = 0.0
-        out_wi[r, 1] = 0.0
-        out_wi[r, 2] = 1.0
-        out_pdf[r] = 0.0
-        out_dist[r] = 0.0
-        out_p[r, 0] = pr[0]
-        out_p[r, 1] = pr[1]
-        out_p[r, 2] = pr[2]
+        _store(r, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 1.0), 0.0, 0.0, pr, out_L, out_wi, out_pdf, out_dist, out_p)
         if t < 0:
             continue
         v0 = _vert(tris, t, 0)
@@ -270,17 +277,7 @@ def mesh_sample_kernel(idx, tri, p, u, tris, nrm, area, pmf, two_sided, Lrad, mi
                 continue
         if not (pdf > 0.0):
             continue
-        out_L[r, 0] = Lrad[li, 0]
-        out_L[r, 1] = Lrad[li, 1]
-        out_L[r, 2] = Lrad[li, 2]
-        out_wi[r, 0] = w[0]
-        out_wi[r, 1] = w[1]
-        out_wi[r, 2] = w[2]
-        out_pdf[r] = pdf
-        out_dist[r] = dist
-        out_p[r, 0] = x[0]
-        out_p[r, 1] = x[1]
-        out_p[r, 2] = x[2]
+        _store(r, _row(Lrad, li), 1.0, w, pdf, dist, x, out_L, out_wi, out_pdf, out_dist, out_p)
 
 
 @njit(cache=True, nogil=True)
