@@ -64,9 +64,12 @@ def _compare_to_origin(tmp_path, offset, estimator, spp=32):
     vb = rb.film.variance_of_mean()[..., 1].sum() / ib.size ** 2
     z = (ib.mean() - ia.mean()) / math.sqrt(va + vb)
     # Dark speckle (acne): pixels much darker far away than at the origin where the origin
-    # render is clearly lit.
+    # render is clearly lit, by more than Monte Carlo noise explains (4 sigma of the pixel
+    # difference): acne is a systematic loss, while a noisy estimator (BSDF sampling at 32
+    # spp) halves single pixels by chance.
     lit = ia > 0.25 * ia.max()
-    dark = float(((ib < 0.5 * ia) & lit).sum() / max(lit.sum(), 1))
+    sigma = np.sqrt(ra.film.variance_of_mean()[..., 1] + rb.film.variance_of_mean()[..., 1])
+    dark = float(((ib < 0.5 * ia) & (ia - ib > 4.0 * sigma) & lit).sum() / max(lit.sum(), 1))
     note(f"far from origin |z| of image mean ({estimator})", abs(z), f"offset {offset}")
     note(f"far from origin dark-pixel fraction ({estimator})", dark, f"offset {offset}")
     return z, dark, ia.mean(), ib.mean()
