@@ -87,8 +87,11 @@ def _inner(y, xlo, xhi, px, py, h, nrm, clips=()):
     kinks = []
     for n in (nrm, *clips):
         if n[0] != 0.0:
-            # n·(x − p) = n_x (x − px) + n_y dy − n_z h = 0
-            kinks.append(px + (n[2] * h - n[1] * dy) / n[0])
+            # n·(x − p) = n_x (x − px) + n_y dy − n_z h = 0. A subnormal n_x puts the kink at
+            # infinity (outside [xlo, xhi]): it is no breakpoint then.
+            with np.errstate(over="ignore"):
+                kink = px + (n[2] * h - n[1] * dy) / n[0]
+            kinks.append(np.where(np.isfinite(kink), kink, xlo))
     br = _graded(np.full(y.size, px), k, xlo, xhi, kinks)
     x, w = _nodes(br)
     dx = x - px
