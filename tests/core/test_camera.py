@@ -113,6 +113,52 @@ def test_pixel_filter_offsets_stay_within_radius_and_centered():
     assert 0.4 < off.std() < 0.5
 
 
+def _truncated_gaussian_cdf(x, radius=1.5, sigma=0.5):
+    """Exact CDF of the filter's density g(x) - g(radius) on [-radius, radius]."""
+    import math
+
+    c = math.exp(-0.5 * (radius / sigma) ** 2)
+
+    def antideriv(v):
+        return sigma * math.sqrt(math.pi / 2.0) * math.erf(v / (sigma * math.sqrt(2.0))) - c * v
+
+    lo = antideriv(-radius)
+    return np.array([(antideriv(v) - lo) / (antideriv(radius) - lo) for v in np.atleast_1d(x)])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pixel_filter_samples_follow_the_truncated_gaussian_chi_square(seed):
+    """Chi-square of filter offsets against the exact truncated-Gaussian CDF, on 60 bins; the
+    tabulated inverse CDF must not distort the tails either (a plain uniform or an untruncated
+    Gaussian fails this by orders of magnitude)."""
+    from tests.stats import chi2_sf
+
+    cam = Camera(_desc_from_gf(_gf_camera()), 36, 24)
+    n = 400000
+    off = cam.filter.sample(np.random.default_rng(seed).random((n, 2))).ravel()
+    edges = np.linspace(-1.5, 1.5, 61)
+    counts, _ = np.histogram(off, bins=edges)
+    expected = np.diff(_truncated_gaussian_cdf(edges)) * off.size
+    keep = expected > 5.0
+    chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
+    assert chi2_sf(chi2, int(keep.sum()) - 1) > 1e-3, chi2
+
+
+def test_pixel_filter_chi_square_detects_a_wrong_sigma():
+    """The same statistic rejects offsets drawn with sigma 0.52 instead of 0.5 (power check)."""
+    from tests.stats import chi2_sf
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(0.0, 0.52, 1200000)
+    x = x[np.abs(x) <= 1.5][:800000]
+    edges = np.linspace(-1.5, 1.5, 61)
+    counts, _ = np.histogram(x, bins=edges)
+    expected = np.diff(_truncated_gaussian_cdf(edges)) * x.size
+    keep = expected > 5.0
+    chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
+    assert chi2_sf(chi2, int(keep.sum()) - 1) < 1e-6
+
+
 @pytest.mark.parametrize("w,h", [(0, 10), (10, -1), (16385, 10), (9000, 9000)])
 def test_absurd_resolutions_are_rejected(w, h):
     with pytest.raises(SettingsError, match="resolution"):
