@@ -201,9 +201,7 @@ class LightSet:
         """The kind object when the scene has lights of one kind only (so every row of light is
         of that kind), else None."""
         present = [obj for obj in self.kinds if obj.count]
-        if len(present) == 1:
-            return present[0]
-        return None
+        return present[0] if len(present) == 1 else None
 
     def sample_li(self, light: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """Sample each row's light (global index (n,)) from ctx with u (n, 2)."""
@@ -230,6 +228,9 @@ class LightSet:
 
     def pdf_li(self, light: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
         """(n,) solid-angle pdf of sampling wi toward each row's light (0 for delta lights)."""
+        single = self._single_kind(light)
+        if single is not None:
+            return single.pdf_li(self.local_of[light], ctx, wi)  # no row copies
         out = np.zeros(np.asarray(light).size)
         for obj, rows, loc in self._groups(light):
             out[rows] = obj.pdf_li(loc, ctx.take(rows), wi[rows])
@@ -237,16 +238,24 @@ class LightSet:
 
     def le(self, light: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
         """(n, 3) radiance leaving p_light on each row's (finite) light toward -wi; 0 for infinite."""
-        out = np.zeros((np.asarray(light).size, 3))
-        for obj, rows, loc in self._groups(light):
-            if not obj.infinite:
-                out[rows] = obj.le(loc, p_light[rows], wi[rows])
+        single = self._single_kind(light)
+        if single is not None:
+            out = (np.zeros((np.asarray(light).size, 3)) if single.infinite
+                   else single.le(self.local_of[light], p_light, wi))
+        else:
+            out = np.zeros((np.asarray(light).size, 3))
+            for obj, rows, loc in self._groups(light):
+                if not obj.infinite:
+                    out[rows] = obj.le(loc, p_light[rows], wi[rows])
         if self.shaping is not None:
             self.shaping.apply(np.asarray(light, dtype=np.int64), -wi, out)
         return out
 
     def intersect(self, light: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         """(n,) exact hit distance of rays with each row's (finite) light; inf for infinite/delta."""
+        single = self._single_kind(light)
+        if single is not None and not single.infinite:
+            return single.intersect(self.local_of[light], o, d)  # no row copies
         out = np.full(np.asarray(light).size, np.inf)
         for obj, rows, loc in self._groups(light):
             if not obj.infinite:
