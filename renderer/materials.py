@@ -94,6 +94,10 @@ def _presence(opacity: np.ndarray, threshold: np.ndarray) -> np.ndarray:
     return np.where(threshold > 0.0, cut, np.clip(op, 0.0, 1.0))
 
 
+# The SurfaceParams fields the BSDF reads (the others: emission, opacity, opacity_threshold).
+BSDF_FIELDS = ("diffuse", "specular_color", "use_specular_workflow", "metallic", "roughness", "ior")
+
+
 def make_bsdf(params: SurfaceParams) -> PreviewSurfaceBSDF:
     """The UsdPreviewSurface BSDF for these parameters (see renderer/bsdfs/preview_surface.py)."""
     return PreviewSurfaceBSDF.from_params(params)
@@ -156,6 +160,7 @@ class MaterialTable:
         self.has_emission = False
         self.has_cutout = False
         self.emissive_materials = np.zeros(0, dtype=bool)
+        self._bsdf_rows: Optional[np.ndarray] = None  # (m, K) packed BSDF of each material
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -246,6 +251,31 @@ class MaterialTable:
         if self.textures:
             self._apply_textures(out, mat, st, None)
         return SurfaceParams(**out)
+
+    @property
+    def bsdf_is_constant(self) -> bool:
+        """No BSDF input of any material is textured: the BSDF depends on the material alone."""
+        return not any(np.any(self._slot[f] >= 0) for f in BSDF_FIELDS if f in self._slot)
+
+    @property
+    def params_needed(self) -> bool:
+        """Whether a renderer needs ``evaluate`` at hits at all: for emission, cutouts or a
+        textured BSDF input (otherwise ``bsdf(mat)`` alone describes the surface)."""
+        return self.has_emission or self.has_cutout or not self.bsdf_is_constant
+
+    def bsdf(self, mat: np.ndarray, params: Optional[SurfaceParams] = None) -> PreviewSurfaceBSDF:
+        """The BSDF at hits of materials mat (n,). Where no BSDF input is textured, each hit
+        gathers its material's packed row, built once (the same numbers ``make_bsdf`` gives,
+        without the per-hit input mapping); otherwise it is built from ``params`` (evaluated at
+        these hits)."""
+        if self.bsdf_is_constant and len(self):
+            if self._bsdf_rows is None:
+                # Built on first use; two threads racing here build the same table.
+                self._bsdf_rows = make_bsdf(SurfaceParams(**self.const)).packed
+            return PreviewSurfaceBSDF.from_packed(np.take(self._bsdf_rows, np.asarray(mat, dtype=np.int64), axis=0))
+        if params is None:
+            raise ValueError("textured BSDF inputs need the SurfaceParams evaluated at the hits")
+        return make_bsdf(params)
 
     def _apply_textures(
         self, out: dict, mat: np.ndarray, st: Optional[np.ndarray], only: Optional[str]

@@ -156,6 +156,19 @@ class PreviewSurfaceBSDF:
     # Construction
     # ----------------------------------------------------------------------------------
     @classmethod
+    def from_packed(cls, P: np.ndarray) -> "PreviewSurfaceBSDF":
+        """Wrap packed rows (n, kernels.K) taken from another BSDF's ``packed`` (no copy)."""
+        out = cls.__new__(cls)
+        out._tables = albedo_tables()
+        out._set_packed(P)
+        return out
+
+    @property
+    def packed(self) -> np.ndarray:
+        """The packed per-point rows (n, kernels.K): inputs and wo-independent constants."""
+        return self._P
+
+    @classmethod
     def from_params(cls, params) -> "PreviewSurfaceBSDF":
         """Build from a ``SurfaceParams``-like object (diffuse, specular_color,
         use_specular_workflow, metallic, roughness, ior; arrays with batch axis first)."""

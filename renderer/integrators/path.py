@@ -48,7 +48,6 @@ from ..camera import Camera
 from ..film import Film
 from ..geometry import coordinate_frame, dot, offset_origin, surface_interaction, to_local, to_world
 from ..lights.base import ShadingContext
-from ..materials import make_bsdf
 from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
 from ..estimators.mis import mis_light_half
@@ -165,6 +164,7 @@ class PathIntegrator:
         # Finite lights that rays cross (transparent); mesh lights are met as surfaces instead.
         self.finite = (np.nonzero(~scene.lights.is_infinite & ~scene.lights.is_geometry)[0] if self.has_lights
                        else np.zeros(0, np.int64))
+        self.params_needed = scene.materials.params_needed
         self.pool = ThreadPoolExecutor(max(1, options.threads)) if options.threads > 1 else None
         self.skipped: list[str] = []
         self.rule_counts = {"own_samples": 0, "alpha_one_fallback": 0}
@@ -296,7 +296,8 @@ class PathIntegrator:
             unsampled, cont, prev, prev_mesh = unsampled[keep], cont[keep], prev[keep], prev_mesh[keep]
             si = self._interaction(hits.prim[keep], hits.b1[keep], hits.b2[keep], d)
             t_hit = hits.t[keep]
-            params = scene.materials.evaluate(si.mat, si.st)
+            # Plain materials (no emission, cutout or textured BSDF input) need no per-hit inputs.
+            params = scene.materials.evaluate(si.mat, si.st) if self.params_needed else None
 
             # Opacity as presence: a ray that passes through keeps its state, depth and MIS
             # bookkeeping, and continues from just past the surface.
@@ -324,12 +325,12 @@ class PathIntegrator:
                 a = np.nonzero(alive)[0]
                 path, beta, d, depth = path[a], beta[a], d[a], depth[a]
                 si = _take(si, a)
-                params = _take(params, a)
+                params = _take(params, a) if params is not None else None
 
             n = path.size
             next_state = None
             if n:
-                bsdf = make_bsdf(params)
+                bsdf = scene.materials.bsdf(si.mat, params)
                 s, t = coordinate_frame(si.ns)
                 wo_l = to_local(si.wo, s, t, si.ns)
                 # Precompute the BSDF's wo-dependent terms once per vertex (E(wo) albedo lookups).
