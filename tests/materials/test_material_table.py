@@ -184,6 +184,33 @@ def test_make_bsdf(rgba_exr):
     np.testing.assert_allclose(b.alpha, [0.25, 0.04])
 
 
+def test_per_material_bsdf_rows_equal_make_bsdf_at_the_hits(rgba_exr):
+    """MaterialTable.bsdf gathers a packed row per material; it must be bit-identical to the
+    BSDF built from the evaluated inputs, and textured BSDF inputs must take the per-hit path."""
+    mats = [
+        MaterialDesc("/Metal", diffuse_color=MaterialInput((0.9, 0.6, 0.3)), metallic=MaterialInput(1.0)),
+        MaterialDesc("/Plastic", diffuse_color=MaterialInput((0.2, 0.4, 0.6)), roughness=MaterialInput(0.2)),
+        MaterialDesc("/Spec", specular_color=MaterialInput((0.5, 0.6, 0.7)), use_specular_workflow=True,
+                     ior=1.33, roughness=MaterialInput(0.0)),
+        MaterialDesc("/Glow", emissive_color=MaterialInput((1.0, 2.0, 3.0))),
+    ]
+    table = MaterialTable.build(mats, TextureCache())
+    assert table.bsdf_is_constant and table.params_needed  # emission still needs the inputs
+    mat = np.random.default_rng(0).integers(0, len(mats), 500)
+    np.testing.assert_array_equal(table.bsdf(mat).packed, make_bsdf(table.evaluate(mat)).packed)
+    plain = MaterialTable.build(mats[:3], TextureCache())
+    assert not plain.params_needed
+    textured = MaterialTable.build(
+        [mats[0], MaterialDesc("/T", roughness=MaterialInput(0.9, _tex(rgba_exr, "g")))], TextureCache())
+    assert not textured.bsdf_is_constant and textured.params_needed
+    m = np.array([0, 1, 1])
+    st = np.concatenate([LEFT, LEFT, RIGHT])
+    p = textured.evaluate(m, st)
+    np.testing.assert_array_equal(textured.bsdf(m, p).packed, make_bsdf(p).packed)
+    with pytest.raises(ValueError):
+        textured.bsdf(m)
+
+
 def test_errors_name_the_material(tmp_path):
     with pytest.raises(StageError, match=r"/Bad\.inputs:roughness"):
         MaterialTable.build([MaterialDesc("/Bad", roughness=MaterialInput(float("nan")))], TextureCache())
