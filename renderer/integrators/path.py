@@ -378,8 +378,10 @@ class PathIntegrator:
                     ok &= survive
 
                 k = np.nonzero(ok)[0]
-                next_prev = np.concatenate([si.p[k], si.ng[k], si.ns[k], bs.pdf[k][:, None]], axis=1)
-                next_state = (path[k], beta[k], offset_origin(si.p[k], si.ng[k], wi[k], eps[k]), wi[k],
+                next_prev = np.empty((k.size, 10))
+                p_k, ng_k, wi_k = si.p[k], si.ng[k], wi[k]
+                next_prev[:, 0:3], next_prev[:, 3:6], next_prev[:, 6:9], next_prev[:, 9] = p_k, ng_k, si.ns[k], bs.pdf[k]
+                next_state = (path[k], beta[k], offset_origin(p_k, ng_k, wi_k, eps[k]), wi_k,
                               np.full(k.size, np.inf), depth[k], np.zeros(k.size, bool),
                               next_cont[k], next_prev, si.mesh[k])
                 self.rays.add(extension=k.size)
