@@ -16,8 +16,12 @@
    its ``scene_cache``. relMSE = mean over pixels and channels of (x - ref)^2 / (ref^2 + 0.01);
    the median over seeds is reported.
 
+3. ``waste``: where shaped light samples carry no light (see ``waste``): how much sampling only
+   the lit part of each light could save.
+
     .venv/bin/python bench/bench_shaping.py cost
     .venv/bin/python bench/bench_shaping.py quality --budget 10 --res 160 120 --ref-spp 1024 --seeds 3
+    .venv/bin/python bench/bench_shaping.py waste
 """
 
 from __future__ import annotations
@@ -175,9 +179,48 @@ def quality(args) -> None:
         sc.close()
 
 
+# ----------------------------------------------------------------------------------------
+def waste(args) -> None:
+    """Where shaped light samples carry no light, and what sampling only the lit part of each
+    light could save. Receivers on the floor pick a light with the shaping-aware BVH, as the
+    renderer does, then draw K light samples of it. A (receiver, light) pair is *dark* when
+    all K samples have shaped radiance 0 (the cone misses the receiver from every point of the
+    light: no area sampling can help; only the light pick could), *mixed* when some are 0 and
+    some are not (the receiver is in the penumbra band of the cone's edge: the samples wasted
+    there are all that sampling only the lit part of the light could recover), *lit* otherwise."""
+    from renderer.lights.base import ShadingContext
+
+    desc, scene = _scene("shaped", args.threads)
+    n, K = 20_000, 16
+    rng = np.random.default_rng(11)
+    p = np.c_[rng.uniform(-6, 6, n), np.zeros(n), rng.uniform(-3, 5, n)]
+    nrm = np.tile([0.0, 1.0, 0.0], (n, 1))
+    light, pmf = scene.light_sampler.sample(ShadingContext(p, nrm, nrm), rng.random(n))
+    keep = np.nonzero(pmf > 0)[0]
+    rows = np.repeat(keep, K)
+    ctx = ShadingContext(p[rows], nrm[rows], nrm[rows])
+    s = scene.lights.sample_li(light[rows], ctx, rng.random((rows.size, 2)))
+    valid = (s.pdf > 0) & (np.einsum("ij,ij->i", s.wi, ctx.ns) > 0)
+    zero = (valid & np.all(s.L == 0.0, axis=1)).reshape(-1, K)
+    valid = valid.reshape(-1, K)
+    nz = zero.sum(axis=1)
+    nv = valid.sum(axis=1)
+    dark = (nv > 0) & (nz == nv)
+    mixed = (nz > 0) & (nz < nv)
+    total = valid.sum()
+    print(f"\n## Where shaped samples are wasted: {os.path.relpath(STAGE, ROOT)}, {keep.size} floor receivers, "
+          f"one BVH-picked light each, {K} light samples per pair\n")
+    print("| pairs | share of pairs | share of all valid samples with shaped radiance 0 |")
+    print("|---|---|---|")
+    for name, m in (("dark (cone misses the receiver)", dark), ("mixed (penumbra band)", mixed),
+                    ("lit", ~dark & ~mixed & (nv > 0))):
+        print(f"| {name} | {100 * m.mean():.1f} % | {100 * zero[m].sum() / total:.2f} % |")
+    scene.close()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", nargs="?", default="both", choices=("cost", "quality", "both"))
+    ap.add_argument("what", nargs="?", default="both", choices=("cost", "quality", "both", "waste"))
     ap.add_argument("--res", type=int, nargs=2, default=(160, 120))
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--threads", type=int, default=2)
@@ -190,6 +233,8 @@ def main(argv=None) -> int:
         cost(args)
     if args.what in ("quality", "both"):
         quality(args)
+    if args.what == "waste":
+        waste(args)
     return 0
 
 

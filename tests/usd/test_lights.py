@@ -193,6 +193,8 @@ def test_degenerate_lights_skipped_with_warning(stage, make):
     (UsdLux.RectLight, "inputs:width", -2.0),
     (UsdLux.RectLight, "inputs:height", float("nan")),
     (UsdLux.SphereLight, "inputs:radius", -0.5),
+    (UsdLux.DiskLight, "inputs:radius", -0.1),
+    (UsdLux.CylinderLight, "inputs:radius", -0.2),
     (UsdLux.CylinderLight, "inputs:length", -1.0),
     (UsdLux.DistantLight, "inputs:angle", -0.1),
     (UsdLux.DiskLight, "inputs:colorTemperature", float("nan")),
