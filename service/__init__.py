@@ -6,6 +6,8 @@
 * ``service.worker``      the worker entry point (``python -m service.worker``): claims jobs,
                           heartbeats, renders with progressive snapshots and checkpoints.
 * ``service.ray_backend`` distributes one job's sample passes over a Ray cluster.
+* ``service.assets``      keeps a job's files (layers, textures, IES files) inside the stage root:
+                          checked at submission in a child process, and again by the worker.
 * ``service.cli``         ``illum serve``, ``illum submit`` and ``illum jobs``.
 
 See service/README.md for the API and the operational model.

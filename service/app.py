@@ -20,12 +20,15 @@ from typing import Literal, Optional
 
 from fastapi import Depends, FastAPI, Header, HTTPException, Path, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse, StreamingResponse
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import API_VERSION
+from .assets import AssetChecker
 from .config import ServiceConfig
 from .models import JobCreate, request_hash, validate_settings
 from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
@@ -37,6 +40,10 @@ from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STA
 __all__ = ["create_app"]
 
 STATIC_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "static")
+# The Swagger UI files /docs needs, served from the swagger-ui-py package: no CDN, so the docs
+# work on an air-gapped farm. Without the package /docs answers 404 and /openapi.json remains.
+SWAGGER_FILES = {"swagger-ui-bundle.js": "text/javascript", "swagger-ui.css": "text/css",
+                 "favicon-32x32.png": "image/png"}
 JOB_ID = r"^[0-9a-f]{16}$"
 MEDIA = {"png": "image/png", "exr": "image/x-exr"}
 
@@ -46,6 +53,11 @@ class BodyTooLarge(HTTPException):
 
     def __init__(self, limit: int):
         super().__init__(413, f"request body exceeds the server limit of {limit} bytes")
+
+
+# Methods counted under their own name in /metrics; anything else a client invents is "other",
+# so made-up methods cannot grow the counter table (and the metrics page) without bound.
+_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
 
 
 class _Limits:
@@ -95,7 +107,8 @@ class _Limits:
         try:
             await self.app(scope, limited_receive, counting_send)
         finally:
-            self.counters[(scope.get("method", ""), status_box[0])] += 1
+            method = scope.get("method", "")
+            self.counters[(method if method in _METHODS else "other", status_box[0])] += 1
 
 
 def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
@@ -106,7 +119,9 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     if not os.path.isdir(config.stage_root):
         raise ValueError(f"stage root {config.stage_root!r} is not a directory")
     store = JobStore(config.db_path)
+    store.set_meta("stage_root", os.path.realpath(config.stage_root))  # for workers started by hand
     supervisor = Supervisor(config, store)
+    assets = AssetChecker(config.stage_root, config.uploads_dir, timeout=config.asset_check_timeout)
     counters: Counter = Counter()
     started = time.time()
 
@@ -125,9 +140,12 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         version=API_VERSION,
         description=("Submit USD renders and dome preconvolutions, follow their progress, fetch progressive "
                      "and final images. Jobs live in SQLite (WAL); workers render in separate processes. "
-                     "When the server runs with ILLUM_TOKEN set, POST and DELETE endpoints need "
-                     "`Authorization: Bearer <token>`."),
+                     "When the server runs with ILLUM_TOKEN set, every endpoint that reads or changes jobs, "
+                     "stages or metrics needs `Authorization: Bearer <token>` (the Authorize button); "
+                     "`/health` then answers only its status without the token."),
         lifespan=lifespan,
+        docs_url=None,    # served below from local files
+        redoc_url=None,
     )
     app.state.config = config
     app.state.store = store
@@ -153,15 +171,27 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
 
     @app.exception_handler(StarletteHTTPException)  # also the router's own 404/405
     async def _http_error(request: Request, exc: StarletteHTTPException):
-        return JSONResponse({"detail": exc.detail, "message": str(exc.detail)}, status_code=exc.status_code,
+        message = str(exc.detail)
+        if exc.status_code == 400 and message == "There was an error parsing the body":
+            # FastAPI's answer when the JSON parser itself gives up (e.g. nesting too deep)
+            message = "body: not valid JSON (malformed or nested too deeply)"
+        return JSONResponse({"detail": exc.detail, "message": message}, status_code=exc.status_code,
                             headers=getattr(exc, "headers", None))
 
     # ---------------------------------------------------------------- helpers
-    def require_token(authorization: Optional[str] = Header(None, description="Bearer token when ILLUM_TOKEN is set")):
+    bearer = HTTPBearer(auto_error=False, description="ILLUM_TOKEN, when the server was started with one")
+
+    def token_ok(creds: Optional[HTTPAuthorizationCredentials]) -> bool:
         if not config.token:
-            return
-        scheme, _, value = (authorization or "").partition(" ")
-        if scheme.lower() != "bearer" or not hmac.compare_digest(value.strip().encode(), config.token.encode()):
+            return True
+        return creds is not None and hmac.compare_digest(creds.credentials.strip().encode("utf-8", "replace"),
+                                                         config.token.encode())
+
+    def require_token(creds: Optional[HTTPAuthorizationCredentials] = Depends(bearer)):
+        # One policy for reads and writes: job data, images, logs, stage names and metrics are
+        # the show's business too. Only the page shell, its static files, the API docs and the
+        # bare health status stay open (the page is where a user types the token).
+        if not token_ok(creds):
             raise HTTPException(401, "this server requires a bearer token (Authorization: Bearer <ILLUM_TOKEN>)",
                                 headers={"WWW-Authenticate": "Bearer"})
 
@@ -198,22 +228,49 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
 
+    swagger_dir = _swagger_dir()
+
+    @app.get("/docs", include_in_schema=False)
+    def docs():
+        if swagger_dir is None:
+            raise HTTPException(404, "the API docs page needs the swagger-ui-py package, which this server lacks; "
+                                     "the OpenAPI schema is at /openapi.json")
+        page = get_swagger_ui_html(openapi_url=app.openapi_url, title=f"{app.title} API",
+                                   swagger_js_url="/docs/assets/swagger-ui-bundle.js",
+                                   swagger_css_url="/docs/assets/swagger-ui.css",
+                                   swagger_favicon_url="/docs/assets/favicon-32x32.png",
+                                   # no call to the public validator service
+                                   swagger_ui_parameters={"validatorUrl": None})
+        page.headers["Cache-Control"] = "no-cache"
+        page.headers["X-Content-Type-Options"] = "nosniff"
+        return page
+
+    @app.get("/docs/assets/{name}", include_in_schema=False)
+    def docs_asset(name: str):
+        if swagger_dir is None or name not in SWAGGER_FILES:
+            raise HTTPException(404, f"no docs asset {name!r}")
+        return FileResponse(os.path.join(swagger_dir, name), media_type=SWAGGER_FILES[name],
+                            headers={"Cache-Control": "public, max-age=86400", "X-Content-Type-Options": "nosniff"})
+
     # ---------------------------------------------------------------- service
-    @app.get("/health", summary="Liveness, workers and queue depth")
-    def health():
-        counts = store.counts()["states"]
-        workers = store.workers()
+    @app.get("/health", summary="Liveness, workers and queue depth",
+             description="Without the token (on a server that has one) only status, version and auth are given.")
+    def health(creds: Optional[HTTPAuthorizationCredentials] = Depends(bearer)):
         alive = supervisor.alive() if start_workers else None
         status = "ok" if (not start_workers or not supervisor.slots or alive) else "degraded"
+        if not token_ok(creds):  # liveness for probes; nothing about workers or jobs
+            return {"status": status, "version": API_VERSION, "auth": True, "authorized": False}
+        counts = store.counts()["states"]
+        workers = store.workers()
         return {"status": status, "version": API_VERSION, "backend": config.backend,
                 "uptime_seconds": time.time() - started,
                 "workers": {"configured": len(supervisor.slots) if start_workers else 0, "alive": alive,
                             "registered": [{"id": w["id"], "pid": w["pid"], "host": w["host"], "job": w["job_id"]}
                                            for w in workers]},
-                "jobs": counts, "auth": bool(config.token)}
+                "jobs": counts, "auth": bool(config.token), "authorized": True}
 
     @app.get("/metrics", summary="Prometheus metrics (text exposition format 0.0.4)",
-             response_class=PlainTextResponse)
+             response_class=PlainTextResponse, dependencies=auth)
     def metrics():
         c = store.counts()
         workers = store.workers()
@@ -244,7 +301,8 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
                [({}, f"{time.time() - started:.3f}")])
         return PlainTextResponse("\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8")
 
-    @app.get("/stages", summary="Stages (or, for kind=preconvolve, environment maps) under the stage root")
+    @app.get("/stages", dependencies=auth,
+             summary="Stages (or, for kind=preconvolve, environment maps) under the stage root")
     def stages(kind: Literal["render", "preconvolve"] = "render"):
         exts = STAGE_EXTENSIONS if kind == "render" else IMAGE_EXTENSIONS
         return {"kind": kind, "stages": list_stages(config.stage_root, exts)}
@@ -305,6 +363,12 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             exts = STAGE_EXTENSIONS if body.kind == "render" else IMAGE_EXTENSIONS
             path, name = resolve_in_root(config.stage_root, body.stage, exts)
         settings = validate_settings(body.kind, body.settings, config.limits)
+        if body.kind == "render":
+            # Files the stage would read outside the stage root (layers, references, textures, IES
+            # files...): refused here, naming layer, prim, attribute and path. The worker checks again.
+            verdict = assets.check(path, upload=body.upload is not None)
+            if verdict.error:
+                raise InputError(400, "upload" if body.upload is not None else "stage", verdict.error)
         max_attempts = body.max_attempts or config.max_attempts
         digest = request_hash(body.kind, name, settings, body.priority, max_attempts)
         try:
@@ -319,17 +383,18 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             response.headers["Idempotent-Replayed"] = "true"
         return job_json(job)
 
-    @app.get("/jobs", summary="List jobs, newest first")
+    @app.get("/jobs", dependencies=auth, summary="List jobs, newest first")
     def list_jobs(state: Optional[list[Literal["queued", "running", "succeeded", "failed", "canceled"]]] = Query(None),
-                  limit: int = Query(200, ge=1, le=1000), offset: int = Query(0, ge=0)):
+                  limit: int = Query(200, ge=1, le=1000), offset: int = Query(0, ge=0, le=2**62)):
         jobs, total = store.list_jobs(states=state, limit=limit, offset=offset)
         return {"jobs": [job_json(j) for j in jobs], "count": len(jobs), "total": total}
 
-    @app.get("/jobs/{job_id}", summary="One job: state, progress %, spp, samples/s, ETA, error, attempts")
+    @app.get("/jobs/{job_id}", dependencies=auth,
+             summary="One job: state, progress %, spp, samples/s, ETA, error, attempts")
     def get_job(job_id: str = Path(..., pattern=JOB_ID)):
         return job_json(job_or_404(job_id))
 
-    @app.get("/jobs/{job_id}/image", summary="The final image, else the latest progressive snapshot",
+    @app.get("/jobs/{job_id}/image", dependencies=auth, summary="The final image, else the latest progressive snapshot",
              responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
                         404: {"description": "no image yet"}})
     def job_image(job_id: str = Path(..., pattern=JOB_ID), format: Literal["png", "exr"] = "png",
@@ -355,7 +420,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             return StreamingResponse(_iter_file(fh), media_type=MEDIA[format], headers=headers)
         raise HTTPException(404, f"job {job.id} has no image yet (state {job.state})")
 
-    @app.get("/jobs/{job_id}/log", summary="The job's log (attempts, progress, errors)",
+    @app.get("/jobs/{job_id}/log", dependencies=auth, summary="The job's log (attempts, progress, errors)",
              response_class=PlainTextResponse)
     def job_log(job_id: str = Path(..., pattern=JOB_ID), tail: int = Query(0, ge=0, le=100_000,
                                                                           description="last N lines; 0 = all")):
@@ -373,7 +438,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             text = "".join(text.splitlines(keepends=True)[-tail:])
         return PlainTextResponse(text, headers={"Cache-Control": "no-store"})
 
-    @app.get("/jobs/{job_id}/stats", summary="Render statistics of a succeeded render job (JSON)")
+    @app.get("/jobs/{job_id}/stats", dependencies=auth, summary="Render statistics of a succeeded render job (JSON)")
     def job_stats(job_id: str = Path(..., pattern=JOB_ID)):
         job = job_or_404(job_id)
         path = os.path.join(config.job_dir(job.id), STATS_JSON)
@@ -399,6 +464,22 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         return Response(status_code=204)
 
     return app
+
+
+def _swagger_dir() -> Optional[str]:
+    """The static directory of the installed swagger-ui-py package, or None. Found without
+    importing the package (its __init__ pulls in handlers for other web frameworks)."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec("swagger_ui")
+    except (ImportError, ValueError):
+        return None
+    for base in (spec.submodule_search_locations or []) if spec else []:
+        d = os.path.join(base, "static")
+        if all(os.path.isfile(os.path.join(d, n)) for n in SWAGGER_FILES):
+            return d
+    return None
 
 
 def _iter_file(fh, chunk: int = 256 * 1024):

@@ -23,7 +23,7 @@ def register_cli(subparsers) -> None:
     s = subparsers.add_parser("serve", help="run the render service (HTTP API, web page, workers)",
                               description="Run the render service: REST API (docs at /docs), the web page at /, "
                                           "and worker processes. Set ILLUM_TOKEN to require a bearer token on "
-                                          "mutating endpoints.")
+                                          "every endpoint that reads or changes jobs.")
     s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     s.add_argument("--port", type=int, default=8765, help="port (default 8765; 0 picks a free one)")
     s.add_argument("--data", default=os.environ.get("ILLUM_DATA", "illum-data"),
@@ -44,6 +44,9 @@ def register_cli(subparsers) -> None:
     s.add_argument("--max-time", type=float, default=24 * 3600.0, help="max render seconds per job (default 86400)")
     s.add_argument("--max-resolution", type=int, default=8192, help="max pixels per image side (default 8192)")
     s.add_argument("--max-upload-mb", type=float, default=256.0, help="max upload size in MiB (default 256)")
+    s.add_argument("--asset-check-timeout", type=float, default=60.0,
+                   help="seconds the submission-time check of a stage's files may take; beyond it the "
+                        "worker's own check decides (default 60)")
     s.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     s.set_defaults(func=cmd_serve)
 
@@ -126,13 +129,14 @@ def cmd_serve(a) -> int:
                                workers=a.workers, backend=a.backend, ray_address=a.ray_address,
                                ray_actors=a.ray_actors, threads=a.threads, max_attempts=a.max_attempts,
                                heartbeat_timeout=a.heartbeat_timeout, snapshot_interval=a.snapshot_interval,
-                               token=os.environ.get("ILLUM_TOKEN") or None, limits=limits)
+                               token=os.environ.get("ILLUM_TOKEN") or None, limits=limits,
+                               asset_check_timeout=a.asset_check_timeout)
     except ValueError as e:
         raise SettingsError(str(e), attribute="serve") from None
     logging.basicConfig(level=a.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
     if not _is_loopback(a.host) and not config.token:
         print(f"illum: warning: serving on {a.host} without ILLUM_TOKEN: anyone who reaches this port can "
-              "submit, cancel and delete jobs", file=sys.stderr)
+              "submit, read, cancel and delete jobs", file=sys.stderr)
     try:
         sock = _bind(a.host, a.port)
     except OSError as e:

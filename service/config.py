@@ -37,7 +37,9 @@ class ServiceConfig:
     timeout is requeued (or failed after max_attempts) by the reaper.
     snapshot_interval: seconds between progressive snapshots (preview EXR+PNG and checkpoint).
     cancel_grace: seconds a worker has to drop a canceled job before it is killed.
-    token: when set, mutating endpoints need ``Authorization: Bearer <token>``.
+    token: when set, every endpoint that reads or changes jobs needs ``Authorization: Bearer <token>``.
+    asset_check_timeout: the submission-time asset check (service.assets) gives up after this
+    many seconds and leaves the decision to the worker's own check.
     """
 
     data_dir: str
@@ -54,6 +56,7 @@ class ServiceConfig:
     threads: Optional[int] = None
     token: Optional[str] = None
     limits: Limits = field(default_factory=Limits)
+    asset_check_timeout: float = 60.0   # seconds for the submission-time asset confinement check
 
     def __post_init__(self):
         if self.backend not in ("local", "ray"):

@@ -11,9 +11,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from typing import Literal, Optional, Union
+import re
+from typing import Annotated, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StringConstraints, ValidationError, field_validator
 
 from .config import Limits
 from .paths import InputError
@@ -23,14 +24,21 @@ __all__ = ["JobCreate", "RenderSettings", "PreconvolveSettings", "validate_setti
 
 DEFAULT_SPP = 64
 _LIGHT_KEY = "a light prim path starting with '/', or '' for all lights"
+MAX_PER_LIGHT_ENTRIES = 4096
+# A prim path: starts with '/', no control characters (a NUL would cut the path short in C++).
+PRIM_PATH = r"^/[^\x00-\x1f\x7f]*$"
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
 def _per_light(value, field: str, check) -> dict:
     """`TOKEN` (all lights) or {"/Light": TOKEN, "": TOKEN} -> dict, each value checked."""
     table = value if isinstance(value, dict) else {"": value}
+    if len(table) > MAX_PER_LIGHT_ENTRIES:
+        raise ValueError(f"has {len(table)} entries, more than the limit of {MAX_PER_LIGHT_ENTRIES}")
     out = {}
     for key, v in table.items():
-        if not isinstance(key, str) or (key and not key.startswith("/")) or len(key) > 1024:
+        if (not isinstance(key, str) or (key and not key.startswith("/")) or len(key) > 1024
+                or _CONTROL.search(key)):
             raise ValueError(f"key {key!r} must be {_LIGHT_KEY}")
         out[key] = check(v)
     return out
@@ -44,10 +52,12 @@ class RenderSettings(BaseModel):
     spp: Optional[StrictInt] = Field(None, ge=1, description="samples per pixel (default 64 unless time_budget is given)")
     time_budget: Optional[float] = Field(None, gt=0, description="seconds of rendering (load and BVH build excluded)")
     resolution: Optional[tuple[StrictInt, StrictInt]] = Field(None, description="[width, height] override")
-    camera: Optional[str] = Field(None, max_length=1024, pattern=r"^/", description="camera prim path")
-    settings_prim: Optional[str] = Field(None, max_length=1024, pattern=r"^/", description="RenderSettings prim path")
+    camera: Optional[str] = Field(None, max_length=1024, pattern=PRIM_PATH, description="camera prim path")
+    settings_prim: Optional[str] = Field(None, max_length=1024, pattern=PRIM_PATH,
+                                         description="RenderSettings prim path")
     frame: Optional[float] = Field(None, description="time code")
-    purposes: Optional[list[str]] = Field(None, max_length=16)
+    purposes: Optional[list[Annotated[str, StringConstraints(max_length=64, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]]] = \
+        Field(None, max_length=16, description="included purposes (tokens such as default, render, proxy)")
     seed: StrictInt = Field(0, ge=0, le=2**31 - 1)
     max_depth: StrictInt = Field(8, ge=0, le=256)
     rr_depth: StrictInt = Field(3, ge=0, le=256)

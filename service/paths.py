@@ -77,11 +77,12 @@ def upload_name(sha256_hex: str, filename: str) -> str:
     """The id an upload is stored under: 16 hex digits of its SHA-256, then a sanitised file
     name (the extension tells USD the format). Identical content and name give the same id."""
     base = os.path.basename(filename.replace("\\", "/"))
-    safe = re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip("._-") or "stage"
-    stem, ext = os.path.splitext(safe)
+    stem, ext = os.path.splitext(base)
     if ext.lower() not in STAGE_EXTENSIONS:
         raise InputError(400, "filename", f"{filename!r} is not one of {', '.join(STAGE_EXTENSIONS)}")
-    safe = (stem or "stage")[: 100 - len(ext)] + ext.lower()
+    # The extension is split off first, so a name of only non-ASCII letters keeps it.
+    stem = re.sub(r"[^A-Za-z0-9._-]", "_", stem).lstrip("._-") or "stage"
+    safe = stem[: 100 - len(ext)] + ext.lower()
     return f"{sha256_hex[:16]}-{safe}"
 
 

@@ -438,6 +438,17 @@ class JobStore:
             db.execute("DELETE FROM workers WHERE heartbeat_at < ?", (cutoff,))
         return changed
 
+    def set_meta(self, key: str, value: str) -> None:
+        """Server settings workers need to know (e.g. the stage root their jobs are confined to)."""
+        with self.connect() as db:
+            db.execute("INSERT INTO meta (key, value) VALUES (?, ?) ON CONFLICT(key) DO UPDATE SET value=excluded.value",
+                       (key, str(value)))
+
+    def get_meta(self, key: str) -> Optional[str]:
+        with self.connect() as db:
+            row = db.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return row[0] if row is not None else None
+
     def integrity(self) -> str:
         """``PRAGMA integrity_check`` result ('ok' when the file is sound)."""
         with self.connect() as db:

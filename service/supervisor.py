@@ -182,7 +182,7 @@ class Supervisor:
                "--heartbeat-interval", repr(c.heartbeat_interval), "--snapshot-interval", repr(c.snapshot_interval),
                "--threads", str(threads), "--max-time", repr(c.limits.max_time_budget),
                "--max-side", str(c.limits.max_side), "--max-pixels", str(c.limits.max_pixels),
-               "--backend", c.backend]
+               "--backend", c.backend, "--stage-root", os.path.realpath(c.stage_root)]
         if c.ray_address:
             cmd += ["--ray-address", c.ray_address]
         if c.ray_actors:

@@ -66,6 +66,7 @@ class WorkerContext:
     ray_address: Optional[str] = None
     ray_actors: Optional[int] = None
     ray_drivers: int = 1                                   # workers sharing the cluster (pool sizing)
+    stage_root: Optional[str] = None                       # render jobs read files only below it
     parent_pid: Optional[int] = None
     scene_cache: dict = field(default_factory=dict)       # keeps the last scene + BVH resident
     resolution_cache: dict = field(default_factory=dict)
@@ -75,6 +76,9 @@ class WorkerContext:
 
     def job_dir(self, job_id: str) -> str:
         return os.path.join(self.data_dir, "jobs", job_id)
+
+    def uploads_dir(self) -> str:
+        return os.path.join(self.data_dir, "uploads")
 
 
 class JobLog:
@@ -365,12 +369,28 @@ def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
                             f"per side / {ctx.max_pixels} pixels; pass settings.resolution", attribute="resolution")
 
 
+def _check_stage_assets(ctx: WorkerContext, job: Job) -> None:
+    """The stage may read files only below the stage root (uploads: and the uploads): the
+    submission checked this already, but layers can change while a job waits."""
+    from renderer.errors import StageError
+
+    from .assets import check_in_process
+
+    root = ctx.stage_root or ctx.store.get_meta("stage_root")
+    if not root:
+        raise StageError("this worker does not know the server's stage root (start it with --stage-root)")
+    result = check_in_process(job.stage, root, ctx.uploads_dir(), job.stage_name.startswith("upload:"))
+    if result["error"]:
+        raise StageError(result["error"])
+
+
 def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLog) -> dict:
     from renderer.render import render, write_outputs
 
     jobdir = ctx.job_dir(job.id)
     opts = render_options(job.settings, threads=ctx.threads)
     opts.validate()
+    _check_stage_assets(ctx, job)
     _check_stage_resolution(ctx, job, opts)
     user_budget = opts.time_budget
     total_budget = min(user_budget, ctx.max_time) if (user_budget and ctx.max_time) else (user_budget or ctx.max_time)
@@ -528,6 +548,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ray-address", default=None)
     p.add_argument("--ray-actors", type=int, default=None)
     p.add_argument("--ray-drivers", type=int, default=1, help="workers sharing the Ray cluster")
+    p.add_argument("--stage-root", default=None,
+                   help="the server's stage root: render jobs may read files only below it "
+                        "(default: the one the server recorded in jobs.db)")
     p.add_argument("--supervised", action="store_true", help="exit when the spawning process dies")
     p.add_argument("--max-jobs", type=int, default=None, help=argparse.SUPPRESS)
     return p
@@ -542,7 +565,7 @@ def main(argv: list[str] | None = None) -> int:
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,
                         backend=a.backend, ray_address=a.ray_address, ray_actors=a.ray_actors,
-                        ray_drivers=a.ray_drivers,
+                        ray_drivers=a.ray_drivers, stage_root=a.stage_root,
                         parent_pid=os.getppid() if a.supervised else None)
     def on_term(signum, frame):
         # Graceful: stop the render between passes, checkpoint, requeue (see _stopped).

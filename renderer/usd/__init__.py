@@ -5,7 +5,8 @@ of plain numpy dataclasses; ``read_stage(stage, ...)`` does the same for an open
 
 Modules: ``stage_reader`` (traversal, pruning, meshes, implicit prims, instancing),
 ``mesh`` (triangulation, primvar expansion), ``implicit`` (tessellation), ``camera``,
-``render_settings``, ``materials``, ``lux`` (lights, linking), ``estimator_api`` (illum schema).
+``render_settings``, ``materials``, ``lux`` (lights, linking), ``estimator_api`` (illum schema),
+``confine`` (the render service's check that a stage reads no file outside its stage root).
 
 What is read and what is not (each unsupported feature gives one warning per stage):
 * Subdivision meshes render as their control cage; BasisCurves, Points, NURBS and other

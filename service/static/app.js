@@ -12,10 +12,22 @@ let jobsCache = new Map();
 
 function token() { return localStorage.getItem("illumToken") || ""; }
 
-async function api(method, path, body) {
-  const headers = {};
-  if (body !== undefined) headers["Content-Type"] = "application/json";
+// Every request carries the token when one is set: on a server with ILLUM_TOKEN, reads need it
+// as much as writes. Images, logs and downloads are fetched too (never plain links), for that.
+function authHeaders(extra) {
+  const headers = Object.assign({}, extra || {});
   if (token()) headers["Authorization"] = "Bearer " + token();
+  return headers;
+}
+
+async function authFetch(path, init) {
+  const r = await fetch(path, Object.assign({ cache: "no-store" }, init || {}, { headers: authHeaders() }));
+  if (r.status === 401) $("token-row").hidden = false;
+  return r;
+}
+
+async function api(method, path, body) {
+  const headers = authHeaders(body !== undefined ? { "Content-Type": "application/json" } : {});
   const r = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
   let data = null;
   const ct = r.headers.get("content-type") || "";
@@ -23,9 +35,33 @@ async function api(method, path, body) {
   if (!r.ok) {
     if (r.status === 401) $("token-row").hidden = false;
     const msg = (data && (data.message || JSON.stringify(data.detail))) || r.statusText;
-    throw new Error(msg + " (HTTP " + r.status + ")");
+    const err = new Error(msg + " (HTTP " + r.status + ")");
+    err.status = r.status;
+    throw err;
   }
   return data;
+}
+
+// Opens a job's file (log, EXR) fetched with the token, as a blob: URL of this page.
+async function openFile(path, filename) {
+  try {
+    const r = await authFetch(path);
+    if (!r.ok) { say("cannot fetch " + path + " (HTTP " + r.status + ")", true); return; }
+    const url = URL.createObjectURL(await r.blob());
+    if (filename) {
+      const a = document.createElement("a");
+      a.href = url;
+      a.download = filename;
+      document.body.appendChild(a);
+      a.click();
+      a.remove();
+    } else {
+      window.open(url, "_blank");
+    }
+    setTimeout(() => URL.revokeObjectURL(url), 60000);
+  } catch (e) {
+    say("cannot fetch " + path + ": " + e.message, true);
+  }
 }
 
 function say(text, isError) {
@@ -105,6 +141,7 @@ function showSelected() {
   if (j) {
     $("log-link").href = "/jobs/" + j.id + "/log";
     $("exr-link").href = "/jobs/" + j.id + "/image?format=exr";
+    $("exr-link").dataset.filename = j.id + ".exr";
   }
   if (!j) {
     $("preview").hidden = true;
@@ -120,7 +157,7 @@ async function refreshPreview(j, key) {
   previewBusy = true;
   try {
     // A new query string each time: the preview file is replaced in place as the render refines.
-    const r = await fetch("/jobs/" + j.id + "/image?format=png&t=" + Date.now(), { cache: "no-store" });
+    const r = await authFetch("/jobs/" + j.id + "/image?format=png&t=" + Date.now());
     if (!r.ok || j.id !== selected) return;
     const blob = await r.blob();
     const url = URL.createObjectURL(blob);
@@ -142,7 +179,7 @@ async function refreshPreview(j, key) {
 async function refreshLog() {
   if (!selected) { $("log").textContent = ""; return; }
   try {
-    const r = await fetch("/jobs/" + selected + "/log?tail=40", { cache: "no-store" });
+    const r = await authFetch("/jobs/" + selected + "/log?tail=40");
     if (r.ok) $("log").textContent = await r.text();
   } catch (e) { /* retry next time */ }
 }
@@ -153,17 +190,21 @@ async function poll() {
     renderJobs(data.jobs);
     showSelected();
   } catch (e) {
-    $("health").textContent = "server unreachable: " + e.message;
+    if (e.status !== 401) $("health").textContent = "server unreachable: " + e.message;
   }
 }
 
 async function pollHealth() {
   try {
     const h = await api("GET", "/health");
+    if (h.auth) $("token-row").hidden = false;
+    if (h.authorized === false) {
+      $("health").textContent = h.status + " · this server needs its access token";
+      return;
+    }
     const w = h.workers;
     $("health").textContent = h.status + " · " + (w.alive ?? 0) + "/" + w.configured + " " + h.backend +
       " workers · " + h.jobs.queued + " queued, " + h.jobs.running + " running";
-    if (h.auth) $("token-row").hidden = false;
   } catch (e) {
     $("health").textContent = "server unreachable";
   }
@@ -221,12 +262,31 @@ $("cancel-btn").addEventListener("click", async () => {
   }
 });
 
-$("token").value = token();
-$("token").addEventListener("change", () => localStorage.setItem("illumToken", $("token").value.trim()));
+$("exr-link").addEventListener("click", (ev) => {
+  ev.preventDefault();
+  openFile($("exr-link").getAttribute("href"), $("exr-link").dataset.filename || "image.exr");
+});
+$("log-link").addEventListener("click", (ev) => {
+  ev.preventDefault();
+  openFile($("log-link").getAttribute("href"), null);
+});
 
-loadStages().catch((e) => say("cannot list stages: " + e.message, true));
-poll();
-pollHealth();
+function refreshAll() {
+  loadStages().then(() => {
+    if ($("message").textContent.startsWith("cannot list stages")) say("", false);
+  }).catch((e) => say("cannot list stages: " + e.message, true));
+  poll();
+  pollHealth();
+}
+
+$("token").value = token();
+$("token").addEventListener("change", () => {
+  localStorage.setItem("illumToken", $("token").value.trim());
+  lastPreviewKey = null;
+  refreshAll();
+});
+
+refreshAll();
 setInterval(poll, POLL_MS);
 setInterval(pollHealth, 3000);
 setInterval(refreshLog, 2000);

@@ -38,6 +38,11 @@ class Server:
     args: list = field(default_factory=list)
     env: dict = field(default_factory=dict)
 
+    @property
+    def token(self) -> str | None:
+        """The server's ILLUM_TOKEN (None when it has none)."""
+        return self.env.get("ILLUM_TOKEN") or None
+
     def client(self, token: str | None = None, timeout: float = 30.0) -> httpx.Client:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         return httpx.Client(base_url=self.url, timeout=timeout, headers=headers)
@@ -47,7 +52,7 @@ class Server:
             return fh.read()
 
     def worker_pids(self) -> dict:
-        with self.client() as c:
+        with self.client(self.token) as c:
             return {w["id"]: (w["pid"], w["job"]) for w in c.get("/health").json()["workers"]["registered"]}
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 20.0) -> int:
@@ -98,15 +103,20 @@ def start_server(tmp_path, stage_root: str, *, workers: int = 1, extra: list | N
         raise RuntimeError(f"server did not start:\n{_read(log_path)}")
     server = Server(url=url, data=data, stage_root=stage_root, proc=proc, log_path=log_path, args=args,
                     env=full_env)
-    with httpx.Client(base_url=url, timeout=5) as c:
-        while time.monotonic() < deadline:
-            try:
-                h = c.get("/health").json()
-                if not wait_workers or len(h["workers"]["registered"]) >= min(workers, 1):
-                    return server
-            except httpx.TransportError:
-                pass
-            time.sleep(0.05)
+    token = full_env.get("ILLUM_TOKEN")
+    try:
+        with httpx.Client(base_url=url, timeout=5, headers={"Authorization": f"Bearer {token}"} if token else {}) as c:
+            while time.monotonic() < deadline:
+                try:
+                    h = c.get("/health").json()
+                    if not wait_workers or len(h["workers"]["registered"]) >= min(workers, 1):
+                        return server
+                except httpx.TransportError:
+                    pass
+                time.sleep(0.05)
+    except BaseException:  # never leave a server behind when the wait itself fails
+        server.stop(signal.SIGKILL)
+        raise
     server.stop(signal.SIGKILL)
     raise RuntimeError("server never became healthy")
 

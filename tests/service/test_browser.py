@@ -73,38 +73,114 @@ def test_page_submit_preview_cancel(server, client, browser, tmp_path):
     assert b.js_errors() == []
 
 
+# Records every blob the page turns into a URL ([url, blob]): the page's CSP keeps fetch() away
+# from blob: URLs, so a test reads the blob itself.
+CAPTURE_BLOBS = ("window.__blobs = []; const __make = URL.createObjectURL;"
+                 " URL.createObjectURL = (blob) => { const u = __make(blob); window.__blobs.push([u, blob]); return u; }")
+
+
+def _enter_token(b: Browser, value: str) -> None:
+    b.eval("(() => { const t = document.getElementById('token'); t.value = " + json.dumps(value) + ";"
+           " t.dispatchEvent(new Event('change')); return true; })()")
+
+
+def _only_refusals(b: Browser, codes=(401,)) -> list:
+    """Browser errors other than the refused loads a test caused on purpose."""
+    return [e for e in b.js_errors() if e.get("method") != "Log.entryAdded"
+            or e["params"]["entry"].get("source") != "network"
+            or not any(f"status of {c}" in e["params"]["entry"]["text"] for c in codes)]
+
+
+@pytest.fixture(scope="module")
+def token_server(tmp_path_factory, stage_root):
+    s = start_server(tmp_path_factory.mktemp("page-token"), stage_root, workers=1, env={"ILLUM_TOKEN": "page-token"})
+    yield s
+    s.stop()
+
+
+def test_page_sends_the_token(token_server, browser):
+    """On a server with ILLUM_TOKEN, reads need the token too: the page shows nothing but the
+    token field until it is entered, then lists stages and jobs, shows the preview, and fetches
+    the log with the token (a plain link could not send it)."""
+    s, b = token_server, browser
+    b.goto(s.url + "/")
+    b.wait("!document.getElementById('token-row').hidden", what="the token field")
+    msg = b.wait("(() => { const t = document.getElementById('message').textContent;"
+                 " return t.includes('HTTP 401') ? t : null; })()", what="the refused stage list")
+    assert msg.startswith("cannot list stages")
+    assert b.wait("document.getElementById('health').textContent.includes('access token')")
+    assert b.eval("document.querySelectorAll('#stage option').length") == 0
+    _enter_token(b, "page-token")
+    b.wait("document.querySelectorAll('#stage option').length > 0", what="the stage list")
+    b.wait("document.getElementById('message').textContent === ''", what="the 401 message to go")
+    b.wait("document.getElementById('health').textContent.includes('workers')", what="the full health line")
+    job_id = _submit_from_page(b, "shots/a.usda", spp="4", w="16", h="16")
+    with s.client(token="page-token") as c:
+        assert wait_job(c, job_id)["state"] == "succeeded"
+    b.wait(f"document.querySelector('#jobs-body tr[data-id=\"{job_id}\"]').dataset.state === 'succeeded'")
+    b.wait("document.getElementById('preview').dataset.kind === 'final'", what="the final image")
+    assert b.wait(PIXEL_SUM, what="the preview pixels")[:2] == [16, 16]
+    b.wait("document.getElementById('log').textContent.includes('succeeded')", what="the log tail")
+    # the log link opens a blob: URL of the text fetched with the token
+    b.eval(CAPTURE_BLOBS + "; window.__opened = null; window.open = (u) => { window.__opened = u; return null; };"
+           " document.getElementById('log-link').click(); true")
+    url = b.wait("window.__opened", what="the log link to open")
+    assert url.startswith("blob:")
+    assert "attempt 1 of" in b.eval("window.__blobs.find(x => x[0] === " + json.dumps(url) + ")[1].text()")
+    assert _only_refusals(b) == []
+
+
+def test_docs_render_offline(server, browser):
+    """Swagger UI comes from the server itself: the machine has no route to a CDN, so the
+    operations list appears only if the local files work."""
+    b = browser
+    b.goto(server.url + "/docs")
+    b.wait("document.querySelectorAll('.opblock').length >= 10", timeout=60, what="the Swagger operations")
+    assert "illum render service" in b.eval("document.querySelector('.info .title').textContent")
+    assert b.eval("[...document.scripts].every(s => !s.src || s.src.startsWith(location.origin))")
+    assert b.js_errors() == []
+
+
 @pytest.mark.slow
 def test_page_token_flow_and_errors(tmp_path, stage_root):
-    """With ILLUM_TOKEN set the page asks for the token, shows a refused request's message, and
-    submits once the token is entered; server-side validation messages reach the user."""
+    """With ILLUM_TOKEN set the page asks for the token, shows a refused request's message (a
+    wrong token too), and submits once the right token is entered; server-side validation
+    messages reach the user; the EXR download carries the token."""
     s = start_server(tmp_path, stage_root, workers=1, env={"ILLUM_TOKEN": "page-token"})
     b = Browser()
     try:
         b.goto(s.url + "/")
-        b.wait("document.querySelectorAll('#stage option').length > 0", what="the stage list")
         b.wait("!document.getElementById('token-row').hidden", what="the token field")
-        b.eval("document.getElementById('submit-btn').click(), true")
-        msg = b.wait("(() => { const t = document.getElementById('message').textContent; return t || null; })()")
-        assert "HTTP 401" in msg
-        b.eval("(() => { const t = document.getElementById('token'); t.value = 'page-token';"
-               " t.dispatchEvent(new Event('change')); return true; })()")
+        b.wait("document.getElementById('message').textContent.includes('HTTP 401')", what="the refusal")
+        _enter_token(b, "wrong-token")
+        b.wait("document.getElementById('message').textContent.includes('HTTP 401')", what="the refusal again")
+        assert b.eval("document.querySelectorAll('#stage option').length") == 0
+        _enter_token(b, "page-token")
+        b.wait("document.querySelectorAll('#stage option').length > 0", what="the stage list")
         b.eval("(() => { document.getElementById('spp').value = '999999'; document.getElementById('submit-btn').click();"
                " return true; })()")
         msg = b.wait("(() => { const t = document.getElementById('message').textContent;"
                      " return t.includes('settings.spp') ? t : null; })()", what="the limit message")
         assert "exceeds the server limit" in msg
         job_id = _submit_from_page(b, "shots/a.usda", spp="4", w="32", h="32")
-        with s.client() as c:
+        with s.client(token="page-token") as c:
             assert wait_job(c, job_id)["state"] == "succeeded"
         b.wait(f"document.querySelector('#jobs-body tr[data-id=\"{job_id}\"]').dataset.state === 'succeeded'")
         b.wait("document.getElementById('preview').dataset.kind === 'final'", what="the final image")
+        b.wait("!document.getElementById('exr-link').hidden", what="the EXR link")
+        # the download is a blob: URL of bytes fetched with the token
+        b.eval(CAPTURE_BLOBS + "; window.__dl = null; const orig = HTMLAnchorElement.prototype.click;"
+               " HTMLAnchorElement.prototype.click = function () { if (this.download) window.__dl = [this.href, this.download];"
+               " else orig.call(this); }; document.getElementById('exr-link').click(); true")
+        href, name = b.wait("window.__dl", what="the EXR download")
+        assert href.startswith("blob:") and name == f"{job_id}.exr"
+        head = b.eval("window.__blobs.find(x => x[0] === " + json.dumps(href) + ")[1].arrayBuffer()"
+                      ".then(a => [...new Uint8Array(a.slice(0, 4))])")
+        assert head == [0x76, 0x2F, 0x31, 0x01]  # the OpenEXR magic number
         b.screenshot(str(tmp_path / "done.png"))
         assert os.path.getsize(tmp_path / "done.png") > 1000
         # the refused requests above are logged as failed loads (401, 422); nothing else may be
-        unexpected = [e for e in b.js_errors() if e.get("method") != "Log.entryAdded"
-                      or e["params"]["entry"].get("source") != "network"
-                      or not any(f"status of {c}" in e["params"]["entry"]["text"] for c in (401, 422))]
-        assert unexpected == []
+        assert _only_refusals(b, (401, 422)) == []
     finally:
         b.close()
         s.stop()

@@ -67,8 +67,8 @@ def test_absolute_path_inside_root_is_accepted(secure, authed):
     assert wait_job(authed, r.json()["id"])["state"] == "succeeded"
 
 
-def test_stage_listing_hides_escaping_links(anon):
-    stages = anon.get("/stages").json()["stages"]
+def test_stage_listing_hides_escaping_links(authed):
+    stages = authed.get("/stages").json()["stages"]
     assert "cornell_box.usda" in stages
     assert not any(s.startswith("escape") for s in stages)
 
@@ -86,10 +86,34 @@ def test_token_required_on_mutating_endpoints(secure, anon, authed):
         assert r.headers["www-authenticate"] == "Bearer"
         with secure.client(token="wrong") as bad:
             assert bad.request(method, url, **kw).status_code == 401
-    # reads stay open; the job was not touched by the refused calls
-    assert anon.get(f"/jobs/{jid}").status_code == 200
-    assert anon.get("/health").json()["auth"] is True
-    assert wait_job(anon, jid)["state"] == "succeeded"
+    # the job was not touched by the refused calls
+    assert wait_job(authed, jid)["state"] == "succeeded"
+
+
+def test_token_required_on_reads(secure, anon, authed):
+    """Reads follow the same policy: job data, images, logs, stage names and metrics need the
+    token; the page shell, its files, the API docs and the bare health status stay open."""
+    jid = authed.post("/jobs", json={"stage": "cornell_box.usda", "settings": dict(TINY)}).json()["id"]
+    assert wait_job(authed, jid)["state"] == "succeeded"
+    reads = ["/jobs", f"/jobs/{jid}", f"/jobs/{jid}/image?format=png", f"/jobs/{jid}/image?format=exr",
+             f"/jobs/{jid}/log", f"/jobs/{jid}/stats", "/stages", "/stages?kind=preconvolve", "/metrics"]
+    for url in reads:
+        r = anon.get(url)
+        assert r.status_code == 401, (url, r.text)
+        assert r.headers["www-authenticate"] == "Bearer" and "bearer token" in r.json()["message"]
+        with secure.client(token="wrong") as bad:
+            assert bad.get(url).status_code == 401, url
+        assert authed.get(url).status_code == 200, url
+    # a job id that does not exist answers 401 too: no probing for ids without the token
+    assert anon.get("/jobs/0123456789abcdef").status_code == 401
+    h = anon.get("/health").json()
+    assert h == {"status": "ok", "version": h["version"], "auth": True, "authorized": False}
+    full = authed.get("/health").json()
+    assert full["authorized"] is True and "workers" in full and "jobs" in full
+    for url in ("/", "/static/app.js", "/static/style.css", "/openapi.json", "/docs"):
+        assert anon.get(url).status_code == 200, url
+    schemes = anon.get("/openapi.json").json()["components"]["securitySchemes"]
+    assert schemes["HTTPBearer"]["scheme"] == "bearer"  # Swagger UI's Authorize button
 
 
 def test_upload_size_cap(authed):
@@ -121,6 +145,15 @@ def test_json_body_cap(authed):
     r = authed.post("/jobs", content=b'{"stage": "' + b"a" * (2 * 1024 * 1024) + b'"}',
                     headers={"Content-Type": "application/json"})
     assert r.status_code == 413
+
+    def chunks():  # no Content-Length: counted as it streams
+        yield b'{"stage": "'
+        for _ in range(160):
+            yield b"a" * 8192
+        yield b'"}'
+
+    r = authed.post("/jobs", content=chunks(), headers={"Content-Type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["message"]
 
 
 @pytest.mark.parametrize("settings, field", [

@@ -1,0 +1,162 @@
+"""Asset confinement against a real server: a submitted stage may read files only under the
+stage root (an upload: under the stage root and the uploads). Sublayers, references, payloads,
+textures and IES files that lead elsewhere are refused at submission with a message naming
+layer, prim, attribute and path; a stage changed after submission is stopped by the worker."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import pytest
+
+from .conftest import STAGES, TINY, make_stage_root, start_server, wait_job
+
+CUBE_TEX = """def Material "M" {{
+    token outputs:surface.connect = </M/S.outputs:surface>
+    def Shader "S" {{
+        uniform token info:id = "UsdPreviewSurface"
+        color3f inputs:diffuseColor.connect = </M/T.outputs:rgb>
+        token outputs:surface
+    }}
+    def Shader "T" {{
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file = @{tex}@
+        float3 outputs:rgb
+    }}
+}}"""
+
+
+@pytest.fixture(scope="module")
+def confined(tmp_path_factory):
+    """A server (no workers: submission checks only) whose stage root holds stages that reach
+    out of it in every way, and a directory next to the root with the files they want."""
+    tmp = tmp_path_factory.mktemp("confined")
+    root = make_stage_root(tmp / "root")
+    outside = tmp / "outside"
+    outside.mkdir()
+    with open(os.path.join(root, "cornell_box.usda"), encoding="utf-8") as fh:
+        box = fh.read()
+    (outside / "secret.usda").write_text('#usda 1.0\ndef Xform "Secret" {}\n')
+    shutil.copy(os.path.join(STAGES, "textures", "checker.png"), outside / "secret.png")
+    (outside / "spot.ies").write_text("IESNA:LM-63-2002\n")
+    os.symlink(outside / "secret.png", os.path.join(root, "textures", "innocent.png"))
+
+    def stage(name, body):
+        text = box + "\n" + body + "\n"
+        with open(os.path.join(root, name), "w", encoding="utf-8") as fh:
+            fh.write(text)
+
+    with open(os.path.join(root, "shots", "sub.usda"), "w", encoding="utf-8") as fh:
+        fh.write("#usda 1.0\n(\n    subLayers = [@../../outside/secret.usda@, @../cornell_box.usda@]\n)\n")
+    stage("shots/ref.usda", body=f'def "R" (\n    references = @{outside}/secret.usda@\n) {{}}')
+    stage("shots/missing_ref.usda", body='def "R" (\n    references = @../../outside/nothere.usda@\n) {}')
+    stage("shots/payload.usda", body='def "P" (\n    prepend payload = @../../outside/secret.usda@\n) {}')
+    stage("shots/tex.usda", body=CUBE_TEX.format(tex="../../outside/secret.png"))
+    stage("shots/tex_link.usda", body=CUBE_TEX.format(tex="../textures/innocent.png"))
+    stage("shots/tex_etc.usda", body=CUBE_TEX.format(tex="/etc/hostname"))
+    stage("shots/ies.usda", body='def SphereLight "Spot" (\n    prepend apiSchemas = ["ShapingAPI"]\n) {\n'
+                                 '    asset inputs:shaping:ies:file = @../../outside/spot.ies@\n}')
+    stage("shots/tex_ok.usda", body=CUBE_TEX.format(tex="../textures/checker.png"))
+    s = start_server(tmp, root, workers=0, wait_workers=False)
+    s.outside = str(outside)
+    s.tmp = tmp
+    yield s
+    s.stop()
+
+
+@pytest.fixture
+def cclient(confined):
+    with confined.client() as c:
+        yield c
+
+
+@pytest.mark.parametrize("stage, where, asset", [
+    ("shots/sub.usda", "shots/sub.usda: subLayers", "../../outside/secret.usda"),
+    ("shots/ref.usda", "shots/ref.usda: /R.references", "{outside}/secret.usda"),
+    # a missing file outside is refused exactly like an existing one: no probing for files
+    ("shots/missing_ref.usda", "shots/missing_ref.usda: /R.references", "../../outside/nothere.usda"),
+    ("shots/payload.usda", "shots/payload.usda: /P.payload", "../../outside/secret.usda"),
+    ("shots/tex.usda", "shots/tex.usda: /M/T.inputs:file", "../../outside/secret.png"),
+    ("shots/tex_link.usda", "shots/tex_link.usda: /M/T.inputs:file", "../textures/innocent.png"),
+    ("shots/tex_etc.usda", "shots/tex_etc.usda: /M/T.inputs:file", "/etc/hostname"),
+    ("shots/ies.usda", "shots/ies.usda: /Spot.inputs:shaping:ies:file", "../../outside/spot.ies"),
+])
+def test_escaping_stages_are_refused_naming_the_asset(confined, cclient, stage, where, asset):
+    asset = asset.replace("{outside}", confined.outside)
+    r = cclient.post("/jobs", json={"stage": stage, "settings": dict(TINY)})
+    assert r.status_code == 400, r.text
+    msg = r.json()["message"]
+    assert msg == f"stage: {where}: asset path '{asset}' leads outside the stage root", msg
+    assert r.json()["detail"][0]["loc"] == ["body", "stage"]
+    assert cclient.get("/jobs").json()["total"] == 0  # nothing was queued
+
+
+def test_confined_stages_are_accepted(cclient):
+    for stage in ("cornell_box.usda", "shots/tex_ok.usda", "zup_dome.usda"):
+        r = cclient.post("/jobs", json={"stage": stage, "settings": dict(TINY)})
+        assert r.status_code == 201, r.text
+
+
+def test_uploads_may_use_the_stage_root_but_nothing_else(confined, cclient):
+    tex_root = os.path.join(confined.stage_root, "textures", "checker.png")
+    with open(os.path.join(confined.stage_root, "cornell_box.usda"), encoding="utf-8") as fh:
+        box = fh.read()
+    ok = box + "\n" + CUBE_TEX.format(tex=tex_root)
+    up = cclient.post("/uploads", params={"filename": "ok.usda"}, content=ok.encode())
+    assert cclient.post("/jobs", json={"upload": up.json()["upload"], "settings": dict(TINY)}).status_code == 201
+    bad = box + "\n" + CUBE_TEX.format(tex=os.path.join(confined.outside, "secret.png"))
+    up = cclient.post("/uploads", params={"filename": "bad.usda"}, content=bad.encode())
+    r = cclient.post("/jobs", json={"upload": up.json()["upload"], "settings": dict(TINY)})
+    assert r.status_code == 400
+    assert r.json()["message"] == (f"upload: upload:bad.usda: /M/T.inputs:file: asset path "
+                                   f"'{confined.outside}/secret.png' leads outside the stage root and the uploads")
+
+
+def test_an_edited_layer_is_checked_again(confined, cclient):
+    """The verdict cache follows the layers: editing one to reach out is noticed at once."""
+    path = os.path.join(confined.stage_root, "shots", "edited.usda")
+    shutil.copy(os.path.join(confined.stage_root, "cornell_box.usda"), path)
+    t0 = time.monotonic()
+    assert cclient.post("/jobs", json={"stage": "shots/edited.usda", "settings": dict(TINY)}).status_code == 201
+    first = time.monotonic() - t0
+    t0 = time.monotonic()
+    assert cclient.post("/jobs", json={"stage": "shots/edited.usda", "settings": dict(TINY)}).status_code == 201
+    cached = time.monotonic() - t0
+    assert cached < first, (cached, first)  # the second answer comes from the cache
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(CUBE_TEX.format(tex="../../outside/secret.png") + "\n")
+    r = cclient.post("/jobs", json={"stage": "shots/edited.usda", "settings": dict(TINY)})
+    assert r.status_code == 400 and "/M/T.inputs:file" in r.json()["message"]
+
+
+def test_the_worker_checks_again_before_rendering(tmp_path):
+    """A stage that reaches out only after its job was queued is failed by the worker, with the
+    same message (a worker started by hand learns the stage root from jobs.db)."""
+    root = make_stage_root(tmp_path / "root")
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "secret.usda").write_text('#usda 1.0\ndef Xform "Secret" {}\n')
+    s = start_server(tmp_path, root, workers=0, wait_workers=False)
+    try:
+        with s.client() as c:
+            jid = c.post("/jobs", json={"stage": "shots/a.usda", "settings": dict(TINY)}).json()["id"]
+            path = os.path.join(root, "shots", "a.usda")
+            with open(path, encoding="utf-8") as fh:
+                text = fh.read()
+            with open(path, "w", encoding="utf-8") as fh:
+                fh.write(text + '\ndef "Late" (\n    references = @../../outside/secret.usda@\n) {}\n')
+            worker = subprocess.run([sys.executable, "-m", "service.worker", "--data", s.data, "--id", "by-hand",
+                                     "--max-jobs", "1"], cwd=str(tmp_path), capture_output=True, text=True,
+                                    timeout=120, stdin=subprocess.DEVNULL)
+            assert worker.returncode == 0, worker.stderr[-2000:]
+            done = wait_job(c, jid)
+            assert done["state"] == "failed" and done["attempts"] == 1
+            assert done["error"] == ("shots/a.usda: /Late.references: asset path '../../outside/secret.usda' "
+                                     "leads outside the stage root"), done["error"]
+            assert not os.path.exists(os.path.join(s.data, "jobs", jid, "final.exr"))
+    finally:
+        s.stop()
