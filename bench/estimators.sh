@@ -8,10 +8,12 @@
 #
 #   sh bench/estimators.sh            # from the repository root; ~25-40 min on a busy 2-core machine
 #   BUDGETS=1,4 sh bench/estimators.sh
+#   REPEATS=3 sh bench/estimators.sh  # 3 interleaved runs per (config, budget), medians (~3x as long)
 set -eu
 cd "$(dirname "$0")/.."
 BUDGETS="${BUDGETS:-2,8}"
+REPEATS="${REPEATS:-1}"
 exec .venv/bin/python -m renderer.cli bench stages/talk/*.usda \
     --estimators mis,lightSampling,bsdfSampling,controlVariate:one,controlVariate:averageVisibility,controlVariate:averageVisibilityUnbiased,ratio,auto \
-    --light-samples 4 --budgets "$BUDGETS" --res 100 75 --max-depth 1 --seed 0 \
+    --light-samples 4 --budgets "$BUDGETS" --repeats "$REPEATS" --res 100 75 --max-depth 1 --seed 0 \
     --reference-spp 1024 --out bench/results/estimators --raw-throughput "$@"

@@ -28,7 +28,9 @@ does not. Delete ``OUT/references`` after changing the renderer itself.
 
 Seeds are fixed: every measured render uses ``--seed`` (common random numbers across
 configurations), the reference uses a different seed so that its noise is independent of the
-measured images. The reference's own noise adds its variance to every measured MSE; results.md
+measured images. ``--repeats R`` renders every (config, budget) R times with seeds seed..seed+R-1,
+interleaved (repeat, budget, config), and the tables report medians and the range of each
+repeat's ratio to MIS. The reference's own noise adds its variance to every measured MSE; results.md
 reports that *floor* (the reference's estimated relMSE, from its per-pixel variance) so one can
 tell when a measurement is close to it.
 
@@ -83,7 +85,8 @@ CSV_FIELDS = [
     "stage", "config", "estimator", "cv_alpha", "light_sampler", "light_samples", "budget_s", "seconds",
     "cpu_seconds", "spp", "samples_per_second", "mrays_per_second", "rmse", "relmse", "efficiency",
     "efficiency_cpu", "negative_pixels", "width",
-    "height", "max_depth", "seed", "reference", "reference_floor_relmse",
+    "height", "max_depth", "seed", "reference", "reference_floor_relmse", "repeat", "auto_choice",
+    "pilot_cpu_seconds",
 ]
 
 
@@ -215,6 +218,9 @@ class BenchSettings:
     raw_throughput: bool = False
     raw_max_depth: int = 8
     raw_seconds: float = 3.0
+    # Independent repeats of every (config, budget) (seed + repeat), interleaved: each repeat runs
+    # every config at one budget back to back, so they share the machine's load of the moment.
+    repeats: int = 1
     command: str = ""
     log: Callable[[str], None] = field(default=lambda msg: None, repr=False)
 
@@ -364,41 +370,51 @@ def run_bench(stages: list[str], s: BenchSettings) -> dict:
         try:
             ref = get_reference(stage, resolution, s, scene_cache=caches.setdefault("auto", {}))
             refs[name] = ref
+            pilots: dict[str, float] = {}
             for cfg in s.configs:
                 cache = caches.setdefault(cfg.light_sampler or "auto", {})
                 # Warm-up pass, discarded: the first use of a code path pays one-off costs (numba
                 # kernels loading or compiling, lazily built tables) that would otherwise be
-                # charged to whichever configuration happens to run first.
-                render(stage, RenderOptions(spp=1, resolution=resolution, seed=s.seed, threads=s.threads,
-                                            max_depth=s.max_depth, **_overrides(cfg, s.light_samples)),
-                       scene_cache=cache)
-                for budget in s.budgets:
-                    opts = RenderOptions(time_budget=float(budget), resolution=resolution, seed=s.seed,
-                                         threads=s.threads, max_depth=s.max_depth,
-                                         **_overrides(cfg, s.light_samples))
-                    cpu0 = time.process_time()
-                    res = render(stage, opts, scene_cache=cache)
-                    cpu = time.process_time() - cpu0
-                    img = res.film.image().astype(np.float64)
-                    secs = float(res.stats["seconds"]["render"])
-                    rel = relmse(img, ref.image)
-                    row = {
-                        "stage": name, "config": cfg.label, "estimator": cfg.estimator or "stage",
-                        "cv_alpha": cfg.cv_alpha or "", "light_sampler": res.stats["light_sampler"],
-                        "light_samples": s.light_samples or "", "budget_s": budget, "seconds": secs,
-                        "cpu_seconds": cpu,
-                        "spp": int(res.stats["spp"]), "samples_per_second": float(res.stats["samples_per_second"]),
-                        "mrays_per_second": float(res.stats["mrays_per_second"]), "rmse": rmse(img, ref.image),
-                        "relmse": rel, "efficiency": efficiency(rel, secs), "efficiency_cpu": efficiency(rel, cpu),
-                        "negative_pixels": int(np.any(res.film.mean() < 0.0, axis=2).sum()),
-                        "width": resolution[0], "height": resolution[1], "max_depth": s.max_depth,
-                        "seed": s.seed, "reference": _display_path(ref.path),
-                        "reference_floor_relmse": "" if ref.floor is None else ref.floor,
-                    }
-                    rows.append(row)
-                    s.log(f"bench: {name:18s} {cfg.label:44s} {budget:6.2f} s budget: {secs:6.2f} s "
-                          f"({cpu:5.2f} cpu s), "
-                          f"{row['spp']:5d} spp, relMSE {rel:.4g}, RMSE {row['rmse']:.4g}")
+                # charged to whichever configuration happens to run first. For `auto` it also
+                # runs the pilot, whose decision the loaded scene keeps for the timed renders.
+                warm = render(stage, RenderOptions(spp=1, resolution=resolution, seed=s.seed, threads=s.threads,
+                                                   max_depth=s.max_depth, **_overrides(cfg, s.light_samples)),
+                              scene_cache=cache)
+                pilots[cfg.label] = sum(li.get("auto_pilot", {}).get("cpu_seconds", 0.0)
+                                        for li in warm.stats["lights"])
+            for rep, budget, cfg in ((r, b, c) for r in range(s.repeats) for b in s.budgets for c in s.configs):
+                cache = caches.setdefault(cfg.light_sampler or "auto", {})
+                opts = RenderOptions(time_budget=float(budget), resolution=resolution, seed=s.seed + rep,
+                                     threads=s.threads, max_depth=s.max_depth,
+                                     **_overrides(cfg, s.light_samples))
+                cpu0 = time.process_time()
+                res = render(stage, opts, scene_cache=cache)
+                cpu = time.process_time() - cpu0
+                img = res.film.image().astype(np.float64)
+                secs = float(res.stats["seconds"]["render"])
+                rel = relmse(img, ref.image)
+                row = {
+                    "stage": name, "config": cfg.label, "estimator": cfg.estimator or "stage",
+                    "cv_alpha": cfg.cv_alpha or "", "light_sampler": res.stats["light_sampler"],
+                    "light_samples": s.light_samples or "", "budget_s": budget, "seconds": secs,
+                    "cpu_seconds": cpu,
+                    "spp": int(res.stats["spp"]), "samples_per_second": float(res.stats["samples_per_second"]),
+                    "mrays_per_second": float(res.stats["mrays_per_second"]), "rmse": rmse(img, ref.image),
+                    "relmse": rel, "efficiency": efficiency(rel, secs), "efficiency_cpu": efficiency(rel, cpu),
+                    "negative_pixels": int(np.any(res.film.mean() < 0.0, axis=2).sum()),
+                    "width": resolution[0], "height": resolution[1], "max_depth": s.max_depth,
+                    "seed": s.seed + rep, "reference": _display_path(ref.path),
+                    "reference_floor_relmse": "" if ref.floor is None else ref.floor,
+                    "repeat": rep,
+                    # What `auto` picked, per auto light, and its pilot's one-off CPU seconds.
+                    "auto_choice": " ".join(li["estimator"] for li in res.stats["lights"] if li.get("auto")),
+                    "pilot_cpu_seconds": pilots.get(cfg.label, 0.0),
+                }
+                rows.append(row)
+                s.log(f"bench: {name:18s} {cfg.label:44s} {budget:6.2f} s budget"
+                      f"{f' (repeat {rep})' if s.repeats > 1 else ''}: {secs:6.2f} s "
+                      f"({cpu:5.2f} cpu s), "
+                      f"{row['spp']:5d} spp, relMSE {rel:.4g}, RMSE {row['rmse']:.4g}")
         finally:
             for cache in caches.values():
                 for _desc, scene in cache.values():
@@ -605,34 +621,49 @@ def _markdown(rows, refs, raw, machine, s: BenchSettings) -> str:
                  f"{_fmt(info['seconds'], 3) if 'seconds' in info else ''} | "
                  f"{'' if ref.floor is None else _fmt(ref.floor, 3)} |")
     L.append("")
+    reps = max(int(r.get("repeat", 0)) for r in rows) + 1 if rows else 1
+    if reps > 1:
+        L += [f"Every (config, budget) ran {reps} times (seeds {s.seed}..{s.seed + reps - 1}, interleaved: each "
+              "repeat runs all configs at one budget back to back). Tables show medians; 'vs MIS' is the median "
+              "of each repeat's ratio to the MIS run of the same repeat and budget, with its range.", ""]
     for name in dict.fromkeys(r["stage"] for r in rows):
         srows = [r for r in rows if r["stage"] == name]
         budgets = sorted({r["budget_s"] for r in srows})
         configs = list(dict.fromkeys(r["config"] for r in srows))
-        mis = {r["budget_s"]: r["efficiency"] for r in srows if r["config"] == "mis"}
-        mis_cpu = {r["budget_s"]: r["efficiency_cpu"] for r in srows if r["config"] == "mis"}
-        L += [f"## {name}", "", "relMSE by budget (lower is better); efficiency and relMSE x spp at the largest "
-                                "budget:", ""]
-        L.append("| config | " + " | ".join(f"relMSE @ {b:g} s" for b in budgets) +
-                 " | efficiency | vs MIS | efficiency (CPU) | vs MIS (CPU) | relMSE x spp | neg px |")
-        L.append("|---|" + "---|" * (len(budgets) + 6))
+        agg = _aggregate(srows)
+        mis = {(r["budget_s"], r.get("repeat", 0)): r["efficiency"] for r in srows if r["config"] == "mis"}
+        L += [f"## {name}", "", "relMSE and efficiency relative to MIS by budget (wall and CPU seconds); "
+                                "efficiency and relMSE x spp at the largest budget:", ""]
+        L.append("| config | " + " | ".join(f"relMSE @ {b:g} s" for b in budgets) + " | " +
+                 " | ".join(f"vs MIS @ {b:g} s" for b in budgets) + " | " +
+                 " | ".join(f"vs MIS (CPU) @ {b:g} s" for b in budgets) +
+                 " | efficiency | efficiency (CPU) | relMSE x spp | neg px |")
+        L.append("|---|" + "---|" * (3 * len(budgets) + 4))
         bmax = budgets[-1]
         for c in configs:
-            by_b = {r["budget_s"]: r for r in srows if r["config"] == c}
-            last = by_b[bmax]
-            vs = _fmt(last["efficiency"] / mis[bmax], 3) if mis.get(bmax) else ""
-            vs_cpu = _fmt(last["efficiency_cpu"] / mis_cpu[bmax], 3) if mis_cpu.get(bmax) else ""
-            L.append(f"| {c} | " + " | ".join(_fmt(by_b[b]["relmse"]) for b in budgets) +
-                     f" | {_fmt(last['efficiency'])} | {vs} | {_fmt(last['efficiency_cpu'])} | {vs_cpu} | "
-                     f"{_fmt(last['relmse'] * last['spp'], 3)} | {last['negative_pixels']} |")
+            last = agg[(c, bmax)]
+            L.append(f"| {c} | " + " | ".join(_fmt(agg[(c, b)]["relmse"]) for b in budgets) + " | " +
+                     " | ".join(_ratio_cell(agg[(c, b)], "vs") for b in budgets) + " | " +
+                     " | ".join(_ratio_cell(agg[(c, b)], "vs_cpu") for b in budgets) +
+                     f" | {_fmt(last['efficiency'])} | {_fmt(last['efficiency_cpu'])} | "
+                     f"{_fmt(last['rel_spp'], 3)} | {last['negative_pixels']} |")
+        picks = {r["auto_choice"] for r in srows if r.get("auto_choice")}
+        if picks:
+            pilot = max(float(r.get("pilot_cpu_seconds") or 0.0) for r in srows if r.get("auto_choice"))
+            cpu_max = float(np.median([r["cpu_seconds"] for r in srows if r["budget_s"] == bmax]))
+            L += ["", f"`auto` picked **{', '.join(sorted(picks))}**. Its pilot ran once for the stage "
+                      f"({_fmt(pilot, 3)} CPU s, {100 * pilot / max(cpu_max, 1e-9):.1f} % of a {bmax:g} s render's "
+                      "median CPU seconds; the loaded scene keeps the decision, so the timed renders above do not "
+                      "include it)."]
         L += ["", "<details><summary>all runs</summary>", "",
-              "| config | budget s | render s | CPU s | spp | ksamples/s | Mrays/s | RMSE | relMSE | efficiency "
-              "| vs MIS |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| config | budget s | repeat | render s | CPU s | spp | ksamples/s | Mrays/s | RMSE | relMSE | "
+              "efficiency | vs MIS |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in srows:
-            m = mis.get(r["budget_s"])
+            m = mis.get((r["budget_s"], r.get("repeat", 0)))
             vs = _fmt(r["efficiency"] / m, 3) if m else ""
-            L.append(f"| {r['config']} | {r['budget_s']:g} | {r['seconds']:.2f} | {r['cpu_seconds']:.2f} | {r['spp']} | "
+            L.append(f"| {r['config']} | {r['budget_s']:g} | {r.get('repeat', 0)} | {r['seconds']:.2f} | "
+                     f"{r['cpu_seconds']:.2f} | {r['spp']} | "
                      f"{r['samples_per_second'] / 1e3:.0f} | {r['mrays_per_second']:.3f} | {_fmt(r['rmse'])} | "
                      f"{_fmt(r['relmse'])} | {_fmt(r['efficiency'])} | {vs} |")
         L += ["", "</details>", ""]
@@ -655,6 +686,37 @@ def _markdown(rows, refs, raw, machine, s: BenchSettings) -> str:
     return "\n".join(L) + "\n"
 
 
+def _aggregate(srows: list[dict]) -> dict:
+    """Per (config, budget) of one stage: medians over repeats of relMSE, efficiencies and
+    relMSE x spp, and each repeat's efficiency ratio to the MIS run of the same repeat and
+    budget (median, min, max; wall "vs" and CPU "vs_cpu"). One repeat gives that run's values."""
+    mis = {(r["budget_s"], r.get("repeat", 0)): r for r in srows if r["config"] == "mis"}
+    out: dict = {}
+    for key in dict.fromkeys((r["config"], r["budget_s"]) for r in srows):
+        runs = [r for r in srows if (r["config"], r["budget_s"]) == key]
+        a = {"relmse": float(np.median([r["relmse"] for r in runs])),
+             "efficiency": float(np.median([r["efficiency"] for r in runs])),
+             "efficiency_cpu": float(np.median([r["efficiency_cpu"] for r in runs])),
+             "rel_spp": float(np.median([r["relmse"] * r["spp"] for r in runs])),
+             "negative_pixels": max(r["negative_pixels"] for r in runs), "n": len(runs)}
+        for field_, col in (("vs", "efficiency"), ("vs_cpu", "efficiency_cpu")):
+            ratios = [r[col] / mis[(r["budget_s"], r.get("repeat", 0))][col] for r in runs
+                      if (r["budget_s"], r.get("repeat", 0)) in mis and mis[(r["budget_s"], r.get("repeat", 0))][col]]
+            a[field_] = [float(np.median(ratios)), min(ratios), max(ratios)] if ratios else None
+        out[key] = a
+    return out
+
+
+def _ratio_cell(a: dict, field_: str) -> str:
+    """'1.23' for one run, '1.23 (1.1-1.4)' (median and range) for several."""
+    v = a.get(field_)
+    if not v:
+        return ""
+    if a["n"] == 1:
+        return _fmt(v[0], 3)
+    return f"{_fmt(v[0], 3)} ({_fmt(v[1], 2)}-{_fmt(v[2], 2)})"
+
+
 def _plot(rows: list[dict], path: str, floors: dict | None = None) -> None:
     """Log-log relMSE vs render seconds, one panel per stage, one curve per configuration, and
     the reference's own relMSE (the floor every measurement contains) as a dashed line.
@@ -674,8 +736,11 @@ def _plot(rows: list[dict], path: str, floors: dict | None = None) -> None:
     for i, name in enumerate(stages):
         ax = fig.add_subplot(nrow, ncol, i + 1)
         for k, c in enumerate(configs):
-            pts = sorted((r["seconds"], r["relmse"]) for r in rows if r["stage"] == name and r["config"] == c
-                         and r["relmse"] > 0)
+            runs = [r for r in rows if r["stage"] == name and r["config"] == c and r["relmse"] > 0]
+            # One point per budget: the medians over repeats.
+            pts = sorted((float(np.median([r["seconds"] for r in runs if r["budget_s"] == b])),
+                          float(np.median([r["relmse"] for r in runs if r["budget_s"] == b])))
+                         for b in dict.fromkeys(r["budget_s"] for r in runs))
             if not pts:
                 continue
             xs, ys = zip(*pts)
@@ -729,6 +794,8 @@ def register_cli(subparsers) -> None:
     p.add_argument("--max-depth", type=int, default=8, help="max scattering events (1 = direct lighting)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--repeats", type=int, default=1,
+                   help="independent runs of every (config, budget), interleaved; tables show medians (default 1)")
     p.add_argument("--raw-throughput", action="store_true",
                    help="also compare raw embree vs render() Mrays/s on the first stage")
     p.add_argument("--raw-max-depth", type=int, default=8, help="max depth of the raw-throughput render()")
@@ -761,6 +828,8 @@ def settings_from_args(a) -> BenchSettings:
         raise SettingsError("must be >= 1", attribute="light-samples")
     if a.res is not None and (a.res[0] < 1 or a.res[1] < 1):
         raise SettingsError("must be positive", attribute="res")
+    if a.repeats < 1:
+        raise SettingsError("must be >= 1", attribute="repeats")
     if not (math.isfinite(a.raw_seconds) and a.raw_seconds > 0):
         raise SettingsError("must be a positive number of seconds", attribute="raw-seconds")
     parse_configs(a.reference_estimator)
@@ -780,6 +849,7 @@ def settings_from_args(a) -> BenchSettings:
         raw_throughput=a.raw_throughput,
         raw_max_depth=a.raw_max_depth,
         raw_seconds=a.raw_seconds,
+        repeats=a.repeats,
         command="illum bench " + " ".join(_quote(x) for x in _argv_of(a)),
         log=(lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True)),
     )
@@ -803,6 +873,8 @@ def _argv_of(a) -> list[str]:
         out += ["--reference-spp", str(a.reference_spp)]
         if a.reference_estimator != "mis":
             out += ["--reference-estimator", a.reference_estimator]
+    if a.repeats > 1:
+        out += ["--repeats", str(a.repeats)]
     if a.raw_throughput:
         out += ["--raw-throughput", "--raw-max-depth", str(a.raw_max_depth)]
     return out

@@ -111,6 +111,9 @@ class Scene:
     # materialSyncMode is noMaterialResponse (the surface reflects nothing). None without mesh lights.
     tri_light: np.ndarray | None = None
     tri_absorb: np.ndarray | None = None
+    # The `auto` estimator's pilot decisions (integrators/auto.py), kept with the loaded scene so
+    # that re-renders of it (a resident worker, the bench's timed runs) do not pilot again.
+    pilot_cache: dict = field(default_factory=dict)
 
     def close(self) -> None:
         self.accel.close()

@@ -112,3 +112,21 @@ def test_cli_user_errors(tmp_path, tiny_stage, capsys):
         assert code == 2, (args, err)
         assert err.startswith("illum: error:") and err.count("\n") == 1, err
     assert not (tmp_path / "o").exists()
+
+
+def test_repeats_are_interleaved_and_report_what_auto_picked(tmp_path, tiny_stage):
+    out = tmp_path / "out"
+    res = run_bench([tiny_stage], settings(out, configs=parse_configs("mis,auto"), repeats=2))
+    rows = res["rows"]
+    # Each repeat runs every configuration back to back, with its own seed.
+    assert [(r["repeat"], r["config"], r["seed"]) for r in rows] == [(0, "mis", 3), (0, "auto", 3),
+                                                                     (1, "mis", 4), (1, "auto", 4)]
+    for r in rows:
+        if r["config"] == "auto":
+            assert r["auto_choice"] in ("lightSampling", "bsdfSampling", "mis", "controlVariate")
+            assert r["pilot_cpu_seconds"] > 0.0  # the warm-up's pilot, reported once per stage
+        else:
+            assert r["auto_choice"] == "" and r["pilot_cpu_seconds"] == 0.0
+    md = (out / "results.md").read_text()
+    assert "ran 2 times" in md and "`auto` picked **" in md
+    assert "| mis | " in md and " 1 (1-1) |" in md  # MIS against itself: median 1, range 1-1
