@@ -7,14 +7,17 @@ choice follows the light count (finite and infinite lights together):
   more shadow rays cost less than the variance of picking;
 * above that: ``bvh``, the light BVH. Its importance (power, distance, orientation, horizon)
   beats power-proportional picking as soon as the lights are spread out in space, which is
-  why a scene has many of them. Measured (bench/bench_light_samplers.py, 160x90, 30 s per
-  render, relMSE over pixels that see no light directly): 13.7x lower than uniform and 9.9x
-  lower than power on stages/fireflies (5000 sphere lights), 14.9x and 3.1x on
-  stages/city_lights (293 rect and disk lights), although a pick costs ~2.5 us (a descent of
-  ~18 levels) against ~0.02 us for the power sampler's alias table. Just above the threshold
+  why a scene has many of them. Measured (bench/results/light_samplers/results.md: 160x90,
+  20 CPU seconds per render, median of 3 seeds, relMSE over pixels that see no light
+  directly): 13.9x lower than uniform and 9.6x lower than power on stages/fireflies (5000
+  sphere lights), 10.2x and 2.4x on stages/city_lights (293 rect and disk lights), although a
+  pick costs ~0.9 us (a descent of ~13 levels) against ~0.02 us for the power sampler's
+  alias table. (Over the whole image the margins are 1.5x and 1.2x on fireflies: there the
+  anti-aliasing noise of the fireflies seen directly, which no lighting service touches, is
+  most of the error; see that file.) Just above the threshold
   it still wins: with 9 / 16 / 32 mixed lights at random points the relative variance of the
   pick (unshadowed) is 1.8 / 2.3 / 4.3 for bvh, 5.5 / 8.7 / 13 for uniform and 34 / 17 / 18
-  for power. The build is ~0.05 s for 5000 lights, ~1.4 s CPU for 100k.
+  for power. The build is ~0.06 s for 5000 lights, ~1 s for 100k.
 """
 
 from __future__ import annotations

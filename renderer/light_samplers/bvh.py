@@ -1,4 +1,5 @@
-"""Light BVH: pick a light in proportion to a conservative bound on its contribution.
+"""Light BVH: pick a light in proportion to an estimate of its contribution that is never 0
+where the light can contribute.
 
 The lighting service of Conty Estevez & Kulla 2018 ("Importance Sampling of Many Lights with
 Adaptive Tree Splitting") in the form pbrt-v4 gives it (``BVHLightSampler``):
@@ -19,12 +20,13 @@ Adaptive Tree Splitting") in the form pbrt-v4 gives it (``BVHLightSampler``):
 * a binary tree whose leaves hold one light each; an interior node holds the union of its
   lights' bounds. At a shading point p with shading normal ns the *importance* of a node,
 
-      I = phi * cos(theta') / d^2 * max(cos(theta_i'), 0)       (0 if theta' >= theta_e)
+      I = phi * cos(theta') / max(d^2, r^2 / 3) * max(cos(theta_i'), 0)   (0 if theta' >= theta_e)
 
-  bounds from above what any light below it can send: theta' is the smallest angle between an
-  emitting normal in the cone and the direction to p, less the half-angle theta_b that the
-  node's bounding sphere subtends at p; theta_i' is the incidence angle at ns less theta_b
-  (no incidence factor where the context has no normal). The traversal descends from the
+  (d the distance from p to the centre of the node's AABB, r half its diagonal) estimates
+  what the lights below it send, the angular factors bounding it from above: theta' is the
+  smallest angle between an emitting normal in the cone and the direction to p, less the
+  half-angle theta_b that the node's bounding sphere subtends at p; theta_i' is the incidence
+  angle at ns less theta_b (no incidence factor where the context has no normal). The traversal descends from the
   root choosing a child with probability proportional to its importance (pbrt: "no light"
   where both children have importance 0), and the product of those choices is the pmf.
 * infinite lights (dome, distant) are not in the tree. They are picked first, with
@@ -34,16 +36,21 @@ Adaptive Tree Splitting") in the form pbrt-v4 gives it (``BVHLightSampler``):
 
 **The d^2 clamp.** pbrt-v4 clamps the squared distance with ``Length(diagonal) / 2``, a
 length compared with a squared length, so the clamp depends on the scene's unit (too weak in
-metres for small nodes, too strong in centimetres for large ones). Here the clamp is the
-squared radius of the node's bounding sphere, ``(|diagonal| / 2)^2``: inside that sphere the
-importance stops growing like 1/d^2, in any unit (tests/light_samplers checks that scaling a
-scene by 1024 leaves every pmf unchanged).
+metres for small nodes, too strong in centimetres for large ones). Here the clamp is a squared
+length, a third of the squared radius of the node's bounding sphere, ``(|diagonal| / 2)^2 / 3``,
+the same in any unit (tests/light_samplers checks that scaling a scene by 1024 leaves every
+pmf unchanged). The factor 1/3 (renderer/kernels/light_bvh.py ``CLAMP_R2``, which says why)
+makes a sphere light's leaf exact and cut the variance of the light choice on the fireflies
+stage 4x against the full ``(|diagonal| / 2)^2``: with the full radius, every node that a
+shading point sits in looked as far away as its bounding sphere is wide, so a firefly a few
+centimetres from the point lost a factor at each such level above it. The clamp only shapes
+the probabilities; it can never make one 0, so it cannot bias.
 
 **Exactness of pmf.** ``pmf(ctx, light)`` replays the root-to-leaf path stored for that light
 (a bit per level: 0 = first child, 1 = second) and evaluates the same importance function on
-the same nodes with the same float64 operations (elementwise only: nothing whose rounding
-could depend on the batch), multiplying in the same order; so it reproduces bit for bit the
-pmf that ``sample`` reported.
+the same nodes with the same scalar float64 operations (one numba function, per row: nothing
+whose rounding could depend on the batch), multiplying in the same order; so it reproduces bit
+for bit the pmf that ``sample`` reported.
 
 **Build.** Top-down, one tree level at a time, all the nodes of a level at once in numpy
 (no Python loop over nodes or lights; lights of a node are a contiguous range, so node
@@ -63,8 +70,10 @@ gain in sampling quality). The node cones that traversal relies on are exact uni
 mean of the node's normals, theta_o = largest angle from it to a light's cone plus 1e-6 rad
 for rounding, so they never exclude a light (which would be bias).
 
-**Cost.** A pick visits O(depth) nodes, O(log n) for a balanced tree; each level is a few
-dozen numpy operations on (2, k) arrays (both children of the k rows still descending).
+**Cost.** A pick visits O(depth) nodes, O(log n) for a balanced tree, evaluating both
+children's importance at each: a per-row numba loop (renderer/kernels/light_bvh.py), ~1-1.5 us
+of CPU per pick or pmf replay on the fireflies stage (5000 lights, mean depth 13), where the
+level-at-a-time numpy traversal it replaced took ~3.5 us for either.
 Memory per node (2 m - 1 nodes for m lights): 3 float64 + 8 float32 of bounds and 2 int32;
 per light one 64-bit word of trail per 64 levels and an int32 depth; an int32 slot per global
 light: about 140 bytes per light (``memory_bytes``).
@@ -76,6 +85,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..kernels import light_bvh as _kern
 from ..lights.base import ShadingContext
 
 __all__ = ["BVHLightSampler", "LightBounds", "light_bounds", "importance", "N_BUCKETS"]
@@ -88,17 +98,11 @@ _BUCKETS_BY_SIZE = (np.array([2, 4, 16]), (0, 4, 8, N_BUCKETS))
 # Bucket statistics of a node are gathered from at most this many of its lights.
 SPLIT_SAMPLE = 256
 # Padding added to every node's cone half-angle (leaves too) so that rounding -- float64 in
-# the build, float32 in the traversal (angles near a cone's edge to ~1e-7 rad) -- never makes
-# a cone exclude a direction its lights emit into (a missed light would get pmf 0: bias).
+# the build, float32 storage of the bounds (angles near a cone's edge to ~1e-7 rad) -- never
+# makes a cone exclude a direction its lights emit into (a missed light would get pmf 0: bias).
+# The traversal's constants (INCIDENCE_PAD, ONE_MINUS_EPSILON, MAX_IMPORTANCE, D2_MIN) live
+# with its kernels in renderer/kernels/light_bvh.py.
 CONE_PAD = 1e-4
-# Added to the clamped-incidence cosine for the same reason (float32 rounding at the horizon).
-INCIDENCE_PAD = 1e-6
-# Largest u below 1 (pbrt's OneMinusEpsilon), so remapped u never reaches 1.
-ONE_MINUS_EPSILON = 1.0 - 2.0**-53
-# Importance values are clamped here so that two children's sum stays finite in float32,
-# and squared distances are at least D2_MIN (scene units^2) so that phi / d^2 cannot overflow.
-MAX_IMPORTANCE = 1e37
-D2_MIN = 1e-12
 
 # Column layout of the per-node float table.
 _PC = slice(0, 3)      # centre of the node's AABB
@@ -213,15 +217,19 @@ def light_bounds(lights) -> LightBounds:
 # Importance (pbrt-v4 LightBounds::Importance with the d^2 clamp fixed)
 # ----------------------------------------------------------------------------------------
 def importance(p: np.ndarray, nrm: np.ndarray, has_n: np.ndarray, node: np.ndarray) -> np.ndarray:
-    """Importance (k,) float32 of k (point, node) pairs, exactly as the traversal computes it.
+    """Importance (k,) float64 of k (point, node) pairs, exactly as the traversal computes it
+    (renderer/kernels/light_bvh.py ``_importance``).
 
     p: (k, 3) shading points; nrm: (k, 3) shading normals (used where has_n (k,) bool);
     node: (k, 11) rows of the node table (see the column layout at the top of the module).
     """
     pc, nd = _traversal_columns(np.asarray(node, dtype=np.float64).T)
-    no_n = (~np.asarray(has_n, dtype=bool)).astype(np.float32)
-    n32 = np.asarray(nrm, dtype=np.float32)
-    return _importance(p[:, 0], p[:, 1], p[:, 2], n32[:, 0], n32[:, 1], n32[:, 2], no_n, pc, nd)
+    k = pc.shape[1]
+    out = np.empty(k)
+    _kern.bvh_importance_kernel(np.ascontiguousarray(p, dtype=np.float64),
+                                np.ascontiguousarray(nrm, dtype=np.float64), np.ascontiguousarray(has_n, dtype=bool),
+                                np.ascontiguousarray(pc.T[:, None, :]), np.ascontiguousarray(nd.T[:, None, :]), out)
+    return out
 
 
 def _round32(x: np.ndarray, toward: float) -> np.ndarray:
@@ -233,116 +241,18 @@ def _round32(x: np.ndarray, toward: float) -> np.ndarray:
 
 def _traversal_columns(cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Node columns (11, ...) float64 -> (centres (3, ...) float64, the other 8 (8, ...) float32:
-    r2, w (3), phi, cos_o, sin_o, cos_e). Each bound is rounded the conservative way: r2 and
-    sin_o up, cos_o and cos_e down (wider cones, bigger spheres)."""
+    r = sqrt(r2) the bounding sphere's radius, w (3), phi, cos_o, sin_o, cos_e). Each bound is
+    rounded the conservative way: r and sin_o up, cos_o and cos_e down (wider cones, bigger
+    spheres)."""
     pc = np.ascontiguousarray(cols[0:3])
     nd = np.zeros((8,) + cols.shape[1:], np.float32)
-    nd[0] = _round32(cols[_R2], np.inf)
+    nd[0] = _round32(np.sqrt(cols[_R2]), np.inf)
     nd[1:4] = cols[_W].astype(np.float32)
     nd[4] = cols[_PHI].astype(np.float32)
     nd[5] = _round32(cols[_COS_O], -np.inf)
     nd[6] = _round32(cols[_SIN_O], np.inf)
     nd[7] = _round32(cols[_COS_E], -np.inf)
     return pc, nd
-
-
-def _importance(px, py, pz, nx, ny, nz, no_n, pc, nd):
-    """pbrt's LightBounds::Importance with the d^2 clamp fixed, on broadcastable arrays.
-
-    px, py, pz: point (float64); nx, ny, nz: shading normal, no_n: 1 where the point has no
-    normal (skip the incidence bound) else 0 (float32); pc: node centres (3, ...) float64;
-    nd: the other node columns (8, ...) float32 (see _traversal_columns). The traversal
-    passes (k,) points against (2, k) sibling nodes.
-
-    Only the differences p - centre are taken in float64 (scene coordinates can be large next
-    to a light); everything after is float32, about twice as fast, with the bounds padded and
-    rounded outward to absorb the rounding. Only elementwise operations in a fixed order, so a
-    value never depends on the batch: sample and pmf agree bit for bit. Branch-free selects
-    (max with a +-1 mask, a multiply by a 0/1 mask) replace np.where, which is ~10x slower on
-    random masks; the comments say why each is exact.
-    """
-    f4 = np.float32
-    dx = (px - pc[0]).astype(f4)
-    dy = (py - pc[1]).astype(f4)
-    dz = (pz - pc[2]).astype(f4)
-    r2 = nd[0]
-    d2_true = dx * dx
-    d2_true += dy * dy
-    d2_true += dz * dz
-    # Fixed clamp: a squared length, (|diagonal| / 2)^2 (pbrt compares with |diagonal| / 2).
-    d2 = np.maximum(d2_true, r2)
-    np.maximum(d2, D2_MIN, out=d2)
-    inv_d = np.maximum(d2_true, D2_MIN)
-    np.sqrt(inv_d, out=inv_d)
-    np.divide(1.0, inv_d, out=inv_d)
-    # wi: unit direction from the node centre toward the point (zero when they coincide).
-    dx *= inv_d
-    dy *= inv_d
-    dz *= inv_d
-    cos_w = nd[1] * dx
-    cos_w += nd[2] * dy
-    cos_w += nd[3] * dz
-    sin_w = cos_w * cos_w
-    np.subtract(1.0, sin_w, out=sin_w)
-    np.maximum(sin_w, 0.0, out=sin_w)
-    np.sqrt(sin_w, out=sin_w)
-    # theta_b: half-angle of the cone of directions from the point to the bounding sphere,
-    # the whole sphere (cos -1, sin 0) when the point is inside it (then d2 == r2).
-    inside = d2_true < r2
-    sin2_b = r2 / d2
-    sin2_b *= ~inside                                    # x * False == 0, x * True == x
-    cos_b = np.subtract(1.0, sin2_b)
-    np.maximum(cos_b, 0.0, out=cos_b)
-    np.sqrt(cos_b, out=cos_b)
-    cos_b -= inside * f4(2.0)                            # inside: 1 - 2 == -1 exactly
-    sin_b = np.sqrt(sin2_b)
-    # theta_x = max(theta_w - theta_o, 0): cos 1 and sin 0 when theta_w < theta_o, where the
-    # difference formula gives sin < 0 and max(cos, 1) == 1 (cos <= 1); max(c, -1) == c.
-    cos_o, sin_o = nd[5], nd[6]
-    cos_x = cos_w * cos_o
-    cos_x += sin_w * sin_o
-    np.maximum(cos_x, (cos_w > cos_o) * f4(2.0) - f4(1.0), out=cos_x)
-    sin_x = sin_w * cos_o
-    sin_x -= cos_w * sin_o
-    np.maximum(sin_x, 0.0, out=sin_x)
-    # theta' = max(theta_x - theta_b, 0).
-    cos_p = cos_x * cos_b
-    cos_p += sin_x * sin_b
-    np.maximum(cos_p, (cos_x > cos_b) * f4(2.0) - f4(1.0), out=cos_p)
-    imp = nd[4] * cos_p
-    imp /= d2
-    imp *= cos_p > nd[7]
-    # Clamped incidence at the shading normal (the light is toward -wi from the point):
-    # cos of max(theta_i - theta_b, 0), clamped at 0; a factor 1 where there is no normal
-    # (max(c, 1) == 1 for c <= 1).
-    cos_i = nx * dx
-    cos_i += ny * dy
-    cos_i += nz * dz
-    np.negative(cos_i, out=cos_i)
-    sin_i = cos_i * cos_i
-    np.subtract(1.0, sin_i, out=sin_i)
-    np.maximum(sin_i, 0.0, out=sin_i)
-    np.sqrt(sin_i, out=sin_i)
-    cos_ib = cos_i * cos_b
-    cos_ib += sin_i * sin_b
-    np.maximum(cos_ib, (cos_i > cos_b) * f4(2.0) - f4(1.0), out=cos_ib)
-    cos_ib += INCIDENCE_PAD
-    np.maximum(cos_ib, 0.0, out=cos_ib)
-    np.maximum(cos_ib, no_n, out=cos_ib)
-    np.minimum(cos_ib, 1.0, out=cos_ib)
-    imp *= cos_ib
-    np.maximum(imp, 0.0, out=imp)
-    np.minimum(imp, MAX_IMPORTANCE, out=imp)
-    return imp
-
-
-def _normals(ctx: ShadingContext) -> tuple[np.ndarray, np.ndarray]:
-    """Per row the normal for the incidence bound: ns, else n; has_n False where both are 0."""
-    ns = np.asarray(ctx.ns, dtype=np.float64)
-    n = np.asarray(ctx.n, dtype=np.float64)
-    ns_ok = np.any(ns != 0.0, axis=1)
-    nrm = np.where(ns_ok[:, None], ns, n)
-    return nrm, np.any(nrm != 0.0, axis=1)
 
 
 # ----------------------------------------------------------------------------------------
@@ -681,178 +591,89 @@ class BVHLightSampler:
         self._finish(nodes)
 
     def _finish(self, nodes: np.ndarray) -> None:
-        """Keep the node table (N, 11) in traversal layout: the root's values, and those of every
-        sibling pair as (..., 2, m - 1) arrays, split into float64 centres and float32 bounds
-        (_traversal_columns). Children are allocated in pairs after the root, so nodes c (odd)
-        and c + 1 are pair (c - 1) / 2; gathering k pairs gives contiguous (2, k) columns that
-        broadcast against (k,) points. The float64 table itself is dropped (see ``nodes``)."""
-        self.root_pc, self.root_nd = _traversal_columns(nodes[0] if nodes.shape[0] else np.zeros(_NCOLS))
-        pairs = np.ascontiguousarray(nodes[1:].reshape(-1, 2, _NCOLS).transpose(2, 1, 0))
-        self.pair_pc, self.pair_nd = _traversal_columns(pairs)
+        """Keep the node table (N, 11) in traversal layout: the root's values as (1, 1, ...)
+        arrays and every sibling pair's as (P, 2, ...) arrays (one pair contiguous), split into
+        float64 centres (.., 3) and float32 bounds (.., 8) (_traversal_columns). Children are
+        allocated in pairs after the root, so nodes c (odd) and c + 1 are pair (c - 1) / 2. The
+        float64 table itself is dropped (see ``nodes``)."""
+        pc, nd = _traversal_columns(nodes[0] if nodes.shape[0] else np.zeros(_NCOLS))
+        self.root_c = np.ascontiguousarray(pc.reshape(1, 1, 3))
+        self.root_b = np.ascontiguousarray(nd.reshape(1, 1, 8))
+        pc, nd = _traversal_columns(nodes[1:].reshape(-1, 2, _NCOLS).transpose(2, 0, 1))   # (.., P, 2)
+        self.pair_c = np.ascontiguousarray(pc.transpose(1, 2, 0))
+        self.pair_b = np.ascontiguousarray(nd.transpose(1, 2, 0))
+        self._is_inf = np.zeros(self.count, bool)
+        self._is_inf[self.infinite] = True
 
     @property
     def nodes(self) -> np.ndarray:
         """(N, 11) node table rebuilt from the traversal layout (bounds as the traversal sees
         them, float32-rounded outward), for inspection and tests."""
         def rows(pc, nd):
-            cols = np.zeros((_NCOLS,) + pc.shape[1:])
-            cols[0:3] = pc
-            cols[_R2], cols[_W], cols[_PHI] = nd[0], nd[1:4], nd[4]
-            cols[_COS_O], cols[_SIN_O], cols[_COS_E] = nd[5], nd[6], nd[7]
-            return cols
+            cols = np.zeros(pc.shape[:-1] + (_NCOLS,))
+            cols[..., 0:3] = pc
+            cols[..., _R2] = np.square(nd[..., 0], dtype=np.float64)
+            cols[..., _W], cols[..., _PHI] = nd[..., 1:4], nd[..., 4]
+            cols[..., _COS_O], cols[..., _SIN_O], cols[..., _COS_E] = nd[..., 5], nd[..., 6], nd[..., 7]
+            return cols.reshape(-1, _NCOLS)
 
-        root = rows(self.root_pc[:, None], self.root_nd[:, None]).T
-        pairs = rows(self.pair_pc, self.pair_nd).transpose(2, 1, 0).reshape(-1, _NCOLS)
+        root = rows(self.root_c, self.root_b)
+        pairs = rows(self.pair_c, self.pair_b)
         return np.concatenate((root, pairs)) if self.child.size else pairs
 
     # ------------------------------------------------------------------------------------
-    # Traversal
+    # Traversal (renderer/kernels/light_bvh.py)
     # ------------------------------------------------------------------------------------
-    def _first_child_prob(self, node: np.ndarray, P: np.ndarray, N: np.ndarray):
-        """For interior nodes (k,) at points P (3, k) float64 with normals N (4, k) float32
-        (n, no_n): (probability of the first child (k,) float64, ok (k,) False where both
-        children have importance 0). The only place either traversal computes a branching
-        probability, so sample and pmf agree exactly."""
-        pair = (self.child[node] - 1) >> 1
-        pc = np.take(self.pair_pc, pair, axis=2)      # (3, 2, k), contiguous
-        nd = np.take(self.pair_nd, pair, axis=2)      # (8, 2, k)
-        imp = _importance(P[0], P[1], P[2], N[0], N[1], N[2], N[3], pc, nd)
-        i0 = imp[0]
-        tot = i0 + imp[1]
-        ok = tot > 0.0
-        p0 = i0.astype(np.float64) / np.maximum(tot.astype(np.float64), 1e-300)
-        return p0 * ok, ok
-
     @staticmethod
-    def _points(ctx: ShadingContext, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Traversal state of ctx rows: points (3, k) float64, and (4, k) float32: the normal
-        for the incidence bound and 1 where there is no normal (0 otherwise)."""
-        nrm, has_n = _normals(ctx)
-        P = np.ascontiguousarray(np.asarray(ctx.p, dtype=np.float64)[rows].T)
-        N = np.zeros((4, rows.size), np.float32)
-        N[0:3] = nrm[rows].T
-        N[3] = ~has_n[rows]
-        return P, N
+    def _points(ctx: ShadingContext) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """ctx's points, geometric and shading normals (n, 3) float64 C-contiguous (no copy
+        when they already are); the kernels take ns, else n, for the incidence bound."""
+        def c(a):
+            return np.ascontiguousarray(a, dtype=np.float64)
+        return c(ctx.p), c(ctx.n), c(ctx.ns)
 
-    def _tree_alive(self, P: np.ndarray, N: np.ndarray) -> np.ndarray:
-        """(k,) bool: the tree can give a light at points P, N: the root's children do not both
-        have importance 0 (for a one-light tree, that light's importance is positive)."""
-        k = P.shape[1]
-        if self.child.size == 0:
-            return np.zeros(k, bool)
-        if self.child[0] < 0:
-            return _importance(P[0], P[1], P[2], N[0], N[1], N[2], N[3], self.root_pc, self.root_nd) > 0.0
-        return self._first_child_prob(np.zeros(k, np.int64), P, N)[1]
-
-    def sample(self, ctx: ShadingContext, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, ctx: ShadingContext, u: np.ndarray, remapped: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """Pick one light per row. u: (n,) in [0, 1). Returns (global index (n,) int64, pmf (n,));
-        pmf 0 (index 0) where no light can contribute."""
-        u = np.asarray(u, dtype=np.float64).reshape(-1)
+        pmf 0 (index 0) where no light can contribute. remapped: optional (n,) float64 output
+        that receives, on rows given a tree light, u rescaled into that leaf's interval (a fresh
+        uniform in [0, 1), as pbrt reuses it; mesh lights' triangle BVHs sample the triangle
+        with it).
+
+        Infinite lights (dome, distant) are picked first with probability p_inf, uniformly
+        among themselves; where the tree cannot give any light at all they take its share
+        (pbrt would return "no light" with probability 1 - p_inf there)."""
+        u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1)
         n = u.size
         index = np.zeros(n, np.int64)
         pmf = np.zeros(n)
-        k_inf = self.infinite.size
-        if n == 0 or (k_inf == 0 and self.child.size == 0):
+        if n == 0 or (self.infinite.size == 0 and self.child.size == 0):
             return index, pmf
-        # ---- infinite lights: probability p_inf, uniformly among them --------------------
-        # Where the tree cannot give any light at all, the infinite lights take its share
-        # (pbrt would return "no light" with probability 1 - p_inf there).
-        p_inf = self.p_infinite
-        rows = np.arange(n)
-        if k_inf:
-            P_all, N_all = self._points(ctx, rows)
-            p_inf_row = np.where(self._tree_alive(P_all, N_all), p_inf, 1.0)
-            inf_rows = u < p_inf_row
-            ui = u[inf_rows] / p_inf_row[inf_rows]
-            index[inf_rows] = self.infinite[np.minimum((ui * k_inf).astype(np.int64), k_inf - 1)]
-            pmf[inf_rows] = p_inf_row[inf_rows] / k_inf
-            if self.child.size == 0:
-                return index, pmf
-            rows = np.nonzero(~inf_rows)[0]
-            P, N = P_all[:, rows], N_all[:, rows]
-        else:
-            P, N = self._points(ctx, rows)
-        # ---- the tree: all rows descend together, one level per iteration ----------------
-        # State of the rows still at interior nodes, kept compact: rows (original row), P, N,
-        # node, uu (u remapped into the current node), pr (pmf so far).
-        uu = np.minimum((u[rows] - p_inf) / (1.0 - p_inf), ONE_MINUS_EPSILON)
-        node = np.zeros(rows.size, np.int64)
-        pr = np.full(rows.size, 1.0 - p_inf)
-        if self.child[0] < 0:
-            pr = np.where(self._tree_alive(P, N), pr, 0.0)
-            done = np.ones(rows.size, bool)
-        else:
-            done = np.zeros(rows.size, bool)
-        while True:
-            if np.any(done):
-                good = done & (pr > 0.0)
-                index[rows[good]] = self.leaf_light[node[good]]
-                pmf[rows[good]] = pr[good]
-                keep = np.nonzero(~done)[0]
-                if not keep.size:
-                    break
-                rows, P, N, node, uu, pr = rows[keep], P[:, keep], N[:, keep], node[keep], uu[keep], pr[keep]
-            p0, ok = self._first_child_prob(node, P, N)
-            right = uu >= p0
-            q = np.where(right, 1.0 - p0, p0)
-            pr = np.where(ok, pr * q, 0.0)
-            # Reuse u: rescale the chosen sub-interval to [0, 1).
-            uu = np.minimum(np.where(right, uu - p0, uu) / np.where(q > 0.0, q, 1.0), ONE_MINUS_EPSILON)
-            node = self.child[node] + right
-            done = ~ok | (self.child[node] < 0)
+        p, ng, ns = self._points(ctx)
+        out_u = remapped if remapped is not None else np.empty(n)
+        _kern.bvh_sample_kernel(u, p, ng, ns, float(self.p_infinite), self.infinite, self.child,
+                                self.leaf_light, self.root_c, self.root_b, self.pair_c, self.pair_b,
+                                index, pmf, out_u)
         return index, pmf
 
     def pmf(self, ctx: ShadingContext, index: np.ndarray) -> np.ndarray:
-        """(n,) probability that ``sample`` at ctx picks the given global light index (n,)."""
-        index = np.asarray(index, dtype=np.int64).reshape(-1)
+        """(n,) probability that ``sample`` at ctx picks the given global light index (n,): the
+        light's root-to-leaf path (its trail bits) replayed with the same arithmetic as
+        sample(), so the two agree bit for bit."""
+        index = np.ascontiguousarray(index, dtype=np.int64).reshape(-1)
         n = index.size
         out = np.zeros(n)
         if n == 0 or self.count == 0:
             return out
-        k_inf = self.infinite.size
-        if k_inf:
-            inf_rows = np.nonzero(np.isin(index, self.infinite))[0]
-            if inf_rows.size:
-                alive = self._tree_alive(*self._points(ctx, inf_rows))
-                out[inf_rows] = np.where(alive, self.p_infinite, 1.0) / k_inf
-        if self.child.size == 0:
-            return out
-        slot = np.where((index >= 0) & (index < self.count), self.slot[np.clip(index, 0, self.count - 1)], -1)
-        rows = np.nonzero(slot >= 0)[0]
-        if not rows.size:
-            return out
-        # Replay each light's root-to-leaf path (its trail bits), with the same arithmetic as
-        # sample(): same probabilities, multiplied in the same order.
-        s = slot[rows]
-        P, N = self._points(ctx, rows)
-        pr = np.full(rows.size, 1.0 - self.p_infinite)
-        if self.child[0] < 0:
-            out[rows] = np.where(self._tree_alive(P, N), pr, 0.0)
-            return out
-        node = np.zeros(rows.size, np.int64)
-        depth = self.depth[s]
-        level = 0
-        while True:
-            done = (depth <= level) | (pr <= 0.0)
-            if np.any(done):
-                out[rows[done]] = pr[done]
-                keep = np.nonzero(~done)[0]
-                if not keep.size:
-                    break
-                rows, s, node, pr, depth = rows[keep], s[keep], node[keep], pr[keep], depth[keep]
-                P, N = P[:, keep], N[:, keep]
-            word, bit = divmod(level, 64)
-            right = ((self.trail[s, word] >> np.uint64(bit)) & np.uint64(1)).astype(bool)
-            p0, ok = self._first_child_prob(node, P, N)
-            q = np.where(right, 1.0 - p0, p0)
-            pr = np.where(ok, pr * q, 0.0)
-            node = self.child[node] + right
-            level += 1
+        p, ng, ns = self._points(ctx)
+        _kern.bvh_pmf_kernel(index, p, ng, ns, float(self.p_infinite), self._is_inf, int(self.infinite.size),
+                             self.slot, self.depth, self.trail, self.child, self.root_c, self.root_b,
+                             self.pair_c, self.pair_b, out)
         return out
 
     # ------------------------------------------------------------------------------------
     def memory_bytes(self) -> int:
         """Bytes held by the tree and the per-light replay data."""
-        return int(self.root_pc.nbytes + self.root_nd.nbytes + self.pair_pc.nbytes
-                   + self.pair_nd.nbytes + self.child.nbytes + self.leaf_light.nbytes + self.trail.nbytes
-                   + self.depth.nbytes + self.slot.nbytes + self.infinite.nbytes)
+        return int(self.root_c.nbytes + self.root_b.nbytes + self.pair_c.nbytes
+                   + self.pair_b.nbytes + self.child.nbytes + self.leaf_light.nbytes + self.trail.nbytes
+                   + self.depth.nbytes + self.slot.nbytes + self.infinite.nbytes + self._is_inf.nbytes)

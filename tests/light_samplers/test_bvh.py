@@ -208,3 +208,25 @@ def test_small_trees_and_coincident_lights(m):
         p = all_pmfs(s, ctx, i, m)
         np.testing.assert_allclose(p, 1.0 / m, rtol=1e-6)  # float32 importances
     assert s.max_depth == int(np.ceil(np.log2(m)))
+
+
+def test_sphere_leaf_importance_follows_inverse_square_down_to_its_surface():
+    """The d^2 clamp is a third of the squared AABB half-diagonal, which for a sphere light's
+    leaf (half-diagonal sqrt(3) rho) is rho^2: from any point outside the sphere, two sphere
+    lights are then picked in exact proportion to phi / d^2, the ratio of their unoccluded
+    irradiances. With the full squared half-diagonal (3 rho^2) the near light would lose up to
+    a factor 3 within sqrt(3) rho of its centre."""
+    rho = np.array([0.02, 0.05])
+    c = np.array([[0.0, 0.0, 0.0], [0.3, 0.1, 0.0]])
+    phi = np.array([2.0, 7.0])
+    b = LightBounds(np.arange(2), c - rho[:, None], c + rho[:, None], phi, np.tile([0.0, 0.0, 1.0], (2, 1)),
+                    np.full(2, np.pi), np.full(2, np.pi / 2))
+    s = BVHLightSampler(bounds=b, count=2)
+    rng = np.random.default_rng(6)
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    d = rho[0] * rng.uniform(1.01, 4.0, 200)
+    p = c[0] + dirs * d[:, None]
+    ctx = ShadingContext(p, np.zeros_like(p), np.zeros_like(p))     # no normal: no incidence factor
+    e = phi / np.sum((p[:, None, :] - c[None]) ** 2, axis=2)
+    np.testing.assert_allclose(s.pmf(ctx, np.zeros(200, np.int64)), e[:, 0] / e.sum(axis=1), rtol=1e-6)
