@@ -234,3 +234,70 @@ def test_light_filter_warning_reaches_the_stats(tmp_path):
     assert len(msgs) == 1 and msgs[0].startswith("/World/Tube") and "LightFilter" in msgs[0]
     json.dumps(r.stats)  # the stats JSON carries it
     assert not stats_path.exists()
+
+
+def _closed_mesh_light(tmp_path, name, nu, nv):
+    """A grey floor beside a closed UV-sphere mesh light of radius 0.6 (nu x nv faces, poles as
+    fans; 2 nu (nv - 1) triangles), noMaterialResponse so that it reflects nothing. The camera
+    looks straight down at the floor next to it (the ball out of frame), where the ball fills
+    enough of the sky for BSDF sampling to be a sound reference."""
+    path = tmp_path / f"{name}.usda"
+    stage = new_stage(path)
+    cam = add_camera(stage, pos=(0, 0, 0), focal=24.0)
+    xf = UsdGeom.Xformable(cam)
+    xf.ClearXformOpOrder()
+    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
+    xf.AddTranslateOp().Set(Gf.Vec3d(0, 0.7, 0.0))
+    xf.AddRotateXOp().Set(-90.0)
+    add_settings(stage, res=(8, 8))
+    floor = _quad(stage, "/World/Floor", 0.0, 30.0)
+    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5), roughness=1.0))
+    pts = [(0.0, 0.6, 0.0)]
+    for i in range(1, nv):
+        th = np.pi * i / nv
+        for j in range(nu):
+            ph = 2 * np.pi * j / nu
+            pts.append((0.6 * np.sin(th) * np.cos(ph), 0.6 * np.cos(th), 0.6 * np.sin(th) * np.sin(ph)))
+    pts.append((0.0, -0.6, 0.0))
+    counts, idx = [], []
+
+    def ring(i, j):
+        return 1 + (i - 1) * nu + j % nu
+
+    for j in range(nu):  # counter-clockwise seen from outside (normal (b - a) x (c - a) outward)
+        counts.append(3)
+        idx += [0, ring(1, j + 1), ring(1, j)]
+        counts.append(3)
+        idx += [len(pts) - 1, ring(nv - 1, j), ring(nv - 1, j + 1)]
+    for i in range(1, nv - 1):
+        for j in range(nu):
+            counts.append(4)
+            idx += [ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j)]
+    m = UsdGeom.Mesh.Define(stage, "/World/Ball")
+    m.CreatePointsAttr([Gf.Vec3f(*p) for p in pts])
+    m.CreateFaceVertexCountsAttr(counts)
+    m.CreateFaceVertexIndicesAttr(idx)
+    m.CreateSubdivisionSchemeAttr("none")
+    UsdGeom.Xformable(m).AddTranslateOp().Set(Gf.Vec3d(1.0, 1.0, 0.0))
+    UsdLux.MeshLightAPI.Apply(m.GetPrim())
+    UsdLux.LightAPI(m.GetPrim()).CreateIntensityAttr(3.0)
+    m.GetPrim().GetAttribute("light:materialSyncMode").Set("noMaterialResponse")
+    stage.GetRootLayer().Save()
+    return path
+
+
+@pytest.mark.parametrize("shape", [(4, 3), (12, 6)])   # 16 triangles (per-point pick), 120 (triangle BVH)
+def test_closed_mesh_light_oriented_pick_is_unbiased(tmp_path, shape):
+    """A closed mesh light: light sampling (the oriented triangle pick), MIS with its own BSDF
+    half (depth 1) and MIS riding on the continuation ray (depth 2: the pick probability is
+    replayed at the previous vertex) all match BSDF sampling, which never uses the pick."""
+    from renderer.lights import mesh as mesh_mod
+
+    nu, nv = shape
+    assert (2 * nu * (nv - 1) > mesh_mod.EXACT_PICK_TRIANGLES) == (shape == (12, 6))
+    path = str(_closed_mesh_light(tmp_path, f"ball{nu}", nu, nv))
+    ref = render(path, RenderOptions(spp=256, max_depth=1, threads=1, seed=11, estimator={"": "bsdfSampling"})).film
+    for k, (est, depth) in enumerate((("lightSampling", 1), ("mis", 1), ("mis", 2))):
+        r = render(path, RenderOptions(spp=16, max_depth=depth, threads=1, seed=12 + k, estimator={"": est}))
+        z, lit = _zdiff(r.film, ref)
+        assert lit > 40 and z < 4.0, (est, depth, z)
