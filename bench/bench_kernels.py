@@ -144,13 +144,10 @@ BUILDERS = (light_ops("rect"), light_ops("sphere"), bsdf_ops)
 
 
 # --------------------------------------------------------------------------------------
-def _best(fn, repeat):
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+def _best(fn, repeats):
+    from renderer.bench import best_seconds
+
+    return best_seconds(fn, repeats)
 
 
 def measure(repeat: int, sizes=SIZES, block: float = 0.02) -> dict:

@@ -72,13 +72,10 @@ def _render(stage, desc, scene, threads, res, max_depth, **kw):
     return render(stage, opt, scene_cache={key: (desc, scene)})
 
 
-def _best(fn, repeats: int) -> float:
-    out = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        out = min(out, time.perf_counter() - t0)
-    return out
+def _best(fn, repeats):
+    from renderer.bench import best_seconds
+
+    return best_seconds(fn, repeats)
 
 
 def _receivers(n, lo, hi, seed=3):

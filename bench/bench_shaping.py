@@ -128,13 +128,10 @@ def cost(args) -> None:
         sc.close()
 
 
-def _best(fn, repeats: int) -> float:
-    out = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        out = min(out, time.perf_counter() - t0)
-    return out
+def _best(fn, repeats):
+    from renderer.bench import best_seconds
+
+    return best_seconds(fn, repeats)
 
 
 # ----------------------------------------------------------------------------------------

@@ -62,9 +62,8 @@ def probe(stage: str, res: tuple[int, int], spp: int, max_depth: int, raw: bool)
 def _raw(stage: str, res: tuple[int, int]) -> float:
     """Embree alone (one thread, CPU time) on the stage's camera rays and one cosine bounce."""
     from renderer.accel import raw_throughput_probe
+    from renderer.bench import raw_ray_batches
     from renderer.camera import Camera
-    from renderer.geometry import coordinate_frame, offset_origin, to_world
-    from renderer.sampling import sample_cosine_hemisphere
     from renderer.scene import build_scene
     from renderer.usd import load_stage
 
@@ -73,23 +72,10 @@ def _raw(stage: str, res: tuple[int, int]) -> float:
     try:
         w, h = res
         cam = Camera(desc.camera, w, h, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
-        rng = np.random.default_rng(0)
-        ys, xs = np.mgrid[0:h, 0:w]
-        reps = max(1, -(-131072 // (w * h)))
-        px, py = np.tile(xs.ravel(), reps), np.tile(ys.ravel(), reps)
-        rays = cam.generate(px, py, rng.random((px.size, 2)), rng.random((px.size, 2)))
-        o = rays.o + rays.d * rays.tmin[:, None]
-        hits = scene.accel.intersect(o, rays.d)
-        hit = hits.hit
-        p = o[hit] + rays.d[hit] * hits.t[hit][:, None]
-        ng = scene.geometry.face_normal[hits.prim[hit]]
-        ng = np.where((np.sum(ng * rays.d[hit], axis=1) > 0.0)[:, None], -ng, ng)
-        s, t = coordinate_frame(ng)
-        wi = to_world(sample_cosine_hemisphere(rng.random((p.shape[0], 2))), s, t, ng)
-        ob = offset_origin(p, ng, wi, scene.accel.ray_epsilon(p))
+        batches = raw_ray_batches(scene, cam, w, h, seed=0, min_rays=131072)
         n = 0
         cpu = 0.0
-        for oo, dd in ((o, rays.d), (ob, wi)):
+        for oo, dd in batches.values():
             raw_throughput_probe(scene.accel, oo, dd)  # warm
             c0 = time.process_time()
             for _ in range(3):

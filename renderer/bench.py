@@ -429,6 +429,34 @@ def run_bench(stages: list[str], s: BenchSettings) -> dict:
 
 
 # ---------------------------------------------------------------------------------- raw throughput
+def raw_ray_batches(scene, cam, w: int, h: int, seed: int, min_rays: int = 65536) -> dict:
+    """The batches raw embree is timed on: {"camera": (o, d), "bounce": (o, d)}, float64 (n, 3).
+
+    Camera rays over the whole image (several per pixel, so a batch has >= min_rays rays and is
+    long enough to time), and one cosine-distributed bounce from each of their hits.
+    """
+    from .geometry import coordinate_frame, offset_origin, to_world
+    from .sampling import sample_cosine_hemisphere
+
+    rng = np.random.default_rng(seed)
+    ys, xs = np.mgrid[0:h, 0:w]
+    reps = max(1, int(math.ceil(min_rays / (w * h))))
+    px, py = np.tile(xs.ravel(), reps), np.tile(ys.ravel(), reps)
+    n = px.size
+    rays = cam.generate(px, py, rng.random((n, 2)), rng.random((n, 2)))
+    o_cam = rays.o + rays.d * rays.tmin[:, None]
+    hits = scene.accel.intersect(o_cam, rays.d)
+    hit = hits.hit
+    p = o_cam[hit] + rays.d[hit] * hits.t[hit][:, None]
+    ng = scene.geometry.face_normal[hits.prim[hit]]
+    # Face the normal toward the incoming ray so bounces leave on the visible side.
+    ng = np.where((np.sum(ng * rays.d[hit], axis=1) > 0.0)[:, None], -ng, ng)
+    s_, t_ = coordinate_frame(ng)
+    wi = to_world(sample_cosine_hemisphere(rng.random((p.shape[0], 2))), s_, t_, ng)
+    o_b = offset_origin(p, ng, wi, scene.accel.ray_epsilon(p))
+    return {"camera": (o_cam, rays.d), "bounce": (o_b, wi)}
+
+
 def raw_throughput(stage: str, s: BenchSettings) -> dict:
     """Mrays/s of raw embree vs our Accel wrapper vs render(), on the stage's camera rays and one
     bounce. The same float32 batches go to raw embree and to ``Accel.intersect``; ``render()`` is
@@ -436,9 +464,7 @@ def raw_throughput(stage: str, s: BenchSettings) -> dict:
     shadow) Mrays/s. ratio = render / raw: the share of embree's speed the whole renderer keeps."""
     from .accel import raw_throughput_probe
     from .camera import Camera
-    from .geometry import coordinate_frame, offset_origin, to_world
     from .render import RenderOptions, render
-    from .sampling import sample_cosine_hemisphere
     from .scene import build_scene
     from .usd import load_stage
 
@@ -451,24 +477,7 @@ def raw_throughput(stage: str, s: BenchSettings) -> dict:
             raise SettingsError(f"{stage}: no geometry to trace", attribute="raw-throughput")
         cam = Camera(desc.camera, int(w), int(h), desc.settings.pixel_aspect_ratio,
                      desc.settings.aspect_ratio_conform_policy)
-        rng = np.random.default_rng(s.seed)
-        ys, xs = np.mgrid[0:int(h), 0:int(w)]
-        # Several samples per pixel so each batch is large enough to time (>= ~64k rays).
-        reps = max(1, int(math.ceil(65536 / (int(w) * int(h)))))
-        px, py = np.tile(xs.ravel(), reps), np.tile(ys.ravel(), reps)
-        n = px.size
-        rays = cam.generate(px, py, rng.random((n, 2)), rng.random((n, 2)))
-        o_cam = rays.o + rays.d * rays.tmin[:, None]
-        hits = accel.intersect(o_cam, rays.d)
-        hit = hits.hit
-        p = o_cam[hit] + rays.d[hit] * hits.t[hit][:, None]
-        ng = scene.geometry.face_normal[hits.prim[hit]]
-        # Face the normal toward the incoming ray so bounces leave on the visible side.
-        ng = np.where((np.sum(ng * rays.d[hit], axis=1) > 0.0)[:, None], -ng, ng)
-        s_, t_ = coordinate_frame(ng)
-        wi = to_world(sample_cosine_hemisphere(rng.random((p.shape[0], 2))), s_, t_, ng)
-        o_b = offset_origin(p, ng, wi, accel.ray_epsilon(p))
-        batches = {"camera": (o_cam, rays.d), "bounce": (o_b, wi)}
+        batches = raw_ray_batches(scene, cam, int(w), int(h), s.seed)
         out: dict = {"stage": os.path.abspath(stage), "resolution": [int(w), int(h)], "threads": accel.threads,
                      "batches": {}}
         tot_rays = tot_raw = tot_ours = 0.0
@@ -496,6 +505,17 @@ def raw_throughput(stage: str, s: BenchSettings) -> dict:
           f"Accel {out['accel_mrays_per_second']:.2f}, render() {st['mrays_per_second']:.2f} Mrays/s "
           f"(ratio {out['ratio_render_over_raw']:.3f})")
     return out
+
+
+def best_seconds(fn: Callable[[], object], repeats: int) -> float:
+    """Fastest of ``repeats`` calls of fn, in wall seconds (the benches' micro-timings: the
+    minimum is the least disturbed by other jobs on the machine)."""
+    best = float("inf")
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
 
 
 def _time_call(fn) -> float:

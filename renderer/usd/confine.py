@@ -36,6 +36,7 @@ from pxr import Ar, Sdf, Tf, Usd
 from renderer.errors import StageError
 
 from .common import one_line
+from .stage_reader import open_stage
 
 __all__ = ["Escape", "ConfinementReport", "find_escapes"]
 
@@ -310,14 +311,10 @@ def find_escapes(stage_path: str, roots: Iterable[str]) -> ConfinementReport:
     path = os.path.abspath(stage_path)
     if not allowed.contains(path):
         return ConfinementReport(escapes=[Escape("", "", "layer", stage_path)])
-    if not Ar.GetResolver().Resolve(path):
-        raise StageError("stage file not found", file=stage_path)
     try:
-        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
-    except Tf.ErrorException as exc:
-        raise StageError(f"cannot open stage: {one_line(exc)}", file=stage_path) from None
-    if stage is None:
-        raise StageError("cannot open stage", file=stage_path)
+        stage = open_stage(path)
+    except StageError as exc:
+        raise StageError(exc.message, file=stage_path) from None  # name the file as the caller gave it
     try:
         return _Scan(stage, allowed).run()
     except Tf.ErrorException as exc:

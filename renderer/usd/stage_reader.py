@@ -62,6 +62,12 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
     values that cannot be rendered.
     """
+    return read_stage(open_stage(path), source=path, camera=camera, settings=settings, frame=frame,
+                      purposes=purposes)
+
+
+def open_stage(path: str) -> Usd.Stage:
+    """Open a stage file with every payload loaded; StageError naming the file if it cannot be."""
     # Resolve through Ar rather than os.path so that a custom asset resolver's identifiers work.
     if not Ar.GetResolver().Resolve(path):
         raise StageError("stage file not found", file=path)
@@ -71,7 +77,7 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
         raise StageError(f"cannot open stage: {one_line(exc)}", file=path) from None
     if stage is None:
         raise StageError("cannot open stage", file=path)
-    return read_stage(stage, source=path, camera=camera, settings=settings, frame=frame, purposes=purposes)
+    return stage
 
 
 def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
