@@ -30,7 +30,7 @@ Such a material is still not exactly Lambertian in illum: its diffuse lobe is
 rho/pi (1 - E(wo)) (1 - E(wi)) / (1 - E_avg) with E the albedo of the specular lobe, which with
 F0 = 0 keeps Schlick's (1 - cos)^5 grazing term (renderer/bsdfs/preview_surface.py). So part A
 renders illum twice: ``shipped`` (the renderer as it is) and ``lambert`` (the same renderer with
-``renderer.integrators.path.make_bsdf`` swapped for ``LambertBSDF`` *inside this process only*).
+``renderer.materials.MaterialTable.bsdf`` swapped for ``LambertBSDF`` *inside this process only*).
 ``lambert`` against Mitsuba's ``diffuse`` tests transport, lights, camera and filter exactly;
 ``shipped`` against it shows what the material model adds.
 
@@ -314,15 +314,21 @@ def export_scene(desc: SceneDescription, width: int, height: int, path: str) -> 
 @contextlib.contextmanager
 def lambert_materials():
     """Swap illum's UsdPreviewSurface BSDF for LambertBSDF(diffuseColor) in this process only."""
-    import renderer.integrators.path as path_mod
     from renderer.bsdfs.lambert import LambertBSDF
+    from renderer.materials import MaterialTable
 
-    orig = path_mod.make_bsdf
-    path_mod.make_bsdf = lambda params: LambertBSDF(np.clip(params.diffuse, 0.0, 1.0))
+    orig = MaterialTable.bsdf
+
+    def lambert(self, mat, params=None):
+        # Plain materials give no params (the integrator skips evaluate): read the table.
+        rho = params.diffuse if params is not None else self.const["diffuse"][mat]
+        return LambertBSDF(np.clip(rho, 0.0, 1.0))
+
+    MaterialTable.bsdf = lambert
     try:
         yield
     finally:
-        path_mod.make_bsdf = orig
+        MaterialTable.bsdf = orig
 
 
 def illum_render(stage, variant, **kw):

@@ -75,7 +75,6 @@ import numpy as np
 from ..estimators import REGISTRY, DirectQuery, DirectRandom
 from ..geometry import coordinate_frame, to_local
 from ..lights.base import ShadingContext
-from ..materials import make_bsdf
 
 PILOT_GRID = (40, 30)
 PILOT_SEED = 0xA070
@@ -116,7 +115,7 @@ def pilot_points(integ, rng: np.random.Generator):
         return None
     si = integ._interaction(hits.prim[k], hits.b1[k], hits.b2[k], rays.d[k])
     params = scene.materials.evaluate(si.mat, si.st)
-    bsdf = make_bsdf(params)
+    bsdf = scene.materials.bsdf(si.mat, params)
     s, t = coordinate_frame(si.ns)
     wo_l = to_local(si.wo, s, t, si.ns)
     bsdf.bind_wo(wo_l)
