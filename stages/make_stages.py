@@ -188,6 +188,41 @@ def mesh(stage, path, points, counts, indices, *, normals=None, normals_interp="
     return m
 
 
+def aimed(xf: UsdGeom.Xformable, pos, target) -> None:
+    """Place xf at pos with its local -Z (the emission axis of rect lights and spots) toward target."""
+    yaw, pitch = aim_angles(pos, target)
+    place(xf, translate=pos, rotate_y=round(yaw, 2), rotate_x=round(pitch, 2))
+
+
+def cube(stage, path, mat, translate, scale, rotate_y=None, doc=None):
+    """A unit cube mesh, placed (translate, rotateY, scale) and bound to mat."""
+    pts, counts, idx = unit_cube_mesh()
+    m = mesh(stage, path, pts, counts, idx, doc=doc)
+    place(m, translate=translate, rotate_y=rotate_y, scale=scale)
+    bind(m, mat)
+    return m
+
+
+def sphere(stage, path, mat, center, radius, doc=None):
+    """An implicit UsdGeom.Sphere at center, bound to mat."""
+    s = UsdGeom.Sphere.Define(stage, path)
+    if doc:
+        s.GetPrim().SetDocumentation(doc)
+    s.CreateRadiusAttr(float(radius))
+    place(s, translate=center)
+    bind(s, mat)
+    return s
+
+
+def wall(stage, path, mat, width, height, z, doc=None):
+    """Vertical quad facing +Z at depth z, standing on the floor (y from 0 to height)."""
+    hw = width / 2
+    pts = [(-hw, 0, z), (hw, 0, z), (hw, height, z), (-hw, height, z)]  # CCW seen from +Z
+    m = mesh(stage, path, pts, [4], [0, 1, 2, 3], normals=[(0, 0, 1)] * 4, doc=doc)
+    bind(m, mat)
+    return m
+
+
 def signed_volume(points, counts, indices, left_handed=False):
     """Divergence-theorem volume of a closed polygon mesh: > 0 iff its faces point
     outwards under its orientation rule (fan triangulation is exact for this)."""

@@ -145,10 +145,6 @@ def save(stage: Usd.Stage) -> str:
     return final
 
 
-def aimed(xf, pos, target):
-    """Local -Z (the light axis) from pos toward target."""
-    yaw, pitch = ms.aim_angles(pos, target)
-    ms.place(xf, translate=pos, rotate_y=round(yaw, 2), rotate_x=round(pitch, 2))
 
 
 def down(xf, pos):
@@ -156,30 +152,10 @@ def down(xf, pos):
     ms.place(xf, translate=pos, rotate_x=-90.0)
 
 
-def sphere(stage, path, mat, center, radius, doc=None):
-    s = UsdGeom.Sphere.Define(stage, path)
-    if doc:
-        s.GetPrim().SetDocumentation(doc)
-    s.CreateRadiusAttr(float(radius))
-    ms.place(s, translate=center)
-    ms.bind(s, mat)
-    return s
 
 
-def cube(stage, path, mat, translate, scale, rotate_y=None):
-    pts, counts, idx = ms.unit_cube_mesh()
-    m = ms.mesh(stage, path, pts, counts, idx)
-    ms.place(m, translate=translate, rotate_y=rotate_y, scale=scale)
-    ms.bind(m, mat)
-    return m
 
 
-def wall(stage, path, mat, width, height, z):
-    hw = width / 2
-    pts = [(-hw, 0, z), (hw, 0, z), (hw, height, z), (-hw, height, z)]
-    m = ms.mesh(stage, path, pts, [4], [0, 1, 2, 3], normals=[(0, 0, 1)] * 4)
-    ms.bind(m, mat)
-    return m
 
 
 def shaping(light, *, angle=None, softness=None, focus=None, tint=None, ies=None, angle_scale=None,
@@ -218,26 +194,26 @@ def make_spotlights():
     blue = ms.material(stage, "Blue", diffuseColor=(0.2, 0.35, 0.7), roughness=0.4)
     tan = ms.material(stage, "Tan", diffuseColor=(0.7, 0.55, 0.35), **DIFFUSE)
     ms.bind(ms.quad(stage, "/World/Floor", 12.0, 10.0, doc="12 x 10 m diffuse floor."), grey)
-    wall(stage, "/World/BackWall", wall_m, 12.0, 4.0, -3.0)
-    sphere(stage, "/World/Ball", blue, (-1.5, 0.4, 0.0), 0.4)
-    cube(stage, "/World/Box", tan, translate=(1.2, 0.35, 0.3), scale=0.7, rotate_y=20)
+    ms.wall(stage, "/World/BackWall", wall_m, 12.0, 4.0, -3.0)
+    ms.sphere(stage, "/World/Ball", blue, (-1.5, 0.4, 0.0), 0.4)
+    ms.cube(stage, "/World/Box", tan, translate=(1.2, 0.35, 0.3), scale=0.7, rotate_y=20)
 
     ies = lambda name: f"../ies/{name}"  # noqa: E731  (relative to this layer)
     rect = UsdLux.RectLight.Define(stage, "/World/Lights/RectSpot")
-    aimed(rect, (-2.5, 2.8, 0.8), (-1.5, 0.0, 0.0))
+    ms.aimed(rect, (-2.5, 2.8, 0.8), (-1.5, 0.0, 0.0))
     rect.CreateWidthAttr(0.5)
     rect.CreateHeightAttr(0.5)
     rect.CreateIntensityAttr(120.0)
     shaping(rect, angle=22.0, softness=0.4)
 
     disk = UsdLux.DiskLight.Define(stage, "/World/Lights/DiskFocus")
-    aimed(disk, (0.0, 3.0, 1.5), (0.0, 0.0, 1.2))
+    ms.aimed(disk, (0.0, 3.0, 1.5), (0.0, 0.0, 1.2))
     disk.CreateRadiusAttr(0.2)
     disk.CreateIntensityAttr(80.0)
     shaping(disk, focus=6.0, tint=(0.35, 0.12, 0.02))
 
     sph = UsdLux.SphereLight.Define(stage, "/World/Lights/SphereSpot")
-    aimed(sph, (2.3, 2.6, 0.5), (1.2, 0.0, 0.3))
+    ms.aimed(sph, (2.3, 2.6, 0.5), (1.2, 0.0, 0.3))
     sph.CreateRadiusAttr(0.12)
     sph.CreateIntensityAttr(150.0)
     shaping(sph, angle=30.0, softness=0.6)
@@ -256,7 +232,7 @@ def make_spotlights():
     shaping(dies, ies=ies("wallwash.ies"), angle_scale=1.3, normalize=True)
 
     ww = UsdLux.RectLight.Define(stage, "/World/Lights/WallWash")
-    aimed(ww, (3.8, 3.3, -1.5), (3.8, 1.0, -3.0))
+    ms.aimed(ww, (3.8, 3.3, -1.5), (3.8, 1.0, -3.0))
     ww.CreateWidthAttr(0.6)
     ww.CreateHeightAttr(0.15)
     ww.CreateIntensityAttr(40.0)
@@ -269,7 +245,7 @@ def make_spotlights():
         for j, z in enumerate(np.linspace(-2.0, 3.0, 6)):
             s = UsdLux.SphereLight.Define(stage, f"/World/Lights/Grid/Spot_{i}_{j}")
             target = (x + rng.uniform(-1.2, 1.2), 0.0, z + rng.uniform(-1.2, 1.2))
-            aimed(s, (float(x), 3.6, float(z)), target)
+            ms.aimed(s, (float(x), 3.6, float(z)), target)
             s.CreateRadiusAttr(0.04)
             s.CreateIntensityAttr(float(round(rng.uniform(1500.0, 3000.0), 0)))
             s.CreateColorAttr(Gf.Vec3f(*colors[(i + j) % 4]))
@@ -315,7 +291,7 @@ def make_shadows():
             api.CreateShadowFalloffAttr(SHADOW_FALLOFF)
             api.CreateShadowFalloffGammaAttr(SHADOW_GAMMA)
         for k, (h, dx) in enumerate(zip(SHADOW_HEIGHTS, (-0.5, 0.0, 0.3))):
-            sphere(stage, f"/World/Occluders/{label}_{k}", red, (x + dx, h, 0.0), 0.15)
+            ms.sphere(stage, f"/World/Occluders/{label}_{k}", red, (x + dx, h, 0.0), 0.15)
     cam_pos, cam_target = (0.0, 4.5, 6.0), (0.0, 0.2, 0.0)
     yaw, pitch = ms.aim_angles(cam_pos, cam_target)
     ms.camera(stage, "/World/Camera", translate=cam_pos, rotate_y=round(yaw, 2), rotate_x=round(pitch, 2),

@@ -114,37 +114,12 @@ def aimed_camera(stage, pos, target, doc="35 mm lens, 36 x 27 mm gate (4:3), in 
                      doc=doc, **LENS)
 
 
-def aimed(xf, pos, target):
-    """Place a light so that its local -Z (the emission axis of rect lights) points at target."""
-    yaw, pitch = ms.aim_angles(pos, target)
-    ms.place(xf, translate=pos, rotate_y=round(yaw, 2), rotate_x=round(pitch, 2))
 
 
-def cube(stage, path, mat, translate, scale, rotate_y=None, doc=None):
-    pts, counts, idx = ms.unit_cube_mesh()
-    m = ms.mesh(stage, path, pts, counts, idx, doc=doc)
-    ms.place(m, translate=translate, rotate_y=rotate_y, scale=scale)
-    ms.bind(m, mat)
-    return m
 
 
-def sphere(stage, path, mat, center, radius, doc=None):
-    s = UsdGeom.Sphere.Define(stage, path)
-    if doc:
-        s.GetPrim().SetDocumentation(doc)
-    s.CreateRadiusAttr(float(radius))
-    ms.place(s, translate=center)
-    ms.bind(s, mat)
-    return s
 
 
-def wall(stage, path, mat, width, height, z, doc=None):
-    """Vertical quad facing +Z at depth z, standing on the floor (y from 0 to height)."""
-    hw = width / 2
-    pts = [(-hw, 0, z), (hw, 0, z), (hw, height, z), (-hw, height, z)]  # CCW seen from +Z
-    m = ms.mesh(stage, path, pts, [4], [0, 1, 2, 3], normals=[(0, 0, 1)] * 4, doc=doc)
-    ms.bind(m, mat)
-    return m
 
 
 # --------------------------------------------------------------------------- texture
@@ -207,10 +182,10 @@ def make_sphere_occluder():
     ball_m = ms.material(stage, "Ball", diffuseColor=(0.15, 0.35, 0.7), roughness=0.35)
 
     ms.bind(ms.quad(stage, "/World/Floor", 10.0, 10.0, doc="10 x 10 m glossy floor, normal +Y."), floor_m)
-    wall(stage, "/World/BackWall", wall_m, 10.0, 4.0, -4.5, doc="Diffuse back wall 4.5 m behind the origin.")
-    cube(stage, "/World/Occluder", occ_m, translate=(0.35, 0.35, -0.2), scale=0.7, rotate_y=25,
+    ms.wall(stage, "/World/BackWall", wall_m, 10.0, 4.0, -4.5, doc="Diffuse back wall 4.5 m behind the origin.")
+    ms.cube(stage, "/World/Occluder", occ_m, translate=(0.35, 0.35, -0.2), scale=0.7, rotate_y=25,
          doc="70 cm cube between the light and the front of the floor: its shadow falls towards the camera.")
-    sphere(stage, "/World/Ball", ball_m, (-0.9, 0.3, 0.6), 0.3)
+    ms.sphere(stage, "/World/Ball", ball_m, (-0.9, 0.3, 0.6), 0.3)
 
     light = UsdLux.SphereLight.Define(stage, "/World/Lights/Key")
     light.GetPrim().SetDocumentation(
@@ -241,14 +216,14 @@ def make_large_rect():
     box_m = ms.material(stage, "GreyBox", diffuseColor=(0.55, 0.55, 0.55), **DIFFUSE)
 
     ms.bind(ms.quad(stage, "/World/Floor", 10.0, 10.0, doc="10 x 10 m dark glossy floor."), floor_m)
-    sphere(stage, "/World/Ball", ball_m, (-0.7, 0.5, 0.0), 0.5)
-    cube(stage, "/World/Box", box_m, translate=(0.85, 0.4, 0.3), scale=(0.6, 0.8, 0.6), rotate_y=-20)
+    ms.sphere(stage, "/World/Ball", ball_m, (-0.7, 0.5, 0.0), 0.5)
+    ms.cube(stage, "/World/Box", box_m, translate=(0.85, 0.4, 0.3), scale=(0.6, 0.8, 0.6), rotate_y=-20)
 
     light = UsdLux.RectLight.Define(stage, "/World/Lights/Panel")
     light.GetPrim().SetDocumentation(
         "Large 4 x 1.5 m panel, 2.2 m up and 2 m behind the objects, tilted to face the scene (local -Z aimed "
         "at (0, 0, 0.8)); 1.5 nits, normalize off. The camera sees its reflection in the floor.")
-    aimed(light, (0.0, 2.2, -2.0), (0.0, 0.0, 0.8))
+    ms.aimed(light, (0.0, 2.2, -2.0), (0.0, 0.0, 0.8))
     light.CreateWidthAttr(4.0)
     light.CreateHeightAttr(1.5)
     light.CreateIntensityAttr(1.5)
@@ -282,11 +257,11 @@ def make_penumbra():
                     doc="40 x 40 m near-Lambertian floor: its far edge is beyond the top of the frame."), floor_m)
     UsdGeom.Xform.Define(stage, "/World/Occluders").GetPrim().SetDocumentation(
         "Hanging above the camera's eye height (1.05 m), so out of frame; only their shadows are seen.")
-    cube(stage, "/World/Occluders/Slab", red, translate=(-0.35, 1.35, 1.0), scale=(0.9, 0.05, 0.6),
+    ms.cube(stage, "/World/Occluders/Slab", red, translate=(-0.35, 1.35, 1.0), scale=(0.9, 0.05, 0.6),
          doc="A slab 1.35 m up: an umbra about 0.85 m across inside a 0.5 m penumbra.")
-    sphere(stage, "/World/Occluders/Ball", blue, (0.45, 1.5, 1.2), 0.25,
+    ms.sphere(stage, "/World/Occluders/Ball", blue, (0.45, 1.5, 1.2), 0.25,
            doc="A sphere 1.5 m up: a small umbra (about 0.2 m) in a wide penumbra.")
-    cube(stage, "/World/Occluders/Bar", grey, translate=(0.0, 1.25, 1.6), scale=(1.4, 0.06, 0.06), rotate_y=35,
+    ms.cube(stage, "/World/Occluders/Bar", grey, translate=(0.0, 1.25, 1.6), scale=(1.4, 0.06, 0.06), rotate_y=35,
          doc="A thin bar 1.25 m up: a long, faint shadow that is all penumbra.")
 
     light = UsdLux.RectLight.Define(stage, "/World/Lights/Area")
@@ -320,11 +295,11 @@ def make_dome():
 
     ms.bind(ms.quad(stage, "/World/Ground", 60.0, 60.0, doc="60 x 60 m ground: hides most of the lower "
                                                                 "hemisphere."), ground_m)
-    sphere(stage, "/World/Ball", white, (-0.8, 0.5, 0.0), 0.5)
-    cube(stage, "/World/Box", orange, translate=(0.7, 0.45, -0.3), scale=0.9, rotate_y=30)
-    cube(stage, "/World/Arch/Top", teal, translate=(0.0, 1.0, 1.2), scale=(1.4, 0.1, 0.4))
-    cube(stage, "/World/Arch/Left", teal, translate=(-0.65, 0.5, 1.2), scale=(0.1, 1.0, 0.4))
-    cube(stage, "/World/Arch/Right", teal, translate=(0.65, 0.5, 1.2), scale=(0.1, 1.0, 0.4))
+    ms.sphere(stage, "/World/Ball", white, (-0.8, 0.5, 0.0), 0.5)
+    ms.cube(stage, "/World/Box", orange, translate=(0.7, 0.45, -0.3), scale=0.9, rotate_y=30)
+    ms.cube(stage, "/World/Arch/Top", teal, translate=(0.0, 1.0, 1.2), scale=(1.4, 0.1, 0.4))
+    ms.cube(stage, "/World/Arch/Left", teal, translate=(-0.65, 0.5, 1.2), scale=(0.1, 1.0, 0.4))
+    ms.cube(stage, "/World/Arch/Right", teal, translate=(0.65, 0.5, 1.2), scale=(0.1, 1.0, 0.4))
 
     dome = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")
     dome.GetPrim().SetDocumentation(
