@@ -566,12 +566,15 @@ class PathIntegrator:
         group = self.scene.shadow_group[light] + 1 if self.scene.shadow_group is not None else np.zeros_like(light)
         key = ((((tok * 8 + alpha) * 4 + heur) * 4096 + np.minimum(N, 4095)) * (len(self.scene.shadow_accels) + 1)
                + group) * 2 + half
-        for k in np.unique(key):
-            g = np.nonzero(key == k)[0]
+        # One key (the common case: one estimator setting at this depth) needs no grouping.
+        one_key = key.size == 0 or key.min() == key.max()
+        for k in (key[:1] if one_key else np.unique(key)):
+            g = np.arange(key.size) if one_key else np.nonzero(key == k)[0]
             r = rows[g]
             token = ESTIMATOR_TOKENS[tok[g[0]]]
             est = REGISTRY[token]
-            if r.size == n and np.all(r == np.arange(n)):
+            # rows is sorted; without repeated rows, n of them are exactly 0..n-1.
+            if r.size == n and (not repeats or np.all(r == np.arange(n))):
                 # One group covering every point in order (e.g. a single light): no row copies.
                 q = DirectQuery(ctx, s, t, wo_l, bsdf, light[g], eps, control, pmf[g])
             else:
