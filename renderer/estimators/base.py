@@ -19,6 +19,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from ..geometry import dot, offset_origin, to_local, to_world
+from ..kernels.direct import split_kernel
 from ..lights.base import ShadingContext
 from ..sampling import balance_heuristic, power_heuristic, safe_div
 
@@ -244,13 +245,16 @@ def split_integrand(bsdf, wo_l, wi_l, weight, lights, light, control, with_pdf=T
     f_all, f_d, pdf = bsdf.f_parts(wo_l, wi_l)
     if not with_pdf:
         pdf = None
-    up = (wi_l[:, 2] > 0.0) & (wo_l[:, 2] > 0.0)
-    sd = lights.diffuse_scale[light][:, None]
-    ss = lights.specular_scale[light][:, None]
-    g = control * up[:, None]
-    # f = g + (f_d − g) + f_s; the diffuse multiplier scales both diffuse parts.
-    residual = (f_d - g) * sd + (f_all - f_d) * ss
-    return g * sd * weight, residual * weight, pdf
+    # f = g + (f_d − g) + f_s, g = c(wo) where both directions are above the surface; the
+    # diffuse multiplier scales both diffuse parts (one compiled pass: kernels/direct.py).
+    m = f_all.shape[0]
+    g, residual = np.empty((m, 3)), np.empty((m, 3))
+    c = np.ascontiguousarray
+    split_kernel(c(f_all, dtype=np.float64), c(f_d, dtype=np.float64), c(control, dtype=np.float64),
+                 c(wo_l[:, 2], dtype=np.float64), c(wi_l[:, 2], dtype=np.float64),
+                 lights.diffuse_scale[light].astype(np.float64), lights.specular_scale[light].astype(np.float64),
+                 c(weight, dtype=np.float64), g, residual)
+    return g, residual, pdf
 
 
 def light_along(lights, light: np.ndarray, o: np.ndarray, wi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
