@@ -404,10 +404,13 @@ class PathIntegrator:
         """Add emission of every finite light crossed before t_limit by the rows in ``seen``
         (lights are transparent, so a ray may cross several), weighted by em."""
         rows_u = np.nonzero(seen)[0]
-        rows, light, t_hit = self._light_hits(o[rows_u], em.d[rows_u], t_limit[rows_u])
+        if rows_u.size == seen.size:  # every row (deeper continuation rays): no copies
+            rows, light, t_hit = self._light_hits(o, em.d, t_limit)
+        else:
+            rows, light, t_hit = self._light_hits(o[rows_u], em.d[rows_u], t_limit[rows_u])
+            rows = rows_u[rows]
         if rows.size == 0:
             return
-        rows = rows_u[rows]
         w = em.weight(rows, light)
         if not np.any(w > 0.0):
             return
