@@ -12,12 +12,18 @@ def new_stage(path: str, up: str = "Y") -> Usd.Stage:
     return stage
 
 
-def add_camera(stage, path="/World/Camera", pos=(0, 0, 5), focal=35.0, aperture=36.0):
+def add_camera(stage, path="/World/Camera", pos=(0, 0, 5), focal=35.0, aperture=36.0, tilt_x=None, clip=None):
+    """A square-aperture camera at pos, looking down -Z, then pitched by tilt_x degrees about X
+    (negative looks down) when given; clip: (near, far) clipping range."""
     cam = UsdGeom.Camera.Define(stage, path)
     cam.CreateFocalLengthAttr(focal)
     cam.CreateHorizontalApertureAttr(aperture)
     cam.CreateVerticalApertureAttr(aperture)
+    if clip is not None:
+        cam.CreateClippingRangeAttr(Gf.Vec2f(*clip))
     cam.AddTranslateOp().Set(Gf.Vec3d(*pos))
+    if tilt_x is not None:
+        cam.AddRotateXOp().Set(float(tilt_x))
     return cam
 
 
@@ -66,12 +72,7 @@ def furnace_stage(path, L=2.0, rho=1.0, res=(24, 24)):
 def quad_light_stage(path, res=(16, 16), intensity=5.0, light_kind="rect", **light_attrs):
     """A grey floor lit from above by one light; the camera looks down at it."""
     stage = new_stage(path)
-    cam = add_camera(stage, pos=(0, 0, 0))
-    cam.AddRotateXOp().Set(0.0)
-    xf = UsdGeom.Xformable(cam)
-    xf.ClearXformOpOrder()
-    xf.AddTranslateOp().Set(Gf.Vec3d(0, 6, 0))
-    xf.AddRotateXOp().Set(-90.0)
+    add_camera(stage, pos=(0, 6, 0), tilt_x=-90.0)
     add_settings(stage, res)
     floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
     floor.CreatePointsAttr([(-5, 0, -5), (5, 0, -5), (5, 0, 5), (-5, 0, 5)])

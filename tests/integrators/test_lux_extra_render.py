@@ -86,11 +86,7 @@ def _floor_under(tmp_path, name, light_kind, mode=None):
     emitter is out of frame."""
     path = tmp_path / f"{name}.usda"
     stage = new_stage(path)
-    cam = add_camera(stage, pos=(0, 0, 0), focal=24.0)
-    xf = UsdGeom.Xformable(cam)
-    xf.ClearXformOpOrder()
-    xf.AddTranslateOp().Set(Gf.Vec3d(0, 2.0, 3.0))
-    xf.AddRotateXOp().Set(-60.0)
+    add_camera(stage, pos=(0, 2.0, 3.0), focal=24.0, tilt_x=-60.0)
     add_settings(stage, res=(10, 10))
     floor = _quad(stage, "/World/Floor", 0.0, 30.0)
     bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5), roughness=1.0))
@@ -139,11 +135,7 @@ def test_cylinder_light_sampling_agrees_with_bsdf_sampling(tmp_path):
     sampler and its pdf) and BSDF sampling (only intersect and le) agree."""
     path = tmp_path / "c.usda"
     stage = new_stage(path)
-    cam = add_camera(stage, pos=(0, 0, 0), focal=24.0)
-    xf = UsdGeom.Xformable(cam)
-    xf.ClearXformOpOrder()
-    xf.AddTranslateOp().Set(Gf.Vec3d(0, 1.4, 3.0))
-    xf.AddRotateXOp().Set(-55.0)
+    add_camera(stage, pos=(0, 1.4, 3.0), focal=24.0, tilt_x=-55.0)
     add_settings(stage, res=(8, 8))
     floor = _quad(stage, "/World/Floor", 0.0, 30.0)
     bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5), roughness=1.0))
@@ -168,12 +160,7 @@ def _window_room(tmp_path, with_portal: bool):
     """A closed 2 m box with a 0.8 x 0.6 m window in its roof; a constant dome outside."""
     path = tmp_path / f"room_{with_portal}.usda"
     stage = new_stage(path)
-    cam = add_camera(stage, pos=(0, 0, 0), focal=18.0)
-    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
-    xf = UsdGeom.Xformable(cam)
-    xf.ClearXformOpOrder()
-    xf.AddTranslateOp().Set(Gf.Vec3d(0, 1.6, 0.9))
-    xf.AddRotateXOp().Set(-70.0)
+    add_camera(stage, pos=(0, 1.6, 0.9), focal=18.0, tilt_x=-70.0, clip=(0.01, 100.0))
     add_settings(stage, res=(10, 10))
     grey = preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5), roughness=1.0)
     faces = {
@@ -243,12 +230,7 @@ def _closed_mesh_light(tmp_path, name, nu, nv):
     enough of the sky for BSDF sampling to be a sound reference."""
     path = tmp_path / f"{name}.usda"
     stage = new_stage(path)
-    cam = add_camera(stage, pos=(0, 0, 0), focal=24.0)
-    xf = UsdGeom.Xformable(cam)
-    xf.ClearXformOpOrder()
-    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
-    xf.AddTranslateOp().Set(Gf.Vec3d(0, 0.7, 0.0))
-    xf.AddRotateXOp().Set(-90.0)
+    add_camera(stage, pos=(0, 0.7, 0.0), focal=24.0, tilt_x=-90.0, clip=(0.01, 100.0))
     add_settings(stage, res=(8, 8))
     floor = _quad(stage, "/World/Floor", 0.0, 30.0)
     bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5), roughness=1.0))

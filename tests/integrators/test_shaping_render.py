@@ -25,12 +25,7 @@ def _spot_stage(path, ies: bool):
     floor's sky, so BSDF sampling is a sound reference) with focus, a soft cone and optionally
     an IES profile; the camera, just under the light, looks down at the pool of light."""
     stage = new_stage(path)
-    cam = add_camera(stage, pos=(0, 0, 0), focal=20.0)
-    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
-    xf = UsdGeom.Xformable(cam)
-    xf.ClearXformOpOrder()
-    xf.AddTranslateOp().Set(Gf.Vec3d(0.0, 0.8, 0.0))
-    xf.AddRotateXOp().Set(-90.0)
+    add_camera(stage, pos=(0.0, 0.8, 0.0), focal=20.0, tilt_x=-90.0, clip=(0.01, 100.0))
     add_settings(stage, res=(8, 8))
     floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
     floor.CreatePointsAttr([(-10, 0, 10), (10, 0, 10), (10, 0, -10), (-10, 0, -10)])
