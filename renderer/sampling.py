@@ -43,13 +43,14 @@ def power_heuristic(n_f: float, pdf_f: np.ndarray, n_g: float, pdf_g: np.ndarray
 
 
 def balance_heuristic(n_f: float, pdf_f: np.ndarray, n_g: float, pdf_g: np.ndarray) -> np.ndarray:
-    """Balance heuristic weight for technique f."""
+    """Balance heuristic weight for technique f, guarded against inf/0 as power_heuristic:
+    an infinite pdf_f (a delta light) takes the whole weight (inf/inf would give NaN -> 0)."""
     f = n_f * np.asarray(pdf_f, dtype=np.float64)
     g = n_g * np.asarray(pdf_g, dtype=np.float64)
     den = f + g
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(den > 0.0, f / np.where(den > 0.0, den, 1.0), 0.0)
-    return np.where(np.isfinite(w), w, 0.0)
+    return np.where(np.isinf(f), 1.0, np.where(np.isfinite(w), w, 0.0))
 
 
 # --------------------------------------------------------------------------------------

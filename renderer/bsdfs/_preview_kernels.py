@@ -386,6 +386,155 @@ def sample_kernel(wo, u_lobe, u, P, ta, tb, out_wi, out_f, out_pdf, out_lobe):
             out_pdf[r] = 0.0
 
 
+# --------------------------------------------------------------------------------------
+# Path-vertex kernels: the BSDF's part of one path vertex, fused with the integrator's
+# arithmetic around it, so a vertex is a few kernel calls instead of ~60 numpy passes. They
+# live here (not in the integrator) because numba's cache is keyed on the defining file only
+# (renderer/kernels/__init__.py): the BSDF maths they inline must come from this file.
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _mis_weight(p_this, p_other, power):
+    """h(p_this, p_other) with one sample each: power (beta = 2) or balance heuristic.
+    An infinite p_this (a delta light) takes the whole weight; an infinite p_other leaves none."""
+    if math.isinf(p_this):
+        return 1.0
+    if math.isinf(p_other):
+        return 0.0
+    if power:
+        f = p_this * p_this
+        den = f + p_other * p_other
+    else:
+        f = p_this
+        den = f + p_other
+    w = f / den if den > 0.0 else 0.0
+    return w if math.isfinite(w) else 0.0
+
+
+@njit(cache=True, nogil=True)
+def light_half_kernel(wo, s, t, ns, ng, wi, L, pdf_l, delta, pmf, power, beta, P, ta, tb, out_c):
+    """The light half of continuation MIS at one vertex per row, times the path throughput.
+
+    Per row: wi (world, unit, toward the light) into the shading frame (s, t, ns); the
+    integrand f(wo, wi) |cos| L (0 below the shading or geometric horizon: wi.ng <= 0); the
+    weight h(pmf p_l, p_b) against the BSDF pdf p_b of wi; divided by p_l (1 for delta lights,
+    whose p_l counts as infinite) and by the pick pmf. out_c (n, 3) = beta times that: the
+    radiance the vertex adds if the shadow ray is unblocked (0 where the sample is unusable).
+    Exactly estimators.mis.mis_light_half(...).Ld * beta / pmf for lights with unit
+    diffuse/specular multipliers (the only ones continuation MIS serves).
+
+    wo: (n, 3) local; s, t, ns, ng, wi: (n, 3) world; L: (n, 3); pdf_l, pmf: (n,) solid-angle
+    pdf and pick probability; delta, power: (n,) bool; beta: (n, 3).
+    """
+    for r in range(wo.shape[0]):
+        wx = wi[r, 0] * s[r, 0] + wi[r, 1] * s[r, 1] + wi[r, 2] * s[r, 2]
+        wy = wi[r, 0] * t[r, 0] + wi[r, 1] * t[r, 1] + wi[r, 2] * t[r, 2]
+        wz = wi[r, 0] * ns[r, 0] + wi[r, 1] * ns[r, 1] + wi[r, 2] * ns[r, 2]
+        above = wz > 0.0 and (wi[r, 0] * ng[r, 0] + wi[r, 1] * ng[r, 1] + wi[r, 2] * ng[r, 2]) > 0.0
+        pl = pdf_l[r]
+        pk = pmf[r]
+        woz = wo[r, 2]
+        out_c[r, 0] = 0.0
+        out_c[r, 1] = 0.0
+        out_c[r, 2] = 0.0
+        if not (above and pl > 0.0 and pk > 0.0 and math.isfinite(pk) and woz > 0.0):
+            continue
+        ok, dv, w, pdf_s = _specular(wo[r, 0], wo[r, 1], woz, wx, wy, wz, P[r, ALPHA])
+        if not ok:
+            continue
+        if P[r, COS_B] == woz:
+            ao = P[r, AO_B]
+            bo = P[r, BO_B]
+            p_d = P[r, PD_B]
+        else:
+            ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
+            p_d = _p_diffuse(
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+            )
+        ai, bi = _lookup(wz, int(P[r, J0]), P[r, FY], ta, tb)
+        p_b = p_d * wz * _INV_PI + (1.0 - p_d) * pdf_s
+        if delta[r]:
+            h = 1.0
+            inv_pl = 1.0
+        else:
+            if not math.isfinite(pl):
+                continue
+            h = _mis_weight(pl * pk, p_b, power[r])
+            inv_pl = 1.0 / pl
+        k_all = wz * h * inv_pl / pk
+        for k in range(3):
+            fk = P[r, F0 + k]
+            c_o = 1.0 - (fk * ao + bo)
+            c_i = 1.0 - (fk * ai + bi)
+            f = P[r, KD + k] * c_o * c_i + (fk + (1.0 - fk) * w) * dv
+            out_c[r, k] = beta[r, k] * f * L[r, k] * k_all
+
+
+@njit(cache=True, nogil=True)
+def scatter_kernel(wo, s, t, ns, ng, beta, u_lobe, u, u_rr, rr, P, ta, tb, out_wi, out_beta, out_pdf, out_ok):
+    """sample_f at one vertex per row, fused with the path update that follows it.
+
+    Per row: pick a lobe with u_lobe and sample it with u (as sample_kernel); wi to world
+    (out_wi, (n, 3)); beta' = beta f |cos| / pdf (out_beta); out_ok = the path continues: the
+    pdf is > 0, wi leaves on the side of the geometric normal ng, beta' is finite with a
+    positive channel, and, where rr, it survives Russian roulette: with probability
+    q = clip(1 - max(beta'), 0, 0.95) it ends, else beta' /= 1 - q. out_pdf: the BSDF pdf of wi.
+
+    wo: (n, 3) local; s, t, ns, ng: (n, 3) world frame and geometric normal; beta: (n, 3);
+    u_lobe, u_rr: (n,); u: (n, 2); rr: (n,) bool, roulette applies.
+    """
+    for r in range(wo.shape[0]):
+        wox = wo[r, 0]
+        woy = wo[r, 1]
+        woz = wo[r, 2]
+        a = P[r, ALPHA]
+        if P[r, COS_B] == woz:
+            ao = P[r, AO_B]
+            bo = P[r, BO_B]
+            p_d = P[r, PD_B]
+        else:
+            ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
+            p_d = _p_diffuse(
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+            )
+        wix, wiy, wiz = _sample_dir(wox, woy, woz, a, u_lobe[r] < p_d, u[r, 0], u[r, 1])
+        wx = wix * s[r, 0] + wiy * t[r, 0] + wiz * ns[r, 0]
+        wy = wix * s[r, 1] + wiy * t[r, 1] + wiz * ns[r, 1]
+        wz = wix * s[r, 2] + wiy * t[r, 2] + wiz * ns[r, 2]
+        out_wi[r, 0] = wx
+        out_wi[r, 1] = wy
+        out_wi[r, 2] = wz
+        ok, dv, w, pdf_s = _specular(wox, woy, woz, wix, wiy, wiz, a)
+        pdf = p_d * wiz * _INV_PI + (1.0 - p_d) * pdf_s if ok else 0.0
+        out_pdf[r] = pdf
+        ok = ok and pdf > 0.0 and math.isfinite(pdf) and (wx * ng[r, 0] + wy * ng[r, 1] + wz * ng[r, 2]) > 0.0
+        if ok:
+            ai, bi = _lookup(wiz, int(P[r, J0]), P[r, FY], ta, tb)
+            k_all = abs(wiz) / pdf
+            for k in range(3):
+                fk = P[r, F0 + k]
+                c_o = 1.0 - (fk * ao + bo)
+                c_i = 1.0 - (fk * ai + bi)
+                out_beta[r, k] = beta[r, k] * (P[r, KD + k] * c_o * c_i + (fk + (1.0 - fk) * w) * dv) * k_all
+            b0 = out_beta[r, 0]
+            b1 = out_beta[r, 1]
+            b2 = out_beta[r, 2]
+            ok = (b0 > 0.0 or b1 > 0.0 or b2 > 0.0) and math.isfinite(b0 + b1 + b2)
+            if ok and rr[r]:
+                q = min(max(1.0 - max(b0, max(b1, b2)), 0.0), 0.95)
+                if u_rr[r] < q:
+                    ok = False
+                else:
+                    inv = 1.0 / (1.0 - q)
+                    out_beta[r, 0] = b0 * inv
+                    out_beta[r, 1] = b1 * inv
+                    out_beta[r, 2] = b2 * inv
+        if not ok:
+            out_beta[r, 0] = 0.0
+            out_beta[r, 1] = 0.0
+            out_beta[r, 2] = 0.0
+        out_ok[r] = ok
+
+
 def as_rows(a: np.ndarray, k: int) -> np.ndarray:
     """C-contiguous float64 (n, k) view or copy of a."""
     return np.ascontiguousarray(a, dtype=np.float64).reshape(-1, k)

@@ -251,6 +251,37 @@ class PreviewSurfaceBSDF:
         return self
 
     # ----------------------------------------------------------------------------------
+    # Fused path-vertex steps (optional BSDF methods the path tracer uses when present; the
+    # unfused f_pdf / sample_f route gives the same numbers, one numpy pass at a time)
+    # ----------------------------------------------------------------------------------
+    def path_light_half(self, wo, s, t, ns, ng, wi, L, pdf_l, delta, pmf, power, beta) -> np.ndarray:
+        """beta · h(pmf p_l, p_b) f(wo, wi) |cos| L / (p_l pmf) per row, (n, 3): the light half
+        of continuation MIS (estimators.mis.mis_light_half), before visibility. Shapes and
+        meaning: _preview_kernels.light_half_kernel; wo local, the rest world-space."""
+        n = len(self)
+        out = np.empty((n, 3))
+        c = np.ascontiguousarray
+        kernels.light_half_kernel(
+            kernels.as_rows(wo, 3), kernels.as_rows(s, 3), kernels.as_rows(t, 3), kernels.as_rows(ns, 3),
+            kernels.as_rows(ng, 3), kernels.as_rows(wi, 3), kernels.as_rows(L, 3), c(pdf_l, dtype=np.float64),
+            c(delta, dtype=np.bool_), c(pmf, dtype=np.float64), c(power, dtype=np.bool_), kernels.as_rows(beta, 3),
+            self._P, self._tables.a, self._tables.b, out)
+        return out
+
+    def path_scatter(self, wo, s, t, ns, ng, beta, u_lobe, u, u_rr, rr):
+        """sample_f fused with the path update: (wi world (n, 3), beta' (n, 3), pdf (n,), ok (n,))
+        with Russian roulette where rr (see _preview_kernels.scatter_kernel)."""
+        n = len(self)
+        wi, beta_out, pdf, ok = np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n, dtype=np.bool_)
+        c = np.ascontiguousarray
+        kernels.scatter_kernel(
+            kernels.as_rows(wo, 3), kernels.as_rows(s, 3), kernels.as_rows(t, 3), kernels.as_rows(ns, 3),
+            kernels.as_rows(ng, 3), kernels.as_rows(beta, 3), c(u_lobe, dtype=np.float64), kernels.as_rows(u, 2),
+            c(u_rr, dtype=np.float64), c(rr, dtype=np.bool_), self._P, self._tables.a, self._tables.b,
+            wi, beta_out, pdf, ok)
+        return wi, beta_out, pdf, ok
+
+    # ----------------------------------------------------------------------------------
     # Albedos and lobe weights
     # ----------------------------------------------------------------------------------
     def diffuse_albedo(self) -> np.ndarray:

@@ -355,32 +355,37 @@ class PathIntegrator:
             if n:
                 # The extension ray leaving the D-th vertex can still find emission (pbrt's
                 # convention), but the vertex it reaches scatters no further.
-                bs = bsdf.sample_f(wo_l, rng.random(n), rng.random((n, 2)))
-                wi = to_world(bs.wi, s, t, si.ns)
-                cos_i = np.abs(bs.wi[:, 2])
-                ok = (bs.pdf > 0.0) & (dot(wi, si.ng) > 0.0)
-                beta = beta * safe_div(bs.f * cos_i[:, None], bs.pdf)
-                # Column-wise tests: numpy's axis=1 reductions over (n, 3) cost several times more.
-                ok &= (((beta[:, 0] > 0.0) | (beta[:, 1] > 0.0) | (beta[:, 2] > 0.0))
-                       & np.isfinite(beta[:, 0] + beta[:, 1] + beta[:, 2]))
                 deep_ok, first_ok = self.cont_from
                 next_cont = np.where(continues & np.where(depth == 0, first_ok, deep_ok),
                                      np.where(depth == 0, 2, 1), 0).astype(np.int8)
                 depth = depth + 1
-
-                # ---- Russian roulette, driven by throughput -------------------------------
+                # Russian roulette, driven by throughput, from rr_depth on.
                 rr = depth >= opt.rr_depth
-                if np.any(rr):
-                    b_max = np.maximum(np.maximum(beta[:, 0], beta[:, 1]), beta[:, 2])
-                    q = np.where(rr, np.clip(1.0 - b_max, 0.0, 0.95), 0.0)
-                    survive = rng.random(n) >= q
-                    beta = beta / (1.0 - q)[:, None]
-                    ok &= survive
+                u_bsdf = rng.random((n, 3))
+                u_rr = rng.random(n) if np.any(rr) else np.ones(n)
+                if hasattr(bsdf, "path_scatter"):
+                    # One compiled pass: sample_f, to world, beta update, validity, roulette.
+                    wi, beta, pdf_b, ok = bsdf.path_scatter(wo_l, s, t, si.ns, si.ng, beta, u_bsdf[:, 0],
+                                                            u_bsdf[:, 1:], u_rr, rr)
+                else:
+                    bs = bsdf.sample_f(wo_l, u_bsdf[:, 0], u_bsdf[:, 1:])
+                    wi = to_world(bs.wi, s, t, si.ns)
+                    pdf_b = bs.pdf
+                    ok = (bs.pdf > 0.0) & (dot(wi, si.ng) > 0.0)
+                    beta = beta * safe_div(bs.f * np.abs(bs.wi[:, 2])[:, None], bs.pdf)
+                    # Column-wise tests: numpy's axis=1 reductions over (n, 3) cost several times more.
+                    ok &= (((beta[:, 0] > 0.0) | (beta[:, 1] > 0.0) | (beta[:, 2] > 0.0))
+                           & np.isfinite(beta[:, 0] + beta[:, 1] + beta[:, 2]))
+                    if np.any(rr):
+                        b_max = np.maximum(np.maximum(beta[:, 0], beta[:, 1]), beta[:, 2])
+                        q = np.where(rr, np.clip(1.0 - b_max, 0.0, 0.95), 0.0)
+                        ok &= u_rr >= q
+                        beta = beta / (1.0 - q)[:, None]
 
                 k = np.nonzero(ok)[0]
                 next_prev = np.empty((k.size, 10))
                 p_k, ng_k, wi_k = si.p[k], si.ng[k], wi[k]
-                next_prev[:, 0:3], next_prev[:, 3:6], next_prev[:, 6:9], next_prev[:, 9] = p_k, ng_k, si.ns[k], bs.pdf[k]
+                next_prev[:, 0:3], next_prev[:, 3:6], next_prev[:, 6:9], next_prev[:, 9] = p_k, ng_k, si.ns[k], pdf_b[k]
                 next_state = (path[k], beta[k], offset_origin(p_k, ng_k, wi_k, eps[k]), wi_k,
                               np.full(k.size, np.inf), depth[k], np.zeros(k.size, bool),
                               next_cont[k], next_prev, si.mesh[k])
@@ -553,7 +558,7 @@ class PathIntegrator:
             rows, light, pmf = rows[linked], light[linked], pmf[linked]
         if not rows.size:
             return
-        control = bsdf.diffuse_constant(wo_l)
+        control = None  # c(wo), wanted by every estimator but the fused light half
         tok = self.est_token[light]
         N = np.where(primary[rows], self.est_samples[light], 1)
         alpha = self.est_alpha[light]
@@ -576,14 +581,21 @@ class PathIntegrator:
             r = rows[g]
             token = ESTIMATOR_TOKENS[tok[g[0]]]
             est = REGISTRY[token]
+            Nk = int(N[g[0]])
+            trace = self._tracer_for(int(group[g[0]]) - 1)
+            fused = half[g[0]] and hasattr(bsdf, "path_light_half")
+            if control is None and not fused:
+                control = bsdf.diffuse_constant(wo_l)
             # rows is sorted; without repeated rows, n of them are exactly 0..n-1.
             if r.size == n and (not repeats or np.all(r == np.arange(n))):
                 # One group covering every point in order (e.g. a single light): no row copies.
                 q = DirectQuery(ctx, s, t, wo_l, bsdf, light[g], eps, control, pmf[g])
             else:
-                q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r], control[r], pmf[g])
-            Nk = int(N[g[0]])
-            trace = self._tracer_for(int(group[g[0]]) - 1)
+                q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r],
+                                None if control is None else control[r], pmf[g])
+            if fused:
+                self._light_half(L, path[r], beta[r], q, trace, rng.random((g.size, 2)), heur[g], repeats)
+                continue
             u = DirectRandom.draw(rng, g.size, Nk)
             if half[g[0]]:
                 res = mis_light_half(q, lights, trace, Nk, u, HEURISTIC_TOKENS[heur[g[0]]])
@@ -594,6 +606,26 @@ class PathIntegrator:
                 np.add.at(L, path[r], contrib)
             else:
                 L[path[r]] += contrib  # distinct rows: a plain (much cheaper) scatter
+
+
+    def _light_half(self, L, path, beta, q: DirectQuery, trace, u, heur, repeats: bool) -> None:
+        """The light half of continuation MIS (estimators.mis.mis_light_half) in one compiled pass
+        over the BSDF (bsdf.path_light_half), then shadow rays only where the result is > 0.
+        path, beta: (m,), (m, 3) of the query's rows; u: (m, 2); heur: (m,) heuristic tokens;
+        repeats: a path may appear in several rows (every light at every point)."""
+        lights = self.lights
+        ctx = q.ctx
+        ls = lights.sample_li(q.light, ctx, u)
+        c = q.bsdf.path_light_half(q.wo_l, q.s, q.t, ctx.ns, ctx.n, ls.wi, ls.L, ls.pdf, lights.delta[q.light],
+                                   q.pmf, heur == HEURISTIC_TOKENS.index("power"), beta)
+        idx = np.nonzero((c[:, 0] > 0.0) | (c[:, 1] > 0.0) | (c[:, 2] > 0.0))[0]
+        if idx.size:
+            v = trace(ctx.p[idx], ctx.n[idx], ls.wi[idx], ls.dist[idx], q.eps[idx])
+            k = idx[v]
+            if repeats:
+                np.add.at(L, path[k], c[k])
+            else:
+                L[path[k]] += c[k]  # distinct paths: a plain scatter
 
 
 class _Emission:
