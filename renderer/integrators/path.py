@@ -51,6 +51,7 @@ from ..lights.base import ShadingContext
 from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
 from ..estimators.mis import mis_light_half
+from ..kernels.rows import add_rows, take_rows as _t
 from ..sampling import balance_heuristic, pixel_sequence, power_heuristic, safe_div
 from .shadow_api import visibility as shadow_visibility
 
@@ -292,8 +293,8 @@ class PathIntegrator:
             keep = np.nonzero(hits.hit)[0]
             if not keep.size:
                 break
-            path, beta, o, d, tmax, depth = path[keep], beta[keep], o[keep], d[keep], tmax[keep], depth[keep]
-            unsampled, cont, prev, prev_mesh = unsampled[keep], cont[keep], prev[keep], prev_mesh[keep]
+            path, beta, o, d, tmax, depth = path[keep], _t(beta, keep), _t(o, keep), _t(d, keep), tmax[keep], depth[keep]
+            unsampled, cont, prev, prev_mesh = unsampled[keep], cont[keep], _t(prev, keep), prev_mesh[keep]
             si = self._interaction(hits.prim[keep], hits.b1[keep], hits.b2[keep], d)
             t_hit = hits.t[keep]
             # Plain materials (no emission, cutout or textured BSDF input) need no per-hit inputs.
@@ -317,7 +318,7 @@ class PathIntegrator:
                 pass_state = None
 
             if scene.materials.has_emission and np.any(params.emission):
-                L[path] += beta * params.emission  # live rows hold distinct paths
+                add_rows(L, path, beta * params.emission)
 
             # ---- stop at the maximum depth -----------------------------------------------
             alive = depth < opt.max_depth
@@ -384,9 +385,9 @@ class PathIntegrator:
 
                 k = np.nonzero(ok)[0]
                 next_prev = np.empty((k.size, 10))
-                p_k, ng_k, wi_k = si.p[k], si.ng[k], wi[k]
-                next_prev[:, 0:3], next_prev[:, 3:6], next_prev[:, 6:9], next_prev[:, 9] = p_k, ng_k, si.ns[k], pdf_b[k]
-                next_state = (path[k], beta[k], offset_origin(p_k, ng_k, wi_k, eps[k]), wi_k,
+                p_k, ng_k, wi_k = _t(si.p, k), _t(si.ng, k), _t(wi, k)
+                next_prev[:, 0:3], next_prev[:, 3:6], next_prev[:, 6:9], next_prev[:, 9] = p_k, ng_k, _t(si.ns, k), pdf_b[k]
+                next_state = (path[k], _t(beta, k), offset_origin(p_k, ng_k, wi_k, eps[k]), wi_k,
                               np.full(k.size, np.inf), depth[k], np.zeros(k.size, bool),
                               next_cont[k], next_prev, si.mesh[k])
                 self.rays.add(extension=k.size)
@@ -419,8 +420,9 @@ class PathIntegrator:
         w = em.weight(rows, light)
         if not np.any(w > 0.0):
             return
-        Le = self.lights.le(light, o[rows] + em.d[rows] * t_hit[:, None], em.d[rows])
-        np.add.at(L, em.path[rows], em.beta[rows] * (Le * w[:, None]))
+        d_rows = _t(em.d, rows)
+        Le = self.lights.le(light, _t(o, rows) + d_rows * t_hit[:, None], d_rows)
+        add_rows(L, em.path[rows], _t(em.beta, rows) * (Le * w[:, None]))
 
     def _add_mesh_light_hits(self, L, em: "_Emission", prim, seen) -> None:
         """Emission of mesh lights whose triangle is the surface hit (prim (n,) embree ids) by the
@@ -439,7 +441,7 @@ class PathIntegrator:
             return
         cos_front = -dot(em.d[rows], self.scene.geometry.face_normal[prim[rows]])
         Le, _ = self.lights.surface_emission(light, cos_front, em.d[rows])
-        L[em.path[rows]] += em.beta[rows] * (Le * w[:, None])  # one surface hit per row
+        add_rows(L, em.path[rows], _t(em.beta, rows) * (Le * w[:, None]))
 
     def _light_hits(self, o, d, t_limit):
         """All (row, light, t) with an exact light hit at t < t_limit."""
@@ -508,7 +510,7 @@ class PathIntegrator:
             if not np.any(w > 0.0):
                 continue
             Le = self.lights.le_escaped(light, em.d[rows])
-            L[em.path[rows]] += em.beta[rows] * (Le * w[:, None])  # rows are distinct
+            add_rows(L, em.path[rows], _t(em.beta, rows) * (Le * w[:, None]))
 
     def _visible(self, p, ng, wi, dist, eps, accel=None, shadow=None) -> np.ndarray:
         """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf).
@@ -591,28 +593,24 @@ class PathIntegrator:
                 # One group covering every point in order (e.g. a single light): no row copies.
                 q = DirectQuery(ctx, s, t, wo_l, bsdf, light[g], eps, control, pmf[g])
             else:
-                q = DirectQuery(ctx.take(r), s[r], t[r], wo_l[r], bsdf.take(r), light[g], eps[r],
-                                None if control is None else control[r], pmf[g])
+                q = DirectQuery(ctx.take(r), _t(s, r), _t(t, r), _t(wo_l, r), bsdf.take(r), light[g], eps[r],
+                                None if control is None else _t(control, r), pmf[g])
             if fused:
-                self._light_half(L, path[r], beta[r], q, trace, rng.random((g.size, 2)), heur[g], repeats)
+                self._light_half(L, path[r], _t(beta, r), q, trace, rng.random((g.size, 2)), heur[g])
                 continue
             u = DirectRandom.draw(rng, g.size, Nk)
             if half[g[0]]:
                 res = mis_light_half(q, lights, trace, Nk, u, HEURISTIC_TOKENS[heur[g[0]]])
             else:
                 res = est.estimate(q, lights, trace, Nk, u, ALPHA_TOKENS[alpha[g[0]]], HEURISTIC_TOKENS[heur[g[0]]])
-            contrib = beta[r] * safe_div(res.Ld, pmf[g])
-            if repeats:
-                np.add.at(L, path[r], contrib)
-            else:
-                L[path[r]] += contrib  # distinct rows: a plain (much cheaper) scatter
+            add_rows(L, path[r], _t(beta, r) * safe_div(res.Ld, pmf[g]))
 
 
-    def _light_half(self, L, path, beta, q: DirectQuery, trace, u, heur, repeats: bool) -> None:
+    def _light_half(self, L, path, beta, q: DirectQuery, trace, u, heur) -> None:
         """The light half of continuation MIS (estimators.mis.mis_light_half) in one compiled pass
         over the BSDF (bsdf.path_light_half), then shadow rays only where the result is > 0.
-        path, beta: (m,), (m, 3) of the query's rows; u: (m, 2); heur: (m,) heuristic tokens;
-        repeats: a path may appear in several rows (every light at every point)."""
+        path, beta: (m,), (m, 3) of the query's rows (a path may repeat: every light at every
+        point); u: (m, 2); heur: (m,) heuristic tokens."""
         lights = self.lights
         ctx = q.ctx
         ls = lights.sample_li(q.light, ctx, u)
@@ -620,12 +618,9 @@ class PathIntegrator:
                                    q.pmf, heur == HEURISTIC_TOKENS.index("power"), beta)
         idx = np.nonzero((c[:, 0] > 0.0) | (c[:, 1] > 0.0) | (c[:, 2] > 0.0))[0]
         if idx.size:
-            v = trace(ctx.p[idx], ctx.n[idx], ls.wi[idx], ls.dist[idx], q.eps[idx])
+            v = trace(_t(ctx.p, idx), _t(ctx.n, idx), _t(ls.wi, idx), ls.dist[idx], q.eps[idx])
             k = idx[v]
-            if repeats:
-                np.add.at(L, path[k], c[k])
-            else:
-                L[path[k]] += c[k]  # distinct paths: a plain scatter
+            add_rows(L, path[k], _t(c, k))
 
 
 class _Emission:
@@ -654,9 +649,9 @@ class _Emission:
         if not k.size:
             return w
         rk, lk = rows[k], light[k]
-        pv = self.prev[rk]
+        pv = _t(self.prev, rk)
         ctx = ShadingContext(pv[:, 0:3], pv[:, 3:6], pv[:, 6:9])
-        p_l = integ.lights.pdf_li(lk, ctx, self.d[rk])
+        p_l = integ.lights.pdf_li(lk, ctx, _t(self.d, rk))
         sampler = integ.scene.light_sampler
         if not getattr(sampler, "exhaustive", False):
             p_l = p_l * sampler.pmf(ctx, lk)
@@ -673,5 +668,7 @@ def _take(obj, mask):
     vals = {}
     for f_ in dataclasses.fields(obj):
         v = getattr(obj, f_.name)
-        vals[f_.name] = v[mask] if isinstance(v, np.ndarray) and v.ndim >= 1 else v
+        if isinstance(v, np.ndarray) and v.ndim >= 1:
+            v = v[mask] if mask.dtype == bool else _t(v, mask)
+        vals[f_.name] = v
     return type(obj)(**vals)

@@ -30,7 +30,12 @@ class ShadingContext:
         return self.p.shape[0]
 
     def take(self, rows: np.ndarray) -> "ShadingContext":
-        return ShadingContext(self.p[rows], self.n[rows], self.ns[rows])
+        rows = np.asarray(rows)
+        if rows.dtype == bool:
+            return ShadingContext(self.p[rows], self.n[rows], self.ns[rows])
+        # np.take gathers (n, 3) rows ~4x faster than fancy indexing.
+        return ShadingContext(np.take(self.p, rows, axis=0), np.take(self.n, rows, axis=0),
+                              np.take(self.ns, rows, axis=0))
 
 
 @dataclass(frozen=True)
