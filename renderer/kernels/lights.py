@@ -3,10 +3,14 @@
 Each kernel does, in one pass per row, what the light's numpy code did in many whole-array
 passes: gather the light's parameters by ``idx``, choose the sampling strategy, build the
 spherical rectangle *once* (the numpy code built it once to choose the strategy and again to
-sample), sample, convert the pdf and write the outputs. The formulas, their order of operations
-and every guard (zero lengths, grazing angles, non-finite pdfs) are those of the numpy code they
-replace, documented in ``renderer/lights/{rect,disk,sphere,spherical_rect}.py``; results agree
-with it to float rounding (numpy's ``arcsin``/``sin``/``cos`` may differ from libm by an ulp).
+sample), sample, convert the pdf and write the outputs. The sampling methods, strategy rules and
+every guard (zero lengths, grazing angles, non-finite pdfs) are those of the numpy code they
+replace, documented in ``renderer/lights/{rect,disk,sphere,spherical_rect}.py``. Most formulas
+are that code's, to float rounding; where the kernels spend fewer transcendental calls, square
+roots or divisions on the same quantity (the spherical rectangle's solid angle and inverse CDF,
+the sphere's sin^2 theta / sin^2 theta_max) the equivalent form is derived in a comment, and
+results agree with the numpy code to ~1e-9 relative or better (the kernels' spherical-rectangle
+solid angle is the more accurate one: the numpy asin sum loses digits for small solid angles).
 
 Vectors are passed around as 3-tuples of floats, which LLVM keeps in registers.
 
@@ -29,9 +33,12 @@ _TWO_PI = 2.0 * math.pi
 # 3-vector helpers (tuples)
 #
 # Helpers take scalars and tuples; only the branch-free ``_row``/``_put``/``_rect_corner``
-# touch arrays. LLVM inlines these ordinary njit calls. (In the BSDF kernels, helpers that took
+# touch arrays. LLVM inlines these small njit calls. (In the BSDF kernels, helpers that took
 # arrays and returned from several branches, numba-inlined with ``inline="always"``, made the
-# loop 4x slower; keeping array reads with branches in the kernel bodies avoids that.)
+# loop 4x slower; keeping array reads with branches in the kernel bodies avoids that.) LLVM
+# does *not* inline the large spherical-rectangle helpers: called, they passed their tuples
+# through memory, so those two (scalars and tuples only) are numba-inlined, which measured
+# ~10% faster.
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
 def _row(a, r):
@@ -97,20 +104,39 @@ def _clip(x, lo, hi):
 
 
 # --------------------------------------------------------------------------------------
-# Spherical rectangle (spherical_rect.setup / spherical_rect.sample, one row)
+# Spherical rectangle (the method of spherical_rect.setup / spherical_rect.sample, one row)
+#
+# spherical_rect.py sums four asin for the solid angle and keeps h2 + h3 as an angle; here the
+# same quantities cost one atan and no other inverse trigonometric call:
+# * the solid angle is that of the triangles (v00, v10, v11) and (v00, v11, v01) of the corners
+#   v (relative to p), each by Van Oosterom & Strackee's tan(Omega_k / 2) = N / D_k with
+#   N = |v_a . (v_b x v_c)| = |z0| lx ly and D_k = r_a r_b r_c + (v_a . v_b) r_c + (v_a . v_c) r_b
+#   + (v_b . v_c) r_a, added as Omega / 2 = arg((D_1 + iN)(D_2 + iN)) in [0, pi). It keeps its
+#   relative accuracy for small solid angles, where the asin sum cancels (measured against long
+#   double: asin sum up to ~1e-8 relative error near 1e-4 sr and ~1e-4 at 1e-8 sr, this ~1e-12);
+# * h2 + h3 is carried as the unit complex number e^{i(h2 + h3)}: with nz_k = n_k / d_k,
+#   sin h_k = nz_k nz_{k+1} and cos h_k = sqrt(1 - sin^2 h_k) = |z0| r / (d_k d_{k+1}), r the
+#   distance to the corner the two edges share (r01 for h2, r00 for h3), so the sampler
+#   rotates e^{i u0 Omega} by it instead of taking cos / sin of u0 Omega - h2 - h3.
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
-def _sr_setup(p, corner, ex, ey, min_solid_angle, grazing_nz2):
-    """Rectangle corner + [0,1]^2 (ex, ey) seen from p (ex, ey orthogonal).
-
-    Returns (x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, b0, b1, h2h3, solid_angle, usable).
-    """
+def _sr_frame(ex, ey):
+    """Unit edge directions and lengths (x_hat, y_hat, lx, ly) of orthogonal edges ex, ey."""
     lx = math.sqrt(_dot(ex, ex))
     ly = math.sqrt(_dot(ey, ey))
     sx = lx if lx > 0.0 else 1.0
     sy = ly if ly > 0.0 else 1.0
-    x_hat = (ex[0] / sx, ex[1] / sx, ex[2] / sx)
-    y_hat = (ey[0] / sy, ey[1] / sy, ey[2] / sy)
+    return (ex[0] / sx, ex[1] / sx, ex[2] / sx), (ey[0] / sy, ey[1] / sy, ey[2] / sy), lx, ly
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sr_setup(p, corner, x_hat, y_hat, lx, ly, min_solid_angle, grazing_nz2):
+    """Rectangle corner + [0, lx] x_hat + [0, ly] y_hat (orthogonal unit x_hat, y_hat) seen from p.
+
+    Returns (x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, r00, r01, dd0, dd2, dd3, solid_angle,
+    usable): the local frame (z_hat flipped so that z0 <= 0), the corner distances r00, r01 and
+    the squared distances dd_k = n_k^2 + z0^2 that _sr_sample needs.
+    """
     z_hat = _cross(x_hat, y_hat)
     d = _sub(corner, p)
     x0 = _dot(d, x_hat)
@@ -122,55 +148,93 @@ def _sr_setup(p, corner, ex, ey, min_solid_angle, grazing_nz2):
     x1 = x0 + lx
     y1 = y0 + ly
     z2 = z0 * z0
-    # z-components of the unit normals of the planes through p and each edge.
-    n0 = -y0
-    n1 = x1
-    n2 = y1
-    n3 = -x0
-    d0 = math.sqrt(n0 * n0 + z2)
-    d1 = math.sqrt(n1 * n1 + z2)
-    d2 = math.sqrt(n2 * n2 + z2)
-    d3 = math.sqrt(n3 * n3 + z2)
-    all_ok = d0 > 0.0 and d1 > 0.0 and d2 > 0.0 and d3 > 0.0
-    nz0 = n0 / d0 if d0 > 0.0 else 0.0
-    nz1 = n1 / d1 if d1 > 0.0 else 0.0
-    nz2 = n2 / d2 if d2 > 0.0 else 0.0
-    nz3 = n3 / d3 if d3 > 0.0 else 0.0
-    h0 = math.asin(_clip(nz0 * nz1, -1.0, 1.0))
-    h1 = math.asin(_clip(nz1 * nz2, -1.0, 1.0))
-    h2 = math.asin(_clip(nz2 * nz3, -1.0, 1.0))
-    h3 = math.asin(_clip(nz3 * nz0, -1.0, 1.0))
-    solid = ((h0 + h1) + h2) + h3
+    xx0 = x0 * x0
+    xx1 = x1 * x1
+    # z-components of the unit normals of the planes through p and each edge: nz_k = n_k / d_k,
+    # n = (-y0, x1, y1, -x0), dd_k = d_k^2 = n_k^2 + z0^2.
+    dd0 = y0 * y0 + z2
+    dd1 = xx1 + z2
+    dd2 = y1 * y1 + z2
+    dd3 = xx0 + z2
+    all_ok = dd0 > 0.0 and dd1 > 0.0 and dd2 > 0.0 and dd3 > 0.0
+    # min_k nz_k^2 > grazing_nz2, without the divisions (nz_k = 0 where d_k = 0).
+    grazing = (y0 * y0 > grazing_nz2 * dd0 and xx1 > grazing_nz2 * dd1
+               and y1 * y1 > grazing_nz2 * dd2 and xx0 > grazing_nz2 * dd3)
+    r00 = math.sqrt(xx0 + dd0)
+    r10 = math.sqrt(xx1 + dd0)
+    r11 = math.sqrt(xx1 + dd2)
+    r01 = math.sqrt(xx0 + dd2)
+    x01 = x0 * x1
+    y01 = y0 * y1
+    v00_v11 = x01 + y01 + z2
+    d1 = r00 * r10 * r11 + (x01 + dd0) * r11 + v00_v11 * r10 + (xx1 + y01 + z2) * r00
+    d2 = r00 * r11 * r01 + v00_v11 * r01 + (xx0 + y01 + z2) * r11 + (x01 + dd2) * r00
+    nn = -z0 * lx * ly
+    # Omega / 2 = arg(re + i im) in [0, pi), by atan (measured cheaper than atan2 here).
+    im = nn * (d1 + d2)
+    re = d1 * d2 - nn * nn
+    if re > abs(im):
+        half = math.atan(im / re)
+    elif im > 0.0:
+        half = 0.5 * _PI - math.atan(re / im)
+    else:
+        half = _PI if re < 0.0 else 0.0  # im < 0 only by rounding, at Omega ~ 0 or ~ 2 pi
     if all_ok and z0 < 0.0:
-        solid = max(solid, 0.0)
+        solid = max(2.0 * half, 0.0)
     else:
         solid = 0.0
-    grazing = min(min(nz0 * nz0, nz1 * nz1), min(nz2 * nz2, nz3 * nz3)) > grazing_nz2
     usable = solid >= min_solid_angle and not grazing and math.isfinite(solid)
-    return x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, nz0, nz2, h2 + h3, solid, usable
+    return x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, r00, r01, dd0, dd2, dd3, solid, usable
 
 
-@njit(cache=True, nogil=True)
-def _sr_sample(p, x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, b0, b1, h2h3, solid, u0, u1):
-    """Point on the rectangle, uniformly distributed in solid angle seen from p."""
-    au = u0 * solid - h2h3
-    num = math.cos(au) * b0 + b1
-    den = math.sin(au)
-    q = math.sqrt(num * num + b0 * b0 * den * den)
-    if q > 0.0:
-        cu = den * math.copysign(1.0, num) / q
+@njit(cache=True, nogil=True, inline="always")
+def _sr_sample(p, st, u0, u1):
+    """Point on the rectangle of st = _sr_setup(p, ...) (a usable row), uniformly distributed in
+    solid angle seen from p."""
+    x_hat, y_hat, z_hat, x0, x1, y0, y1, z0, r00, r01, dd0, dd2, dd3, solid, _ = st
+    z2 = z0 * z0
+    n0 = -y0
+    n2 = y1
+    n3 = -x0
+    d0 = math.sqrt(dd0)
+    d2 = math.sqrt(dd2)
+    b0 = n0 / d0 if d0 > 0.0 else 0.0  # nz0
+    b1 = n2 / d2 if d2 > 0.0 else 0.0  # nz2
+    # e^{i(h2 + h3)} (see the section comment), both parts over the common d0 d2 d3^2.
+    k = d0 * d2 * dd3
+    k = 1.0 / k if k > 0.0 else 0.0
+    cos_h = (z2 * r00 * r01 - n0 * n2 * n3 * n3) * k
+    sin_h = -z0 * n3 * (n2 * r00 + n0 * r01) * k
+    # au = u0 * solid - (h2 + h3): cos au and sin au by rotating e^{i u0 solid}.
+    phi = u0 * solid
+    cp = math.cos(phi)
+    sp = math.sin(phi)
+    num = (cp * cos_h + sp * sin_h) * b0 + b1
+    den = sp * cos_h - cp * sin_h
+    # spherical_rect.sample: cu = den sign(num) / sqrt(num^2 + b0^2 den^2), xu = -cu z0 / sqrt(1 -
+    # cu^2). As 1 - cu^2 = (num^2 - (1 - b0^2) den^2) / (num^2 + b0^2 den^2) and 1 - b0^2 =
+    # z0^2 / dd0, xu = -z0 den sign(num) / sqrt(num^2 - z0^2 den^2 / dd0): one sqrt, one division.
+    t = -z0 * den * math.copysign(1.0, num)
+    rad = num * num - (z2 / dd0) * den * den if dd0 > 0.0 else 0.0
+    if rad > 0.0:
+        xu = t / math.sqrt(rad)
     else:
-        cu = 0.0
-    cu = _clip(cu, -1.0, 1.0)
-    s = math.sqrt(max(1.0 - cu * cu, 1e-300))
-    xu = _clip(-cu * z0 / s, x0, x1)
-    dd = math.sqrt(xu * xu + z0 * z0)
-    r0 = math.sqrt(dd * dd + y0 * y0)
-    r1 = math.sqrt(dd * dd + y1 * y1)
-    h0 = y0 / r0 if r0 > 0.0 else 0.0
-    h1 = y1 / r1 if r1 > 0.0 else 1.0
-    hv = h0 + u1 * (h1 - h0)
-    yv = _clip(hv * dd / math.sqrt(max(1.0 - hv * hv, 1e-300)), y0, y1)
+        xu = math.copysign(math.inf, t) if t != 0.0 else 0.0  # |cu| = 1: an end of [x0, x1]
+    xu = _clip(xu, x0, x1)
+    # hv = lerp(u1, y0 / r0, y1 / r1) = a / b (r_k = sqrt(xu^2 + z0^2 + y_k^2)), and
+    # yv = hv dd / sqrt(1 - hv^2) = a dd / sqrt(b^2 - a^2) (dd = sqrt(xu^2 + z0^2)).
+    e2 = xu * xu + z2
+    dd = math.sqrt(e2)
+    r0 = math.sqrt(e2 + y0 * y0)
+    r1 = math.sqrt(e2 + y1 * y1)
+    a = y0 * r1 + u1 * (y1 * r0 - y0 * r1)
+    b = r0 * r1
+    w2 = (b - a) * (b + a)
+    if w2 > 0.0:
+        yv = a * dd / math.sqrt(w2)
+    else:
+        yv = math.copysign(math.inf, a) if a != 0.0 else 0.0  # |hv| = 1: an end of [y0, y1]
+    yv = _clip(yv, y0, y1)
     return (
         p[0] + xu * x_hat[0] + yv * y_hat[0] + z0 * z_hat[0],
         p[1] + xu * x_hat[1] + yv * y_hat[1] + z0 * z_hat[1],
@@ -216,11 +280,12 @@ def _rect_corner(i, center, ex, ey):
 
 @njit(cache=True, nogil=True)
 def rect_sample_kernel(
-    idx, p, u, center, ex, ey, nrm, area, radiance, tex, is_rect, tex_ab, tex_pdf_area,
-    min_sa, graz, out_L, out_wi, out_pdf, out_dist, out_pl,
+    idx, p, u, center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, tex, is_rect, tex_ab,
+    tex_pdf_area, min_sa, graz, out_L, out_wi, out_pdf, out_dist, out_pl,
 ):
     """RectLight.sample_li. Textured rows read their (a, b) and area pdf from tex_ab (n, 2) and
-    tex_pdf_area (n,) (texel sampling, done by the caller); their L still lacks the texel colour."""
+    tex_pdf_area (n,) (texel sampling, done by the caller); their L still lacks the texel colour.
+    x_hat, y_hat (count, 3) and edge_len (count, 2) are ex, ey as unit vectors and lengths."""
     for r in range(idx.shape[0]):
         i = idx[r]
         pr = _row(p, r)
@@ -234,12 +299,12 @@ def rect_sample_kernel(
         pl = c
         if tex[i] < 0 and is_rect[i]:
             # Strategy choice and sampling share this one setup.
-            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), e1, e2, min_sa, graz)
-            if st[12]:
+            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), _row(x_hat, i), _row(y_hat, i),
+                           edge_len[i, 0], edge_len[i, 1], min_sa, graz)
+            if st[14]:
                 use = True
-                pdf_sph = 1.0 / st[11]
-                pl = _sr_sample(pr, st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9],
-                                st[10], st[11], u[r, 0], u[r, 1])
+                pdf_sph = 1.0 / st[13]
+                pl = _sr_sample(pr, st, u[r, 0], u[r, 1])
         if not use:
             if tex[i] >= 0:
                 a = tex_ab[r, 0]
@@ -265,9 +330,11 @@ def rect_sample_kernel(
 
 @njit(cache=True, nogil=True)
 def rect_pdf_kernel(
-    idx, p, wi, center, ex, ey, nrm, area, exd, eyd, tex, is_rect, tex_pdf_area, min_sa, graz, out_pdf,
+    idx, p, wi, center, ex, ey, x_hat, y_hat, edge_len, nrm, area, exd, eyd, tex, is_rect, tex_pdf_area,
+    min_sa, graz, out_pdf,
 ):
-    """RectLight.pdf_li. Textured rows take their area pdf from tex_pdf_area (n,)."""
+    """RectLight.pdf_li. Textured rows take their area pdf from tex_pdf_area (n,). x_hat, y_hat,
+    edge_len as in rect_sample_kernel."""
     for r in range(idx.shape[0]):
         i = idx[r]
         pr = _row(p, r)
@@ -286,9 +353,10 @@ def rect_pdf_kernel(
             pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
         pdf = _area_to_solid_angle(pdf_area, t, cos_l)
         if tex[i] < 0 and is_rect[i]:
-            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), _row(ex, i), _row(ey, i), min_sa, graz)
-            if st[12]:
-                pdf = 1.0 / st[11]
+            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), _row(x_hat, i), _row(y_hat, i),
+                           edge_len[i, 0], edge_len[i, 1], min_sa, graz)
+            if st[14]:
+                pdf = 1.0 / st[13]
         out_pdf[r] = pdf
 
 
@@ -343,7 +411,8 @@ def _disk_rect(p, c, a1, a2, min_sa, graz):
     """Spherical-rectangle setup of the bounding rectangle [-a1, a1] x [-a2, a2] of a disk
     centred at c, seen from p."""
     corner = _sub(_sub(c, a1), a2)
-    return _sr_setup(p, corner, _scale(2.0, a1), _scale(2.0, a2), min_sa, graz)
+    x_hat, y_hat, lx, ly = _sr_frame(_scale(2.0, a1), _scale(2.0, a2))
+    return _sr_setup(p, corner, x_hat, y_hat, lx, ly, min_sa, graz)
 
 
 @njit(cache=True, nogil=True)
@@ -357,8 +426,8 @@ def disk_strategy_kernel(idx, p, center, e1, e2, nrm, u1, u2, s1, s2, close_rati
         c = _row(center, i)
         close, front = _disk_close(pr, c, _row(nrm, i), _row(u1, i), _row(u2, i), s1[i], s2[i], close_ratio)
         st = _disk_rect(pr, c, _row(e1, i), _row(e2, i), min_sa, graz)
-        out_use[r] = close and front and st[12]
-        out_solid[r] = st[11]
+        out_use[r] = close and front and st[14]
+        out_solid[r] = st[13]
 
 
 @njit(cache=True, nogil=True)
@@ -384,11 +453,10 @@ def disk_sample_kernel(
         pl = c
         if close and front:
             st = _disk_rect(pr, c, a1, a2, min_sa, graz)
-            if st[12]:
+            if st[14]:
                 use = True
-                pdf_sph = 1.0 / st[11]
-                pl = _sr_sample(pr, st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9],
-                                st[10], st[11], u[r, 0], u[r, 1])
+                pdf_sph = 1.0 / st[13]
+                pl = _sr_sample(pr, st, u[r, 0], u[r, 1])
                 q1, q2 = _disk_q(pl, c, v1, v2, s1[i], s2[i])
                 inside = q1 * q1 + q2 * q2 <= 1.0
         if not use:
@@ -455,8 +523,8 @@ def disk_pdf_kernel(
         close, _ = _disk_close(pr, c, nl, v1, v2, s1[i], s2[i], close_ratio)
         if close:
             st = _disk_rect(pr, c, _row(e1, i), _row(e2, i), min_sa, graz)
-            if st[12]:
-                pdf = 1.0 / st[11]
+            if st[14]:
+                pdf = 1.0 / st[13]
         out_pdf[r] = pdf
 
 
@@ -474,13 +542,17 @@ def disk_hit_kernel(idx, o, d, center, nrm, u1, u2, s1, s2, out_t):
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
 def _sphere_cone(p, c, r, delta):
-    """SphereLight._cone for one row: (w_c, dc, sin2_max, 1 - cos theta_max, ok)."""
-    w_c, dc = _dir_dist(p, c)
-    outside = dc * dc > r * r * (1.0 + 1e-12)
-    sin2 = (r * r) / (dc * dc) if outside else 1.0
+    """SphereLight._cone for one row: (w_c, dc, sin2_max, 1 - cos theta_max, cos theta_max, ok)."""
+    v = _sub(c, p)
+    dc2 = _dot(v, v)  # used as is, not as sqrt(dc2)^2: keeps the sqrt off the critical path
+    dc = math.sqrt(dc2)
+    s = dc if dc > 0.0 else 1.0
+    w_c = (v[0] / s, v[1] / s, v[2] / s)
+    outside = dc2 > r * r * (1.0 + 1e-12)
+    sin2 = (r * r) / dc2 if outside else 1.0
     cos_max = math.sqrt(max(0.0, 1.0 - sin2))
     omc = sin2 / (1.0 + cos_max)  # 1 - cos theta_max without cancellation
-    return w_c, dc, sin2, omc, outside and not delta and r > 0.0
+    return w_c, dc, sin2, omc, cos_max, outside and not delta and r > 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -494,7 +566,7 @@ def sphere_sample_kernel(
         pr = _row(p, row)
         c = _row(center, i)
         r = radius[i]
-        w_c, dc, sin2_max, omc, ok = _sphere_cone(pr, c, r, delta[i])
+        w_c, dc, sin2_max, omc, cos_max, ok = _sphere_cone(pr, c, r, delta[i])
         if delta[i]:
             good = dc > 0.0
             inv_d2 = 1.0 / (dc * dc) if good else 0.0
@@ -506,12 +578,14 @@ def sphere_sample_kernel(
             _put(out_pl, row, c)
             out_pdf[row] = 1.0 if good else 0.0
             continue
-        sin_max = math.sqrt(sin2_max)
         x = u[row, 0] * omc
         cos_t = 1.0 - x
-        sin2 = x * (2.0 - x)
-        ratio = sin2 / sin_max if sin_max > 0.0 else 0.0
-        ratio2 = sin2 / sin2_max if sin2_max > 0.0 else 0.0
+        # sin^2 theta = x (2 - x) and x = u0 sin^2 theta_max / (1 + cos theta_max), so
+        # ratio2 = sin^2 theta / sin^2 theta_max = u0 (2 - x) / (1 + cos theta_max) without a
+        # division by sin^2 theta_max (one division fewer on the critical path), and
+        # ratio = sin^2 theta / sin theta_max = ratio2 sin theta_max.
+        ratio2 = u[row, 0] * (2.0 - x) / (1.0 + cos_max)
+        ratio = ratio2 * math.sqrt(sin2_max)
         cos_a = _clip(ratio + cos_t * math.sqrt(max(0.0, 1.0 - ratio2)), -1.0, 1.0)
         sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
         phi = 2.0 * _PI * u[row, 1]
@@ -543,7 +617,7 @@ def sphere_pdf_kernel(idx, p, wi, center, radius, delta, out_pdf):
     for row in range(idx.shape[0]):
         i = idx[row]
         w = _row(wi, row)
-        w_c, dc, sin2_max, omc, ok = _sphere_cone(_row(p, row), _row(center, i), radius[i], delta[i])
+        w_c, dc, sin2_max, omc, _, ok = _sphere_cone(_row(p, row), _row(center, i), radius[i], delta[i])
         # sin^2 of the angle between wi and w_c, accurate for tiny cones (no 1 - cos).
         cr = _cross(w, w_c)
         sin2 = _dot(cr, cr)

@@ -74,6 +74,7 @@ class RectLight:
 
     center, ex, ey, n: (count, 3) world centre, edge vectors and emitting normal (unit);
     ex_dual, ey_dual: (count, 3) with (p - center) . ex_dual = a (the ex coordinate);
+    x_hat, y_hat: (count, 3) ex, ey as unit vectors, edge_len: (count, 2) their lengths;
     area: (count,) world area |ex x ey|; L: (count, 3) emitted radiance (nits, Rec.709);
     is_rectangle: (count,) bool (False when sheared); tex: (count,) int64 image index or -1.
     """
@@ -102,6 +103,11 @@ class RectLight:
         self.ex_dual = (gyy[:, None] * ex - gxy[:, None] * ey) / det[:, None]
         self.ey_dual = (gxx[:, None] * ey - gxy[:, None] * ex) / det[:, None]
         self.is_rectangle = np.ascontiguousarray(np.abs(gxy) <= SHAPE_RTOL * np.sqrt(gxx * gyy))
+        # The spherical-rectangle frame, once per light instead of once per kernel row.
+        self.edge_len = as_points(np.stack([np.sqrt(gxx), np.sqrt(gyy)], axis=1), 2)
+        safe = np.where(self.edge_len > 0.0, self.edge_len, 1.0)
+        self.x_hat = as_points(ex / safe[:, :1])
+        self.y_hat = as_points(ey / safe[:, 1:])
         self.delta = np.zeros(self.count, dtype=bool)
         self.warnings: list[str] = []
 
@@ -181,8 +187,9 @@ class RectLight:
         dist = np.empty(n_rows)
         p_l = np.empty((n_rows, 3))
         kern.rect_sample_kernel(
-            idx, p, u, self.center, self.ex, self.ey, self.n, self.area, self.L, self.tex, self.is_rectangle,
-            tex_ab, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2, L, wi, pdf, dist, p_l,
+            idx, p, u, self.center, self.ex, self.ey, self.x_hat, self.y_hat, self.edge_len, self.n, self.area,
+            self.L, self.tex, self.is_rectangle, tex_ab, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2,
+            L, wi, pdf, dist, p_l,
         )
         if rows is not None:
             # Texel colour at the sampled point (L is already 0 where the sample failed).
@@ -238,8 +245,8 @@ class RectLight:
             )
         pdf = np.empty(n_rows)
         kern.rect_pdf_kernel(
-            idx, p, wi, self.center, self.ex, self.ey, self.n, self.area, self.ex_dual, self.ey_dual, self.tex,
-            self.is_rectangle, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2, pdf,
+            idx, p, wi, self.center, self.ex, self.ey, self.x_hat, self.y_hat, self.edge_len, self.n, self.area,
+            self.ex_dual, self.ey_dual, self.tex, self.is_rectangle, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2, pdf,
         )
         return pdf
 

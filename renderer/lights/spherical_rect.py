@@ -21,9 +21,13 @@ sin(au) = 0), and along y the projected height is interpolated linearly:
 The local frame has x along the first edge, y along the second, and z flipped so that z0 < 0.
 The sample density is 1/S per steradian.
 
-The rect and disk lights run the same maths per row inside their numba kernels
-(``renderer.kernels.lights._sr_setup`` / ``_sr_sample``, a line-by-line port of ``setup`` and
-``sample`` below, which stay as the vectorised statement of the method and for tests).
+The rect and disk lights run the same method per row inside their numba kernels
+(``renderer.kernels.lights._sr_setup`` / ``_sr_sample``); ``setup`` and ``sample`` below stay as
+the vectorised statement of the method and for tests (and the dome's portal sampling). The
+kernels compute the same quantities with fewer transcendental calls (the solid angle by one
+atan, Van Oosterom & Strackee's formula for the rectangle's two triangles; h2 + h3 as a unit
+complex number), agreeing with these formulas to ~1e-9 relative at worst, and more accurately
+than the asin sum here for small solid angles, where its terms cancel.
 MIN_SOLID_ANGLE and GRAZING_NZ2 are passed to those kernels as arguments, so this module
 stays their single source of truth.
 """
