@@ -657,7 +657,12 @@ class _Emission:
             p_l = p_l * sampler.pmf(ctx, lk)
         p_b = pv[:, 9]
         power = integ.est_heuristic[lk] == HEURISTIC_TOKENS.index("power")
-        w[k] = np.where(power, power_heuristic(1, p_b, 1, p_l), balance_heuristic(1, p_b, 1, p_l))
+        if np.all(power):  # the usual case: one heuristic, computed once
+            w[k] = power_heuristic(1, p_b, 1, p_l)
+        elif not np.any(power):
+            w[k] = balance_heuristic(1, p_b, 1, p_l)
+        else:
+            w[k] = np.where(power, power_heuristic(1, p_b, 1, p_l), balance_heuristic(1, p_b, 1, p_l))
         return w
 
 
