@@ -27,7 +27,9 @@ irradiance-style value I / d^2; pdf_li is 0 for every wi; ``delta[i]`` is True s
 skips MIS and BSDF-sampled hits (intersect() is inf, the light has no proxy triangles). The
 intensity is that of the sphere it replaces: a sphere of radius r and radiance L has the same
 intensity I = L pi r^2 in every direction (projected area pi r^2), so
-L_eff = L pi r^2 / d^2 and phi = 4 pi I (equal to the sphere's pi * 4 pi r^2 * L).
+L_eff = L pi r^2 / d^2 and phi = 4 pi I (equal to the sphere's pi * 4 pi r^2 * L). A point of
+radius 0 with normalize gets the r -> 0 limit, I = intensity 2^exposure color / 4, the same as
+any normalized radius (``point_intensity``); without normalize it emits nothing.
 
 Non-uniform scale: the sphere used for sampling, intersection and proxies has the largest
 world scale factor times the radius (a bounding sphere of the ellipsoid); the normalize area
@@ -39,6 +41,7 @@ Implementation: sample_li, pdf_li and intersect are fused numba kernels
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -128,6 +131,36 @@ class SphereLight:
         a, b, c = (float(x) for x in sphere_scales(desc))
         return ellipsoid_area(a, b, c)
 
+    @staticmethod
+    def is_degenerate(desc: LightDesc) -> bool:
+        """No surface to emit from. A treatAsPoint light needs only its position: UsdLux calls it
+        "effectively a zero-radius sphere", and Maya-USD writes point lights as radius 0 with
+        treatAsPoint (its intensity is ``point_intensity``: zero, hence degenerate, for a
+        zero-radius point without normalize)."""
+        if desc.treat_as_point:
+            return not (desc.normalize or float(sphere_scales(desc)[0]) > 0.0)
+        return not SphereLight.world_area(desc) > 0.0
+
+    @staticmethod
+    def point_intensity(desc: LightDesc) -> np.ndarray:
+        """(3,) intensity I of a treatAsPoint light: the sphere's L pi r^2 (r its largest world
+        semi-axis). With normalize, L = base / (4 pi r^2), so I = base / 4 at every radius and
+        the zero-radius point is that limit (the sizeFactor of a zero-area sphere would divide by
+        0); without normalize a zero-radius sphere emits nothing."""
+        r0 = float(sphere_scales(desc)[0])
+        if r0 > 0.0:
+            return emitted_radiance(desc, SphereLight.world_area(desc)) * (math.pi * r0 * r0)
+        if desc.normalize:
+            return emitted_radiance(dataclasses.replace(desc, normalize=False), 1.0) / 4.0
+        return np.zeros(3)
+
+    @staticmethod
+    def radiance(desc: LightDesc) -> np.ndarray:
+        """(3,) emitted quantity: the radiance L, or a point light's intensity I."""
+        if desc.treat_as_point:
+            return SphereLight.point_intensity(desc)
+        return emitted_radiance(desc, SphereLight.world_area(desc))
+
     @classmethod
     def build(cls, descs: list[LightDesc], scene_center=None, scene_radius: float = 1.0) -> "SphereLight":
         k = len(descs)
@@ -142,6 +175,11 @@ class SphereLight:
             radius[i] = s[0]
             L[i] = emitted_radiance(d, cls.world_area(d))
             delta[i] = bool(d.treat_as_point)
+            if delta[i] and not s[0] > 0.0:
+                # The kernels give a point light L pi r^2 / d^2: store its intensity with the
+                # radius for which pi r^2 = 1 (a point has no extent; only that product is used).
+                radius[i] = 1.0 / math.sqrt(math.pi)
+                L[i] = cls.point_intensity(d)
             if s[0] - s[2] > SHAPE_RTOL * s[0] and not d.treat_as_point:
                 warns.append(
                     f"{d.path}: SphereLight with non-uniform scale: sampled and intersected as a "

@@ -168,6 +168,28 @@ def test_treat_as_point_is_delta():
     np.testing.assert_allclose(light.phi(), full.phi())
 
 
+@pytest.mark.parametrize("radius", [0.0, 1e-3, 0.5])
+def test_normalized_point_light_of_any_radius_has_intensity_base_over_4(radius):
+    """UsdLux: treatAsPoint is "effectively a zero-radius sphere" (Maya-USD writes point lights as
+    radius 0). A normalized sphere has L = base / (4 pi r^2), intensity L pi r^2 = base / 4 at
+    every radius, so radius 0 is that limit -- not a black light (the sizeFactor would be 0)."""
+    from renderer.lights.light_set import LightSet
+
+    d = sphere(translate(0, 0, 4), radius, intensity=3.0, exposure=1.0, color=(1.0, 0.5, 0.25),
+               treat_as_point=True, normalize=True)
+    ls = LightSet.build([d])
+    assert ls.count == 1 and not ls.warnings
+    s = SphereLight.build([d]).sample_li(np.zeros(1, dtype=np.int64), ctx((0, 0, 0)), np.full((1, 2), 0.5))
+    np.testing.assert_allclose(s.L[0], 6.0 / 4.0 / 16.0 * np.array([1.0, 0.5, 0.25]), rtol=1e-12)
+
+
+def test_zero_radius_point_without_normalize_is_dropped_with_a_warning():
+    from renderer.lights.light_set import LightSet
+
+    ls = LightSet.build([sphere(translate(0, 0, 4), 0.0, intensity=3.0, treat_as_point=True)])
+    assert ls.count == 0 and any("/Sphere" in w for w in ls.warnings)
+
+
 def test_ellipsoid_area_and_warning():
     # Knud-Thomsen vs a dense quadrature of the ellipsoid's surface.
     a, b, c = 2.0, 1.0, 0.5
