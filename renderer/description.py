@@ -30,12 +30,15 @@ class TextureDesc:
     """A UsdUVTexture feeding one material input.
 
     file: absolute, resolved path of the image.
-    source_color_space: 'raw' | 'sRGB' | 'auto' ('auto' = sRGB for 8-bit files, raw otherwise).
-    wrap_s, wrap_t: 'black' | 'clamp' | 'repeat' | 'mirror' ('useMetadata' is resolved by the reader,
-        falling back to 'repeat' as hdStorm does when the file carries no wrap metadata).
+    source_color_space: 'raw' | 'sRGB' | 'auto' ('auto' = sRGB for 8-bit files with 3 or 4
+        channels, raw otherwise: the UsdPreviewSurface spec).
+    wrap_s, wrap_t: 'black' | 'clamp' | 'repeat' | 'mirror' | 'useMetadata' (resolved when the
+        file is loaded: its wrap metadata, else 'black' as the UsdPreviewSurface spec says).
     scale, bias, fallback: (4,) float64 per UsdUVTexture (out = texel * scale + bias).
     output: which output is connected: 'rgb' | 'r' | 'g' | 'b' | 'a'.
     st_primvar: name of the primvar read by the UsdPrimvarReader_float2 ('st' by default).
+    st_transform: UsdTransform2d nodes between the reader and the texture, composed:
+        (m00, m01, m10, m11, t0, t1) with st' = M st + t, or () for none.
     """
 
     file: str
@@ -47,6 +50,7 @@ class TextureDesc:
     fallback: tuple = (0.0, 0.0, 0.0, 1.0)
     output: str = "rgb"
     st_primvar: str = "st"
+    st_transform: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -84,7 +88,9 @@ class MaterialDesc:
 class MeshDesc:
     """A triangulated, world-space mesh.
 
-    path: prim path of the source gprim (instance proxies keep their proxy path).
+    path: prim path of the source gprim (instance proxies keep their proxy path). A mesh whose
+        materialBind GeomSubsets bind other materials gives one MeshDesc per material, all with
+        this path.
     points: (V, 3) float64 world-space vertex positions.
     triangles: (T, 3) int32 indices into ``points``, counter-clockwise seen from the front
         (leftHanded orientation has already been flipped by the reader).

@@ -127,6 +127,7 @@ def _texture_key(tex: TextureDesc) -> tuple:
         tuple(np.ravel(tex.bias).tolist()),
         tuple(np.ravel(tex.fallback).tolist()),
         tex.output,
+        tuple(tex.st_transform),
     )
 
 

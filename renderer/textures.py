@@ -9,16 +9,23 @@ Conventions
   ((i + 0.5)/W, (j + 0.5)/H)). No mipmapping, so strongly minified textures alias (a limitation).
 * **Wrap modes**, per axis: 'black' (texels outside the image are (0, 0, 0, 0)), 'clamp' (edge
   texels extend), 'repeat' (periodic), 'mirror' (mirrored repeat, period 2W: ... 1 0 | 0 1 ... W-1 |
-  W-1 ... 0 | 0 ...). 'useMetadata' is resolved by the USD reader before it gets here.
+  W-1 ... 0 | 0 ...). 'useMetadata' (UsdUVTexture's fallback) reads the file's wrap metadata
+  (OIIO's "wrapmodes", e.g. "periodic,clamp"; periodic = repeat) and, when the file has none,
+  falls back to 'black', as the UsdPreviewSurface spec says ("If the texture contains no such
+  metadata, then fall back to black"). hdStorm falls back to repeat instead, for legacy assets.
 * **Channels** (UsdUVTexture spec): 1 channel -> (v, v, v, 1); 2 channels -> (v, v, v, a);
   3 -> (r, g, b, 1); 4 or more -> the first four. Colour is read as stored (unassociated alpha:
   OIIO's automatic premultiplication of PNG/TIFF colour by alpha is turned off), so an alpha
   channel used as opacity does not also darken the colour.
 * **Colour space**: texels are decoded from sRGB to linear (the IEC 61966-2-1 piecewise curve,
   RGB only, never alpha) when ``sourceColorSpace`` is 'sRGB', or when it is 'auto' and the file
-  stores integer data (8- or 16-bit, or any other integer type); float and half files are taken
-  as linear under 'auto', and 'raw' never decodes. (hdStorm's 'auto' looks at the file's
-  declared colour space; ours is the simpler, documented rule.)
+  is 8-bit (UINT8) with 3 or 4 channels -- the UsdPreviewSurface spec's rule for 'auto' without
+  colour-space metadata ("mark texture as sRGB if it is either 8-bit and has 3 channels or if it
+  is 8-bit and has 4 channels. Otherwise, do not mark texture as sRGB"), which is also what
+  hioOiio's IsColorSpaceSRGB does. So under 'auto' 1- and 2-channel 8-bit files (roughness,
+  metallic, opacity masks) and 16-bit, half and float files are read as stored; 'raw' never
+  decodes. File colour-space metadata is not consulted (OIIO tags most PNGs 'sRGB' by default,
+  which would decode single-channel data maps, the case the spec's rule exists to avoid).
 * **Output**: ``out = texel * scale + bias`` (per RGBA channel, after decoding). Where the file
   could not be read, ``fallback`` is returned as is (no scale / bias).
 * **Bad texels**: non-finite texel values (NaN, +-inf) are replaced by 0 at load; the count is
@@ -42,6 +49,8 @@ from renderer.description import TextureDesc
 from renderer.errors import StageError
 
 WRAP_MODES = ("black", "clamp", "repeat", "mirror")
+# OIIO "wrapmodes" metadata names -> UsdUVTexture wrap modes.
+_OIIO_WRAP = {"black": "black", "clamp": "clamp", "periodic": "repeat", "mirror": "mirror"}
 COLOR_SPACES = ("raw", "sRGB", "auto")
 OUTPUT_CHANNELS = {"rgb": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,), "rgba": (0, 1, 2, 3)}
 
@@ -72,6 +81,8 @@ class LoadedImage:
     is_integer: bool
     channels: int
     nonfinite: int
+    is_8bit: bool = False  # UINT8 storage: with 3 or 4 channels, sRGB under 'auto'
+    wrap_metadata: tuple[str, str] | None = None  # (s, t) wrap modes the file declares, if any
 
     @property
     def width(self) -> int:
@@ -128,7 +139,22 @@ def load_image(path: str) -> tuple[Optional[LoadedImage], str]:
     is_integer = base not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE)
     # Flip so that row 0 is the bottom row (USD t = 0).
     pixels = np.ascontiguousarray(_expand_channels(px)[::-1])
-    return LoadedImage(path, pixels, bool(is_integer), int(spec.nchannels), nonfinite), ""
+    return LoadedImage(path, pixels, bool(is_integer), int(spec.nchannels), nonfinite,
+                       is_8bit=base == oiio.UINT8, wrap_metadata=_wrap_metadata(spec)), ""
+
+
+def _wrap_metadata(spec) -> tuple[str, str] | None:
+    """The (s, t) wrap modes in OIIO's "wrapmodes" attribute ("periodic,clamp" or one mode for
+    both), or None when absent or unrecognised."""
+    raw = spec.getattribute("wrapmodes")
+    if not isinstance(raw, str) or not raw:
+        return None
+    parts = [_OIIO_WRAP.get(p.strip()) for p in raw.split(",")]
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2 or None in parts:
+        return None
+    return parts[0], parts[1]
 
 
 def _wrap(i: np.ndarray, n: int, mode: str) -> tuple[np.ndarray, Optional[np.ndarray]]:
@@ -231,13 +257,15 @@ class TextureCache:
         if cs == "raw":
             return False
         if cs == "auto":
-            return img.is_integer
+            # UsdPreviewSurface spec, sourceColorSpace 'auto' (no file metadata): sRGB only for
+            # 8-bit files with 3 or 4 channels (module docstring).
+            return img.is_8bit and img.channels in (3, 4)
         raise StageError(f"unknown sourceColorSpace {cs!r}", file=tex.file)
 
     def add(self, tex: TextureDesc) -> None:
         """Load (once) and decode the image of ``tex``; validate its wrap modes and output."""
         for mode in (tex.wrap_s, tex.wrap_t):
-            if mode not in WRAP_MODES:
+            if mode not in WRAP_MODES and mode != "useMetadata":
                 raise StageError(f"unknown texture wrap mode {mode!r}", file=tex.file)
         output_channels(tex.output)
         img = self._load_file(tex.file)
@@ -251,6 +279,18 @@ class TextureCache:
                 px[..., 0:3] = srgb_to_linear(px[..., 0:3]).astype(np.float32)
             px.setflags(write=False)
             self._decoded[key] = px
+
+    def wrap_modes(self, tex: TextureDesc) -> tuple[str, str]:
+        """(s, t) wrap modes of ``tex`` with 'useMetadata' resolved from its file (module
+        docstring: the file's wrap metadata, else 'black')."""
+        img = self._files.get(tex.file)
+        meta = img.wrap_metadata if img is not None else None
+        modes = []
+        for axis, mode in enumerate((tex.wrap_s, tex.wrap_t)):
+            if mode == "useMetadata":
+                mode = meta[axis] if meta is not None else "black"
+            modes.append(mode)
+        return modes[0], modes[1]
 
     def add_all(self, textures: Iterable[TextureDesc]) -> None:
         for tex in textures:
@@ -286,7 +326,11 @@ class TextureCache:
         good = np.isfinite(st).all(axis=1)
         all_good = bool(good.all())
         st_use = st if all_good else np.where(good[:, None], st, 0.0)
-        texel = bilinear(px, st_use, tex.wrap_s, tex.wrap_t)
+        if tex.st_transform:  # UsdTransform2d chain (TextureDesc.st_transform)
+            m00, m01, m10, m11, t0, t1 = tex.st_transform
+            st_use = np.stack([m00 * st_use[:, 0] + m01 * st_use[:, 1] + t0,
+                               m10 * st_use[:, 0] + m11 * st_use[:, 1] + t1], axis=1)
+        texel = bilinear(px, st_use, *self.wrap_modes(tex))
         out = texel * np.asarray(tex.scale, dtype=np.float64) + np.asarray(tex.bias, dtype=np.float64)
         if not all_good:
             out[~good] = fallback

@@ -24,9 +24,10 @@ def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file
     """Read an image as linear float RGB (H, W, 3) float64 (row 0 = top of the image).
 
     One-channel images are replicated to grey, extra channels (alpha) are ignored. UsdLux has no
-    colour-space input for light textures, so illum applies UsdUVTexture's 'auto' rule: 8-bit
-    files (PNG, JPEG, ...) are sRGB-encoded and decoded to linear; float, half and 16-bit
-    files are taken as linear.
+    colour-space input for light textures, so illum applies UsdUVTexture's 'auto' rule (the
+    UsdPreviewSurface spec, as renderer/textures.py): 8-bit files with 3 or 4 channels are
+    sRGB-encoded and decoded to linear; 1- and 2-channel 8-bit files and float, half and
+    16-bit files are taken as linear.
     Raises StageError (naming the prim, the attribute and the file) when the file cannot be
     read, or when texels are NaN, infinite or negative (with their count).
     """
@@ -49,7 +50,8 @@ def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file
         rgb = px[:, :, :3]
     else:
         rgb = np.repeat(px[:, :, :1], 3, axis=2)
-    if spec.format.basetype in (oiio.UINT8, oiio.INT8):
+    if spec.format.basetype == oiio.UINT8 and nch in (3, 4):
+        # UsdUVTexture 'auto': "sRGB if it is either 8-bit and has 3 channels or ... 4 channels"
         rgb = srgb_to_linear(rgb)
     bad = ~np.isfinite(rgb) | (rgb < 0.0)
     nbad = int(bad.any(axis=2).sum())

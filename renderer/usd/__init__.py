@@ -17,8 +17,9 @@ What is read and what is not (each unsupported feature gives one warning per sta
   emission and light filters (one warning per light) are skipped or ignored; lights inside
   PointInstancer prototypes are skipped. ShapingAPI and ShadowAPI are read by ``lux_shaping``.
 * Materials: UsdPreviewSurface (universal render context) with UsdUVTexture and
-  UsdPrimvarReader_float2; UsdTransform2d is followed but its transform ignored; normal,
-  displacement, clearcoat and occlusion inputs are ignored; UDIM paths use the fallback.
+  UsdPrimvarReader_float2 and UsdTransform2d; materialBind GeomSubsets split a mesh by
+  material; normal, displacement, clearcoat and occlusion inputs are ignored; UDIM paths use
+  the fallback.
 * displayColor fallback uses the first value of ``primvars:displayColor`` for the whole prim.
 * Time: one time code, no motion blur (velocities and multiple samples are not read).
 * Purpose: a subtree whose authored (or inherited) purpose is excluded is pruned whole, even

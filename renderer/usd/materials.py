@@ -13,6 +13,7 @@ UsdPreviewSurface's own default grey (0.18).
 
 from __future__ import annotations
 
+import numpy as np
 from pxr import Sdr, Usd, UsdGeom, UsdShade
 
 from renderer.description import MaterialDesc, MaterialInput, TextureDesc
@@ -37,6 +38,13 @@ _TEXTURABLE = {
 }
 
 
+def _affine(m: np.ndarray) -> tuple:
+    """TextureDesc.st_transform of a (3, 3) 2D affine: () for the identity."""
+    if np.array_equal(m, np.eye(3)):
+        return ()
+    return (float(m[0, 0]), float(m[0, 1]), float(m[1, 0]), float(m[1, 1]), float(m[0, 2]), float(m[1, 2]))
+
+
 def _sdr_defaults(identifier: str) -> dict:
     node = Sdr.Registry().GetShaderNodeByIdentifier(identifier)
     if not node:
@@ -58,6 +66,8 @@ class MaterialTable:
         self._by_path: dict[str, tuple[int, str | None] | None] = {}
         self._surface_defaults = _sdr_defaults(_SURFACE_ID)
         self._texture_defaults = _sdr_defaults(_TEXTURE_ID)
+        self._transform_defaults = {"rotation": 0.0, "scale": (1.0, 1.0), "translation": (0.0, 0.0),
+                                    **_sdr_defaults("UsdTransform2d")}
 
     # ---- table -----------------------------------------------------------------------
     def _add(self, desc: MaterialDesc) -> int:
@@ -75,18 +85,29 @@ class MaterialTable:
 
     def index_for(self, prim: Usd.Prim) -> tuple[int, str | None]:
         """Material of a gprim: bound material by purpose order, else displayColor, else grey."""
-        material = self._bound_material(prim)
-        if material is not None:
-            key = str(material.GetPath())
-            if key not in self._by_path:
-                # Read each material once; an unusable one is remembered as None so that it is
-                # neither re-read nor re-warned for every prim bound to it.
-                desc, st_name = self._read_material(material)
-                self._by_path[key] = None if desc is None else (self._add(desc), st_name)
-            hit = self._by_path[key]
-            if hit is not None:
-                return hit
+        hit = self._bound_index(prim)
+        if hit is not None:
+            return hit
         return self._add(self._fallback(prim)), None
+
+    def index_for_subset(self, subset: Usd.Prim, mesh_hit: tuple[int, str | None]) -> tuple[int, str | None]:
+        """Material of a materialBind GeomSubset: its bound material (ComputeBoundMaterial also
+        walks up to the mesh and its ancestors), else -- nothing bound, or an unusable material
+        -- the mesh's own ``mesh_hit`` (so a displayColor fallback stays the mesh's)."""
+        hit = self._bound_index(subset)
+        return mesh_hit if hit is None else hit
+
+    def _bound_index(self, prim: Usd.Prim) -> tuple[int, str | None] | None:
+        material = self._bound_material(prim)
+        if material is None:
+            return None
+        key = str(material.GetPath())
+        if key not in self._by_path:
+            # Read each material once; an unusable one is remembered as None so that it is
+            # neither re-read nor re-warned for every prim bound to it.
+            desc, st_name = self._read_material(material)
+            self._by_path[key] = None if desc is None else (self._add(desc), st_name)
+        return self._by_path[key]
 
     def _bound_material(self, prim: Usd.Prim) -> UsdShade.Material | None:
         api = UsdShade.MaterialBindingAPI(prim)
@@ -217,7 +238,7 @@ class MaterialTable:
         def wrap(name: str) -> str:
             mode = str(self._texture_value(tex, name))
             if mode == "useMetadata":
-                return "repeat"  # as hdStorm when the file carries no wrap metadata
+                return mode  # the file's metadata, else black: resolved at load (renderer/textures.py)
             if mode not in _WRAP_MODES:
                 raise ctx.error(f"unknown wrap mode '{mode}' (allowed: {', '.join(_WRAP_MODES)}, useMetadata)",
                                 prim, f"inputs:{name}")
@@ -229,6 +250,7 @@ class MaterialTable:
                             prim, "inputs:sourceColorSpace")
         if output not in _OUTPUT_CHANNELS:
             raise ctx.error(f"unknown UsdUVTexture output '{output}'", prim, f"outputs:{output}")
+        st_name, st_transform = self._st_primvar(tex)
         return TextureDesc(
             file=path,
             source_color_space=space,
@@ -238,12 +260,15 @@ class MaterialTable:
             bias=ctx.finite_tuple(prim, "inputs:bias", self._texture_value(tex, "bias")),
             fallback=ctx.finite_tuple(prim, "inputs:fallback", self._texture_value(tex, "fallback")),
             output=output,
-            st_primvar=self._st_primvar(tex),
+            st_primvar=st_name,
+            st_transform=st_transform,
         )
 
-    def _st_primvar(self, tex: UsdShade.Shader) -> str:
-        """Primvar name read by the UsdPrimvarReader_float2 feeding ``inputs:st`` ('st' if none)."""
+    def _st_primvar(self, tex: UsdShade.Shader) -> tuple[str, tuple]:
+        """(primvar name read by the UsdPrimvarReader_float2 feeding ``inputs:st`` ('st' if none),
+        the UsdTransform2d nodes on the way composed as TextureDesc.st_transform, () if none)."""
         attr = self._producing_attribute(tex, "st")
+        m = np.eye(3)  # homogeneous 2D affine, the node nearest the texture applied last
         seen = 0
         while attr is not None and UsdShade.Output.IsOutput(attr) and seen < 8:
             seen += 1
@@ -254,11 +279,25 @@ class MaterialTable:
                 name = var_attr.Get(self.ctx.time) if var_attr is not None else None
                 name = str(name or "st")
                 # Some exporters write the full attribute name; the primvar's name is what we need.
-                return name[len("primvars:"):] if name.startswith("primvars:") else name
+                return (name[len("primvars:"):] if name.startswith("primvars:") else name), _affine(m)
             if src_id == "UsdTransform2d":
-                self.ctx.warn("transform2d", f"{src.GetPath()}: UsdTransform2d is ignored (texture "
-                                             "coordinates are used untransformed)")
+                m = m @ self._transform2d(src)
                 attr = self._producing_attribute(src, "in")
                 continue
             break
-        return "st"
+        return "st", _affine(m)
+
+    def _transform2d(self, node: UsdShade.Shader) -> np.ndarray:
+        """(3, 3) homogeneous matrix of a UsdTransform2d: "result = in * scale * rotate +
+        translation" (UsdPreviewSurface spec), rotation counter-clockwise in degrees."""
+        prim = node.GetPrim()
+
+        def value(name):
+            return self.ctx.finite_tuple(prim, f"inputs:{name}", np.atleast_1d(
+                self._constant_input(node, name, self._transform_defaults)))
+
+        sx, sy = value("scale")[:2]
+        (angle,) = value("rotation")[:1]
+        tx, ty = value("translation")[:2]
+        c, s = np.cos(np.radians(angle)), np.sin(np.radians(angle))
+        return np.array([[c * sx, -s * sy, tx], [s * sx, c * sy, ty], [0.0, 0.0, 1.0]])

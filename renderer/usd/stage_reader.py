@@ -151,7 +151,8 @@ class _LocalMesh:
     """A gprim triangulated in its own local space, winding already front-facing (CCW).
 
     points (V, 3) float64; triangles (T, 3) int64; normals (T, 3, 3) float64 or None;
-    st (T, 3, 2) float32 or None.
+    st (T, 3, 2) float32 or None; tri_material (T,) int64 per-triangle material from
+    materialBind GeomSubsets, or None when every triangle has ``material``.
     """
 
     path: str
@@ -161,6 +162,40 @@ class _LocalMesh:
     st: np.ndarray | None
     material: int
     double_sided: bool
+    tri_material: np.ndarray | None = None
+
+
+def _smooth_vertex_normals(points: np.ndarray, tris: np.ndarray, tri_face: np.ndarray,
+                           counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) per-corner normals: at each vertex the area-weighted mean of the normals of the
+    *faces* using it (each face counted once, however it was triangulated; front =
+    counter-clockwise triangles (T, 3) of faces tri_face (T,)). Vertices whose normals cancel get
+    a zero normal, which the scene build replaces by the face normal."""
+    p = points[tris]
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # |fn| = 2 area: area weighting
+    n_faces = len(counts)
+    face_n = np.stack([np.bincount(tri_face, weights=fn[:, k], minlength=n_faces) for k in range(3)], axis=1)
+    corner_face = np.repeat(np.arange(n_faces), counts)  # face of each faceVertexIndices entry
+    vn = np.stack([np.bincount(indices, weights=face_n[corner_face, k], minlength=len(points))
+                   for k in range(3)], axis=1)
+    length = np.linalg.norm(vn, axis=1, keepdims=True)
+    vn = vn / np.where(length > 0.0, length, 1.0)
+    return vn[tris]
+
+
+def _split_by_material(desc: MeshDesc, tri_material: np.ndarray) -> list[MeshDesc]:
+    """One MeshDesc per material of ``tri_material`` (T,), each with only its triangles and
+    the points they use; all keep the gprim's path (light linking matches them all)."""
+    out = []
+    for m in np.unique(tri_material):
+        sel = tri_material == m
+        tris = desc.triangles[sel]
+        used, remap = np.unique(tris, return_inverse=True)
+        out.append(dataclasses.replace(
+            desc, points=desc.points[used], triangles=remap.reshape(tris.shape).astype(np.int32),
+            normals=None if desc.normals is None else desc.normals[sel],
+            st=None if desc.st is None else desc.st[sel], material=int(m)))
+    return out
 
 
 def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
@@ -295,7 +330,10 @@ class _Traversal:
         if len(mats) == 0 or len(lm.triangles) == 0:
             return None
         desc = _place(lm, mats)
-        self.meshes.append(desc)
+        if lm.tri_material is None:
+            self.meshes.append(desc)
+        else:  # GeomSubset materials: one MeshDesc per material (instances share the pattern)
+            self.meshes.extend(_split_by_material(desc, np.tile(lm.tri_material, len(mats))))
         self.ctx.stats["triangles"] += len(desc.triangles)
         return desc
 
@@ -385,7 +423,10 @@ class _Traversal:
     def _local_geometry(self, prim: Usd.Prim) -> _LocalMesh | None:
         if prim.IsA(UsdGeom.Mesh):
             material, st_name = self.materials.index_for(prim)
-            return self._read_mesh(prim, material, st_name or "st")
+            subsets = self._material_subsets(prim, (material, st_name))
+            if subsets and st_name is None:
+                st_name = next((st for _p, _f, _m, st in subsets if st), None)
+            return self._read_mesh(prim, material, st_name or "st", subsets)
         if any(prim.IsA(t) for t in _IMPLICIT_TYPES):
             material, _st = self.materials.index_for(prim)
             return self._read_implicit(prim, material)
@@ -393,7 +434,37 @@ class _Traversal:
                       f"{prim.GetPath()}: {prim.GetTypeName()} prims are not supported; skipped")
         return None
 
-    def _read_mesh(self, prim: Usd.Prim, material: int, st_name: str) -> _LocalMesh | None:
+    def _material_subsets(self, prim: Usd.Prim, mesh_hit) -> list[tuple[str, np.ndarray, int, str | None]]:
+        """(subset path, face ids, material, st primvar name) of each materialBind GeomSubset
+        whose bound material differs from the mesh's (UsdShade: a subset's binding applies to its
+        faces; faces in no such subset keep the mesh's material)."""
+        subsets = UsdShade.MaterialBindingAPI(prim).GetMaterialBindSubsets()
+        if not subsets:
+            return []
+        path = prim.GetPath()
+        if prim.HasAPI(UsdLux.LightAPI):
+            # A mesh light is one emitter with one colour (usd/lux.read_geometry_light).
+            self.ctx.warn(f"subset-light-{path}", f"{path}: GeomSubset material bindings on a mesh light "
+                                                  "are ignored; the mesh's own material is used")
+            return []
+        out = []
+        for subset in subsets:
+            if subset.GetElementTypeAttr().Get() != UsdGeom.Tokens.face:
+                continue
+            material, st_name = self.materials.index_for_subset(subset.GetPrim(), mesh_hit)
+            if material == mesh_hit[0]:
+                continue
+            raw = subset.GetIndicesAttr().Get(self.ctx.time)
+            faces = np.asarray(raw if raw is not None else [], dtype=np.int64)
+            if st_name and mesh_hit[1] and st_name != mesh_hit[1]:
+                self.ctx.warn("material-many-st", f"{subset.GetPath()}: its material reads st primvar "
+                                                  f"'{st_name}', the mesh's '{mesh_hit[1]}'; illum uses "
+                                                  f"'{mesh_hit[1]}' for the whole mesh")
+            out.append((str(subset.GetPath()), faces, material, st_name))
+        return out
+
+    def _read_mesh(self, prim: Usd.Prim, material: int, st_name: str,
+                   subsets: list | None = None) -> _LocalMesh | None:
         ctx, t = self.ctx, self.ctx.time
         mesh = UsdGeom.Mesh(prim)
         raw_points = mesh.GetPointsAttr().Get(t)
@@ -424,7 +495,7 @@ class _Traversal:
             # one key for the whole stage: reported once, with the count of further meshes
             ctx.warn("subdivision", f"{prim.GetPath()}: subdivisionScheme '{scheme}' (catmullClark is the "
                                     "fallback when unauthored): illum renders subdivision meshes as their "
-                                    "control cage")
+                                    "control cage (smooth vertex normals unless normals are authored)")
         holes = mesh.GetHoleIndicesAttr().Get(t)
         holes = np.asarray(holes, dtype=np.int64) if holes is not None and len(holes) else None
 
@@ -433,6 +504,12 @@ class _Traversal:
             tri_corners = tri_corners[:, [0, 2, 1]]  # front faces wind clockwise: make them CCW
         sizes = (len(points), len(counts), len(indices))
         normals = self._mesh_normals(prim, mesh, tri_corners, tri_face, indices, sizes)
+        if normals is None and scheme in (UsdGeom.Tokens.catmullClark, UsdGeom.Tokens.loop):
+            # UsdGeom: a subdivided mesh is a smooth surface whose normals the subdivision defines
+            # ("normals should not be authored on any Mesh that is subdivided"). Rendering the
+            # cage, take the area-weighted vertex normals Hydra's delegates (Storm, hdEmbree)
+            # use at refine level 0, not flat facets; bilinear and none stay faceted.
+            normals = _smooth_vertex_normals(points, indices[tri_corners], tri_face, counts, indices)
         st = self._primvar_corners(prim, st_name, tri_corners, tri_face, indices, sizes, width=2)
         return _LocalMesh(
             path=str(prim.GetPath()),
@@ -442,7 +519,24 @@ class _Traversal:
             st=None if st is None else st.astype(np.float32),
             material=material,
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
+            tri_material=self._triangle_materials(subsets, material, len(counts), tri_face),
         )
+
+    def _triangle_materials(self, subsets, material, n_faces, tri_face) -> np.ndarray | None:
+        """(T,) material per triangle from the subsets' face ids (the first subset listing a face
+        wins; out-of-range ids are skipped with a warning), or None if all are ``material``."""
+        if not subsets:
+            return None
+        face_material = np.full(n_faces, material, dtype=np.int64)
+        for path, faces, m, _st in reversed(subsets):
+            bad = (faces < 0) | (faces >= n_faces)
+            if bad.any():
+                self.ctx.warn(f"subset-indices-{path}", f"{path}: GeomSubset face indices "
+                                                        f"{faces[bad][:5].tolist()} are out of range for "
+                                                        f"{n_faces} faces; ignored")
+            face_material[faces[~bad]] = m
+        tri_material = face_material[tri_face]
+        return None if np.all(tri_material == material) else tri_material
 
     def _mesh_normals(self, prim, mesh, tri_corners, tri_face, indices, sizes):
         """Per-corner local normals: ``primvars:normals`` wins over ``normals``; None if neither."""

@@ -152,10 +152,48 @@ def test_srgb_decoding_rules(tmp_path):
     np.testing.assert_allclose(c.lookup(tex(exr), st)[0], [0.0, 0.5, 1.0, 0.5])  # float: linear
     srgb_f = c.lookup(tex(exr, source_color_space="sRGB"), st)[0]
     np.testing.assert_allclose(srgb_f, [0.0, srgb_to_linear(0.5), 1.0, 0.5], rtol=1e-6)
+    # UsdPreviewSurface spec, 'auto' without metadata: sRGB only for 8-bit files with 3 or 4
+    # channels, so a 16-bit file is read as stored (it used to be decoded).
     auto16 = c.lookup(tex(png16), st)[0]
-    np.testing.assert_allclose(auto16[:3], [0.0, srgb_to_linear(32768 / 65535), 1.0], rtol=1e-5)
+    np.testing.assert_allclose(auto16[:3], [0.0, 32768 / 65535, 1.0], rtol=1e-5)
     # One file, read once, however many colour-space variants use it.
     assert len(c._files) == 3
+
+
+@pytest.mark.parametrize("channels", [1, 2])
+def test_auto_reads_one_and_two_channel_8bit_files_raw(tmp_path, channels):
+    """An 8-bit grey roughness/metallic map (or grey + alpha) is data, not colour: under 'auto'
+    the spec decodes only 3- and 4-channel 8-bit files, so 128 stays 128/255 (sRGB-decoding
+    it would give 0.216 and turn roughness 0.5 into 0.2). 'sRGB' still decodes when asked."""
+    v8 = np.full((1, 1, channels), 128, dtype=np.uint8)
+    path = write_image(tmp_path / f"grey{channels}.png", v8)
+    c = TextureCache()
+    st = np.array([[0.5, 0.5]])
+    half = 128.0 / 255.0
+    np.testing.assert_allclose(c.lookup(tex(path), st)[0, :3], [half] * 3, rtol=1e-6)
+    forced = c.lookup(tex(path, source_color_space="sRGB"), st)[0, :3]
+    np.testing.assert_allclose(forced, [srgb_to_linear(half)] * 3, rtol=1e-6)
+
+
+def test_use_metadata_reads_the_file_else_black(tmp_path):
+    """UsdUVTexture wrap 'useMetadata' (the fallback): the file's wrap metadata, and "if the
+    texture contains no such metadata, then fall back to black" (UsdPreviewSurface spec)."""
+    px = np.array([[[1.0], [2.0]], [[3.0], [4.0]]], dtype=np.float32)  # top row 1 2, bottom 3 4
+    plain = write_image(tmp_path / "plain.exr", px)
+    spec = oiio.ImageSpec(2, 2, 1, oiio.FLOAT)
+    spec.attribute("wrapmodes", "periodic,clamp")
+    tagged = str(tmp_path / "tagged.exr")
+    out = oiio.ImageOutput.create(tagged)
+    assert out.open(tagged, spec)
+    assert out.write_image(px)
+    out.close()
+    c = TextureCache()
+    st = np.array([[1.25, 0.25], [0.25, 1.75]])  # s past the right edge; t past the top
+    meta = tex(plain, wrap_s="useMetadata", wrap_t="useMetadata")
+    np.testing.assert_allclose(c.lookup(meta, st)[:, 0], [0.0, 0.0])  # no metadata: black
+    meta = tex(tagged, wrap_s="useMetadata", wrap_t="useMetadata")
+    np.testing.assert_allclose(c.lookup(meta, st)[:, 0], [3.0, 1.0])  # s periodic, t clamped
+    assert c.wrap_modes(meta) == ("repeat", "clamp")
 
 
 def test_srgb_curve():
@@ -235,7 +273,7 @@ def test_non_finite_st_gets_fallback(quad_exr):
 
 def test_bad_tokens_raise(quad_exr):
     with pytest.raises(StageError):
-        TextureCache().add(tex(quad_exr, wrap_s="useMetadata"))
+        TextureCache().add(tex(quad_exr, wrap_s="periodic"))  # OIIO's name, not a USD token
     with pytest.raises(StageError):
         TextureCache().add(tex(quad_exr, source_color_space="linear"))
     with pytest.raises(StageError):

@@ -137,7 +137,7 @@ def test_texture_desc(tmp_path, through_nodegraph):
     assert tex is not None
     assert tex.file == os.path.join(str(tmp_path), "tex", "wood.png") and os.path.isabs(tex.file)
     assert tex.source_color_space == "sRGB"
-    assert (tex.wrap_s, tex.wrap_t) == ("clamp", "repeat")  # useMetadata -> repeat
+    assert (tex.wrap_s, tex.wrap_t) == ("clamp", "useMetadata")  # resolved from the file at load
     assert tex.scale == (2.0, 2.0, 2.0, 1.0) and tex.bias == pytest.approx((0.1, 0, 0, 0))
     assert tex.fallback == pytest.approx((0.3, 0.4, 0.5, 1.0))
     assert tex.output == "rgb" and tex.st_primvar == "uvSet1"
