@@ -18,6 +18,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from .allocator import tune_allocator
 from .errors import SettingsError
 from .film import Film, write_exr, write_png
 
@@ -112,6 +113,7 @@ def render(
 
     opt = options or RenderOptions()
     opt.validate()
+    tune_allocator()  # keep bounce temporaries' memory in the process (renderer/allocator.py)
     threads = opt.threads or default_threads()
     phases = {}
     t_start = time.perf_counter()
