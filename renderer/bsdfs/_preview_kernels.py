@@ -12,13 +12,14 @@ integrator already parallelises over threads.
 Per-point parameters live in one packed (n, K) float64 array ``P`` (columns below), so that
 ``take(rows)`` is a single gather and the kernels read one row of one array per point:
 
-    RHO..RHO+2   rho_d, diffuse base albedo            F0..F0+2    specular F0
+    RHO..RHO+2   rho_d, diffuse base albedo            F0..F0+2    specular F0 (normal incidence)
+    F90..F90+2   specular F90 (grazing; Schlick F = F0 + (F90 - F0)(1 - wo.h)^5)
     ALPHA        GGX alpha (>= ALPHA_MIN)              KD..KD+2    rho_d / (pi (1 - E_avg))
     INV_OMA..+2  1 / (1 - E_avg) (0 if E_avg ~ 1)
     J0, FY       the alpha coordinate of the albedo tables (node index as a float, fraction):
                  wo- and wi-independent, so computed once at construction (saves a log per lookup)
     COS_B        cos_o = wo.z the wo terms below were computed for (NaN: none yet)
-    AO_B, BO_B   (A, B) = albedo-table lookup at (COS_B, alpha), i.e. E(wo) = F0 A + B
+    AO_B, BO_B   (A, B) = albedo-table lookup at (COS_B, alpha), i.e. E(wo) = F0 A + F90 B
     PD_B         P_diffuse(wo), the lobe-selection probability
 
 The wo terms depend on wo only through wo.z, so a kernel that meets ``wo[r, 2] == P[r, COS_B]``
@@ -53,7 +54,8 @@ COS_B = 15
 AO_B = 16
 BO_B = 17
 PD_B = 18
-K = 19
+F90 = 19
+K = 22
 
 
 # Helpers are ordinary njit functions taking and returning scalars (plus the tables, in the
@@ -87,11 +89,12 @@ def _lookup(mu, j0, fy, ta, tb):
 
 
 @njit(cache=True, nogil=True)
-def _p_diffuse(rho0, rho1, rho2, f00, f01, f02, ao, bo):
-    """Probability of picking the diffuse lobe: lum(rho_d (1 - E_o)) / (that + lum(E_o))."""
-    e0 = f00 * ao + bo
-    e1 = f01 * ao + bo
-    e2 = f02 * ao + bo
+def _p_diffuse(rho0, rho1, rho2, f00, f01, f02, g0, g1, g2, ao, bo):
+    """Probability of picking the diffuse lobe: lum(rho_d (1 - E_o)) / (that + lum(E_o)), with
+    E_o = F0 ao + F90 bo per channel (F0 = f0k, F90 = gk)."""
+    e0 = f00 * ao + g0 * bo
+    e1 = f01 * ao + g1 * bo
+    e2 = f02 * ao + g2 * bo
     wd = _LUM_R * rho0 * (1.0 - e0) + _LUM_G * rho1 * (1.0 - e1) + _LUM_B * rho2 * (1.0 - e2)
     ws = _LUM_R * e0 + _LUM_G * e1 + _LUM_B * e2
     tot = wd + ws
@@ -206,7 +209,7 @@ def _clip01(x):
 @njit(cache=True, nogil=True)
 def inputs_kernel(diffuse, spec, use_spec, metallic, roughness, ior, P):
     """PreviewSurfaceBSDF.from_inputs: UsdPreviewSurface inputs (colours (n, 3), the rest (n,))
-    -> the RHO, F0 and ALPHA columns of P (same formulas and NaN behaviour as the numpy path)."""
+    -> the RHO, F0, F90 and ALPHA columns of P (same formulas and NaN behaviour as the numpy path)."""
     for r in range(P.shape[0]):
         m = _clip01(metallic[r])
         x = ior[r]
@@ -217,9 +220,11 @@ def inputs_kernel(diffuse, spec, use_spec, metallic, roughness, ior, P):
             d = _clip01(diffuse[r, k])
             if use_spec[r]:
                 P[r, F0 + k] = _clip01(spec[r, k])
+                P[r, F90 + k] = 1.0
                 P[r, RHO + k] = d
             else:
                 P[r, F0 + k] = f0_dielectric * (1.0 - m) + d * m
+                P[r, F90 + k] = (1.0 - m) + d * m
                 P[r, RHO + k] = d * (1.0 - m)
         rough = _clip01(roughness[r])
         a = rough * rough
@@ -228,7 +233,7 @@ def inputs_kernel(diffuse, spec, use_spec, metallic, roughness, ior, P):
 
 @njit(cache=True, nogil=True)
 def init_kernel(P, ta_avg, tb_avg):
-    """Fill the derived columns of P from RHO, F0, ALPHA: KD, INV_OMA, J0, FY; clear the wo terms."""
+    """Fill the derived columns of P from RHO, F0, F90, ALPHA: KD, INV_OMA, J0, FY; clear the wo terms."""
     for r in range(P.shape[0]):
         j0, fy = _alpha_coord(P[r, ALPHA])
         P[r, J0] = j0
@@ -236,7 +241,7 @@ def init_kernel(P, ta_avg, tb_avg):
         a_avg = ta_avg[j0] * (1.0 - fy) + ta_avg[j0 + 1] * fy
         b_avg = tb_avg[j0] * (1.0 - fy) + tb_avg[j0 + 1] * fy
         for k in range(3):
-            oma = 1.0 - (P[r, F0 + k] * a_avg + b_avg)
+            oma = 1.0 - (P[r, F0 + k] * a_avg + P[r, F90 + k] * b_avg)
             ok = oma > 1e-9
             P[r, KD + k] = P[r, RHO + k] * _INV_PI / oma if ok else 0.0
             P[r, INV_OMA + k] = 1.0 / oma if ok else 0.0
@@ -255,7 +260,8 @@ def bind_kernel(wo, P, ta, tb):
         P[r, AO_B] = ao
         P[r, BO_B] = bo
         P[r, PD_B] = _p_diffuse(
-            P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+            P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2],
+            P[r, F90], P[r, F90 + 1], P[r, F90 + 2], ao, bo,
         )
         P[r, COS_B] = woz
 
@@ -284,14 +290,15 @@ def wo_kernel(wo, P, ta, tb, out_dc, out_pd):
         else:
             ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
             p_d = _p_diffuse(
-                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2],
+                P[r, F90], P[r, F90 + 1], P[r, F90 + 2], ao, bo,
             )
         if want_pd:
             out_pd[r] = p_d
         if want_dc:
             up = woz > 0.0
             for k in range(3):
-                e = P[r, F0 + k] * ao + bo if up else 0.0
+                e = P[r, F0 + k] * ao + P[r, F90 + k] * bo if up else 0.0
                 out_dc[r, k] = P[r, RHO + k] * (1.0 - e) * _INV_PI * (1.0 if up else 0.0)
 
 
@@ -317,7 +324,8 @@ def eval_kernel(wo, wi, P, ta, tb, out_f, out_fd, out_fs, out_pdf):
         else:
             ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
             p_d = _p_diffuse(
-                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2],
+                P[r, F90], P[r, F90 + 1], P[r, F90 + 2], ao, bo,
             )
         both_up = woz > 0.0 and wiz > 0.0
         if both_up:
@@ -333,10 +341,11 @@ def eval_kernel(wo, wi, P, ta, tb, out_f, out_fd, out_fs, out_pdf):
             ok, dv, w, pdf_s = _specular(wo[r, 0], wo[r, 1], woz, wi[r, 0], wi[r, 1], wiz, P[r, ALPHA])
         for k in range(3):
             fk = P[r, F0 + k]
-            c_o = 1.0 - (fk * ao + bo)
-            c_i = 1.0 - (fk * ai + bi)
+            gk = P[r, F90 + k]
+            c_o = 1.0 - (fk * ao + gk * bo)
+            c_i = 1.0 - (fk * ai + gk * bi)
             fd = P[r, KD + k] * c_o * c_i if both_up else 0.0
-            fs = (fk + (1.0 - fk) * w) * dv if ok else 0.0
+            fs = (fk + (gk - fk) * w) * dv if ok else 0.0
             if want_f:
                 out_f[r, k] = fd + fs if ok else 0.0
             if want_fd:
@@ -362,7 +371,8 @@ def sample_kernel(wo, u_lobe, u, P, ta, tb, out_wi, out_f, out_pdf, out_lobe):
         else:
             ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
             p_d = _p_diffuse(
-                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2],
+                P[r, F90], P[r, F90 + 1], P[r, F90 + 2], ao, bo,
             )
         pick_diffuse = u_lobe[r] < p_d
         out_lobe[r] = 0 if pick_diffuse else 1
@@ -375,9 +385,10 @@ def sample_kernel(wo, u_lobe, u, P, ta, tb, out_wi, out_f, out_pdf, out_lobe):
             ai, bi = _lookup(wiz, int(P[r, J0]), P[r, FY], ta, tb)
             for k in range(3):
                 fk = P[r, F0 + k]
-                c_o = 1.0 - (fk * ao + bo)
-                c_i = 1.0 - (fk * ai + bi)
-                out_f[r, k] = P[r, KD + k] * c_o * c_i + (fk + (1.0 - fk) * w) * dv
+                gk = P[r, F90 + k]
+                c_o = 1.0 - (fk * ao + gk * bo)
+                c_i = 1.0 - (fk * ai + gk * bi)
+                out_f[r, k] = P[r, KD + k] * c_o * c_i + (fk + (gk - fk) * w) * dv
             out_pdf[r] = p_d * wiz * _INV_PI + (1.0 - p_d) * pdf_s
         else:
             out_f[r, 0] = 0.0
@@ -448,7 +459,8 @@ def light_half_kernel(wo, s, t, ns, ng, wi, L, pdf_l, delta, pmf, power, beta, P
         else:
             ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
             p_d = _p_diffuse(
-                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2],
+                P[r, F90], P[r, F90 + 1], P[r, F90 + 2], ao, bo,
             )
         ai, bi = _lookup(wz, int(P[r, J0]), P[r, FY], ta, tb)
         p_b = p_d * wz * _INV_PI + (1.0 - p_d) * pdf_s
@@ -463,9 +475,10 @@ def light_half_kernel(wo, s, t, ns, ng, wi, L, pdf_l, delta, pmf, power, beta, P
         k_all = wz * h * inv_pl / pk
         for k in range(3):
             fk = P[r, F0 + k]
-            c_o = 1.0 - (fk * ao + bo)
-            c_i = 1.0 - (fk * ai + bi)
-            f = P[r, KD + k] * c_o * c_i + (fk + (1.0 - fk) * w) * dv
+            gk = P[r, F90 + k]
+            c_o = 1.0 - (fk * ao + gk * bo)
+            c_i = 1.0 - (fk * ai + gk * bi)
+            f = P[r, KD + k] * c_o * c_i + (fk + (gk - fk) * w) * dv
             out_c[r, k] = beta[r, k] * f * L[r, k] * k_all
 
 
@@ -494,7 +507,8 @@ def scatter_kernel(wo, s, t, ns, ng, beta, u_lobe, u, u_rr, rr, P, ta, tb, out_w
         else:
             ao, bo = _lookup(woz, int(P[r, J0]), P[r, FY], ta, tb)
             p_d = _p_diffuse(
-                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2], ao, bo
+                P[r, RHO], P[r, RHO + 1], P[r, RHO + 2], P[r, F0], P[r, F0 + 1], P[r, F0 + 2],
+                P[r, F90], P[r, F90 + 1], P[r, F90 + 2], ao, bo,
             )
         wix, wiy, wiz = _sample_dir(wox, woy, woz, a, u_lobe[r] < p_d, u[r, 0], u[r, 1])
         wx = wix * s[r, 0] + wiy * t[r, 0] + wiz * ns[r, 0]
@@ -512,9 +526,10 @@ def scatter_kernel(wo, s, t, ns, ng, beta, u_lobe, u, u_rr, rr, P, ta, tb, out_w
             k_all = abs(wiz) / pdf
             for k in range(3):
                 fk = P[r, F0 + k]
-                c_o = 1.0 - (fk * ao + bo)
-                c_i = 1.0 - (fk * ai + bi)
-                out_beta[r, k] = beta[r, k] * (P[r, KD + k] * c_o * c_i + (fk + (1.0 - fk) * w) * dv) * k_all
+                gk = P[r, F90 + k]
+                c_o = 1.0 - (fk * ao + gk * bo)
+                c_i = 1.0 - (fk * ai + gk * bi)
+                out_beta[r, k] = beta[r, k] * (P[r, KD + k] * c_o * c_i + (fk + (gk - fk) * w) * dv) * k_all
             b0 = out_beta[r, 0]
             b1 = out_beta[r, 1]
             b2 = out_beta[r, 2]

@@ -19,11 +19,14 @@ Formulas (Heitz 2014, "Understanding the masking-shadowing function"):
   The density of the reflected direction is pdf(wi) = G1(wo) D(h) / (4 cos_o) = D(h) / (2 (cos_o + s_o)).
 
 The module also tabulates the directional albedo of the single-scattering GGX lobe with
-Schlick's Fresnel (F90 = 1), which is linear in F0:
+Schlick's Fresnel F = F0 + (F90 - F0) w = F0 (1 - w) + F90 w, w = (1 - wo.h)^5, which is
+linear in (F0, F90):
 
-    E(mu_o, alpha, F0) = F0 * A(mu_o, alpha) + B(mu_o, alpha)
+    E(mu_o, alpha, F0, F90) = F0 * A(mu_o, alpha) + F90 * B(mu_o, alpha)
 
-(the split-sum factorisation hdStorm's dome-light BRDF table also uses). A and B live in
+with A = mean((1 - w) G2/G1) and B = mean(w G2/G1) under VNDF sampling (see
+``compute_albedo_tables``; F90 = 1 gives the usual split sum F0 A + B, the factorisation
+hdStorm's dome-light BRDF table also uses). A and B live in
 ``_ggx_albedo_data.py`` (regenerate with ``python -m renderer.bsdfs.microfacet``), and
 ``albedo_tables()`` interpolates them bilinearly in (sqrt(mu), log(alpha)). The cosine-weighted
 hemispherical averages E_avg = 2 * integral E(mu) mu dmu are computed from the *same* piecewise-linear
@@ -101,10 +104,11 @@ def schlick_weight(cos_d: np.ndarray) -> np.ndarray:
     return m2 * m2 * m
 
 
-def fresnel_schlick(f0: np.ndarray, cos_d: np.ndarray) -> np.ndarray:
-    """Schlick's Fresnel F = F0 + (1 - F0)(1 - cos)^5 with F90 = 1. f0 (n, 3), cos_d (n,) -> (n, 3)."""
+def fresnel_schlick(f0: np.ndarray, cos_d: np.ndarray, f90: np.ndarray | None = None) -> np.ndarray:
+    """Schlick's Fresnel F = F0 + (F90 - F0)(1 - cos)^5 (F90 = 1 if None).
+    f0, f90 (n, 3), cos_d (n,) -> (n, 3)."""
     w = schlick_weight(cos_d)[:, None]
-    return f0 + (1.0 - f0) * w
+    return f0 + ((1.0 if f90 is None else f90) - f0) * w
 
 
 # --------------------------------------------------------------------------------------
@@ -262,7 +266,7 @@ def albedo_tables() -> "AlbedoTables":
 
 
 class AlbedoTables:
-    """Bilinear lookups of the single-scattering GGX+Schlick albedo E = F0 A + B.
+    """Bilinear lookups of the single-scattering GGX+Schlick albedo E = F0 A + F90 B.
 
     a, b: (N_MU, N_A) nodal values; a_avg, b_avg: (N_A,) exact cosine-weighted averages of the
     mu-interpolants (2 integral A(mu) mu dmu). Interpolation is bilinear in (sqrt(mu), log(alpha)).
@@ -308,15 +312,16 @@ class AlbedoTables:
             self.b_avg[j0] * (1.0 - fy) + self.b_avg[j0 + 1] * fy,
         )
 
-    def albedo(self, f0: np.ndarray, mu: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-        """E(mu) = F0 A + B: (n, 3) directional albedo of the GGX lobe (no cosine inside)."""
+    def albedo(self, f0: np.ndarray, mu: np.ndarray, alpha: np.ndarray, f90: np.ndarray | None = None) -> np.ndarray:
+        """E(mu) = F0 A + F90 B: (n, 3) directional albedo of the GGX lobe (no cosine inside);
+        f0, f90 (n, 3) (F90 = 1 if None), mu, alpha (n,)."""
         a, b = self.lookup(mu, alpha)
-        return f0 * a[:, None] + b[:, None]
+        return f0 * a[:, None] + (1.0 if f90 is None else f90) * b[:, None]
 
-    def albedo_avg(self, f0: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-        """E_avg = F0 A_avg + B_avg: (n, 3) cosine-weighted hemispherical average of E."""
+    def albedo_avg(self, f0: np.ndarray, alpha: np.ndarray, f90: np.ndarray | None = None) -> np.ndarray:
+        """E_avg = F0 A_avg + F90 B_avg: (n, 3) cosine-weighted hemispherical average of E."""
         a, b = self.lookup_avg(alpha)
-        return f0 * a[:, None] + b[:, None]
+        return f0 * a[:, None] + (1.0 if f90 is None else f90) * b[:, None]
 
 
 def _write_table_module(path: str, k: int = 512) -> None:

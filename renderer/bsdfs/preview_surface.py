@@ -10,15 +10,22 @@ Parameters (from ``SurfaceParams``, see ``from_params``)
   lobe a finite density (no delta lobes in illum); hdStorm clamps roughness at 1e-3 instead,
   which is a thinner floor (alpha 1e-6), but our float64 pdfs and float32 film are happier at
   alpha = 1e-3, which is visually a mirror.
-* metallic workflow (useSpecularWorkflow = 0):
-      F0 = lerp(((1 - ior) / (1 + ior))^2, diffuseColor, metallic)   (dielectric F0 is achromatic)
+* metallic workflow (useSpecularWorkflow = 0), as the UsdPreviewSurface spec defines it ("If
+  metallic is 1, then both F0 [...] and edge F90 reflectivity will simply be the Albedo. If
+  metallic is 0, then Albedo is ignored [...]; F0 is derived from ior via ((1-ior)/(1+ior))^2
+  and F90 is white. In between, we interpolate."):
+      F0  = lerp(((1 - ior) / (1 + ior))^2, diffuseColor, metallic)   (dielectric F0 is achromatic)
+      F90 = lerp(1, diffuseColor, metallic)
       rho_d = diffuseColor * (1 - metallic)
-  specular workflow: F0 = specularColor, rho_d = diffuseColor.
+  specular workflow: F0 = specularColor, F90 = 1, rho_d = diffuseColor.
   Colours, metallic and ior are clamped to their physical ranges ([0, 1], [0, 1], >= 0).
-* Fresnel: Schlick on the microfacet half-vector, F = F0 + (1 - F0)(1 - wo.h)^5, with F90 = 1.
-  Deviation from hdStorm: its metallic workflow uses F90 = lerp(1, diffuseColor, metallic), which
-  darkens and tints the grazing reflection of metals; Schlick's (and every physical) Fresnel
-  goes to 1 at grazing, so we keep F90 = 1.
+  hdStorm (previewSurface.glslfx) has the same F90 and endpoints, but interpolates F0 as
+  lerp(R^2 s, s, metallic) with s = lerp(1, diffuseColor, metallic), i.e. quadratically in
+  metallic; we keep the spec's plain interpolation (identical at metallic 0 and 1).
+* Fresnel: Schlick on the microfacet half-vector, F = F0 + (F90 - F0)(1 - wo.h)^5. A metal's
+  grazing reflection is thus tinted by its albedo (F90 < 1). A physical conductor's Fresnel
+  whitens toward grazing, but the spec prescribes the tint, and hdStorm and MaterialX's
+  UsdPreviewSurface graph (since MaterialX PR #1187) follow it; so do we, for interchange.
 
 The lobes
 ---------
@@ -27,8 +34,8 @@ with GGX D and the *height-correlated* Smith G2 (see ``microfacet.py``).
 
     f_diffuse(wo, wi) = rho_d / pi * (1 - E(wo)) (1 - E(wi)) / (1 - E_avg)
 
-where E(w) = F0 A(cos, alpha) + B(cos, alpha) (per RGB channel) is the directional albedo of the
-specular lobe (tabulated, ``microfacet.albedo_tables``) and E_avg = 2 integral E(mu) mu dmu its
+where E(w) = F0 A(cos, alpha) + F90 B(cos, alpha) (per RGB channel) is the directional albedo of
+the specular lobe (tabulated, ``microfacet.albedo_tables``) and E_avg = 2 integral E(mu) mu dmu its
 cosine-weighted average (computed exactly from the same interpolant). This is the
 Kelemen & Szirmay-Kalos (2001) coupling, the form Kulla & Conty (2017) use for energy
 compensation. It is
@@ -36,7 +43,7 @@ compensation. It is
 * reciprocal: symmetric in (wo, wi) (and so is the specular lobe: wo.h = wi.h);
 * energy conserving and, for a white base, energy *preserving*: the diffuse albedo is exactly
   integral f_diffuse cos dwi = rho_d (1 - E(wo)), so the total albedo is
-  E(wo) + rho_d (1 - E(wo)) <= 1 for every rho_d <= 1, F0 <= 1, roughness and angle (up to the
+  E(wo) + rho_d (1 - E(wo)) <= 1 for every rho_d, F0, F90 <= 1, roughness and angle (up to the
   table's interpolation error: <= 1e-3 in E down to 89 degrees, a few 1e-3 within a degree of
   grazing). White diffuse under a dielectric coat passes the furnace test (measured 0.999..1.001).
 
@@ -77,7 +84,7 @@ f, pdf, f_pdf, f_parts, f_diffuse, f_specular, diffuse_constant, lobe_probabilit
 run as numba kernels (``_preview_kernels.py``, single-threaded, GIL released);
 ``reference_f_pdf`` / ``reference_sample_f`` and the per-lobe samplers are the numpy versions the
 tests hold the kernels to. The per-point parameters are packed in one (n, K) array (``_P``), so
-``take`` is a single gather; ``rho_d``, ``f0`` and ``alpha`` are views into it.
+``take`` is a single gather; ``rho_d``, ``f0``, ``f90`` and ``alpha`` are views into it.
 
 wo terms: everything a vertex asks of the BSDF needs E(wo) (a table lookup) and the lobe
 probability. ``bind_wo(wo)`` computes them once and stores them with the cosine they belong
@@ -124,18 +131,20 @@ class PreviewSurfaceBSDF:
 
     rho_d: (n, 3) diffuse base albedo in [0, 1] (``diffuse_albedo()``);
     f0: (n, 3) specular reflectance at normal incidence in [0, 1];
-    alpha: (n,) GGX width, >= ALPHA_MIN.
+    alpha: (n,) GGX width, >= ALPHA_MIN;
+    f90: (n, 3) specular reflectance at grazing incidence in [0, 1] (None: 1, white).
     Use ``from_params`` (or ``renderer.materials.make_bsdf``) to build one from UsdPreviewSurface
     inputs. At a path vertex: ``bsdf.bind_wo(wo)`` once (optional, saves the E(wo) work of every
     later call), then ``f_parts`` for light samples and ``sample_f`` for BSDF samples.
     """
 
-    def __init__(self, rho_d: np.ndarray, f0: np.ndarray, alpha: np.ndarray):
+    def __init__(self, rho_d: np.ndarray, f0: np.ndarray, alpha: np.ndarray, f90: np.ndarray | None = None):
         rho_d = np.asarray(rho_d, dtype=np.float64)
         alpha = np.maximum(np.asarray(alpha, dtype=np.float64), ALPHA_MIN)
         P = np.empty((alpha.shape[0], kernels.K))
         P[:, kernels.RHO : kernels.RHO + 3] = rho_d
         P[:, kernels.F0 : kernels.F0 + 3] = np.asarray(f0, dtype=np.float64)
+        P[:, kernels.F90 : kernels.F90 + 3] = 1.0 if f90 is None else np.asarray(f90, dtype=np.float64)
         P[:, kernels.ALPHA] = alpha
         self._tables = albedo_tables()
         # Per-point constants of the diffuse lobe: k_d = rho_d / (pi (1 - E_avg)), 1 / (1 - E_avg),
@@ -148,6 +157,7 @@ class PreviewSurfaceBSDF:
         # Views into P (read-only by convention; the kernels read P).
         self.rho_d = P[:, kernels.RHO : kernels.RHO + 3]
         self.f0 = P[:, kernels.F0 : kernels.F0 + 3]
+        self.f90 = P[:, kernels.F90 : kernels.F90 + 3]
         self.alpha = P[:, kernels.ALPHA]
         self._k_d = P[:, kernels.KD : kernels.KD + 3]
         self._inv_one_minus_avg = P[:, kernels.INV_OMA : kernels.INV_OMA + 3]
@@ -191,7 +201,7 @@ class PreviewSurfaceBSDF:
         roughness: np.ndarray,
         ior: np.ndarray,
     ) -> "PreviewSurfaceBSDF":
-        """UsdPreviewSurface inputs -> (rho_d, F0, alpha). Shapes: colours (n, 3), the rest (n,)."""
+        """UsdPreviewSurface inputs -> (rho_d, F0, F90, alpha). Shapes: colours (n, 3), the rest (n,)."""
         cols = [np.ascontiguousarray(diffuse_color, dtype=np.float64),
                 np.ascontiguousarray(specular_color, dtype=np.float64)]
         rows = [np.ascontiguousarray(use_specular_workflow, dtype=bool),
@@ -216,9 +226,10 @@ class PreviewSurfaceBSDF:
         f0_dielectric = (r * r)[:, None]
         use_spec = np.asarray(use_specular_workflow, dtype=bool)[:, None]
         f0 = np.where(use_spec, spec, f0_dielectric * (1.0 - m) + diffuse * m)
+        f90 = np.where(use_spec, 1.0, (1.0 - m) + diffuse * m)
         rho_d = np.where(use_spec, diffuse, diffuse * (1.0 - m))
         rough = np.clip(np.asarray(roughness, dtype=np.float64), 0.0, 1.0)
-        return cls(rho_d, f0, np.maximum(rough * rough, ALPHA_MIN))
+        return cls(rho_d, f0, np.maximum(rough * rough, ALPHA_MIN), f90)
 
     def __len__(self) -> int:
         return self.alpha.shape[0]
@@ -292,7 +303,7 @@ class PreviewSurfaceBSDF:
     def specular_albedo(self, wo: np.ndarray) -> np.ndarray:
         """(n, 3) E(wo) = integral f_specular cos dwi (tabulated; 0 for wo.z <= 0)."""
         cos_o = wo[:, 2]
-        e = self._tables.albedo(self.f0, cos_o, self.alpha)
+        e = self._tables.albedo(self.f0, cos_o, self.alpha, self.f90)
         return np.where((cos_o > 0.0)[:, None], e, 0.0)
 
     def diffuse_constant(self, wo: np.ndarray) -> np.ndarray:
@@ -304,8 +315,9 @@ class PreviewSurfaceBSDF:
         return out
 
     def has_residual(self) -> np.ndarray:
-        """(n,) bool: f differs from the control lobe diffuse_constant(wo). Always, because
-        Schlick's Fresnel reaches 1 at grazing even with F0 = 0, so a specular lobe remains."""
+        """(n,) bool: f differs from the control lobe diffuse_constant(wo). True on every row: the
+        specular lobe vanishes only for F0 = F90 = 0 (a black metal), which this overlooks at the
+        cost of a few wasted BSDF samples."""
         return np.ones(len(self), dtype=bool)
 
     def diffuse_factor_wi(self, wi: np.ndarray) -> np.ndarray:
@@ -313,13 +325,13 @@ class PreviewSurfaceBSDF:
         f_diffuse(wo, wi) == diffuse_constant(wo) * diffuse_factor_wi(wi). Its cosine-weighted
         mean over the hemisphere is 1."""
         cos_i = wi[:, 2]
-        c_i = 1.0 - self._tables.albedo(self.f0, cos_i, self.alpha)
+        c_i = 1.0 - self._tables.albedo(self.f0, cos_i, self.alpha, self.f90)
         return np.where((cos_i > 0.0)[:, None], c_i * self._inv_one_minus_avg, 0.0)
 
     def _wo_terms(self, wo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cos_o (n,), c_o = 1 - E(wo) (n, 3), P_d (n,)) for the lobe mixture."""
         cos_o = wo[:, 2]
-        e_o = self._tables.albedo(self.f0, cos_o, self.alpha)
+        e_o = self._tables.albedo(self.f0, cos_o, self.alpha, self.f90)
         c_o = 1.0 - e_o
         w_d = luminance(self.rho_d * c_o)
         w_s = luminance(e_o)
@@ -347,12 +359,12 @@ class PreviewSurfaceBSDF:
         cos_h = h[:, 2]
         cos_d = np.einsum("ij,ij->i", wo, h)
         # Diffuse: k_d (1 - E(wo)) (1 - E(wi)).
-        c_i = 1.0 - self._tables.albedo(self.f0, cos_i, self.alpha)
+        c_i = 1.0 - self._tables.albedo(self.f0, cos_i, self.alpha, self.f90)
         f_d = self._k_d * c_o * c_i
         # Specular: F D V.
         d = ggx_d(cos_h, self.alpha)
         dv = d * ggx_visibility(cos_o, cos_i, self.alpha)
-        f_s = fresnel_schlick(self.f0, cos_d) * dv[:, None]
+        f_s = fresnel_schlick(self.f0, cos_d, self.f90) * dv[:, None]
         pdf = p_d * cos_i * INV_PI + (1.0 - p_d) * ggx_reflection_pdf(cos_o, cos_h, self.alpha)
         okc = ok[:, None]
         return np.where(okc, f_d, 0.0), np.where(okc, f_s, 0.0), np.where(ok, pdf, 0.0)

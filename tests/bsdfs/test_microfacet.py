@@ -90,13 +90,19 @@ def test_cosine_weighted_average_is_exact(alpha):
     k = 200_000
     mu = (np.arange(k) + 0.5) / k
     f0 = np.tile([0.04, 0.5, 1.0], (k, 1))
-    e = t.albedo(f0, mu, np.full(k, alpha))
-    brute = 2.0 * (e * mu[:, None]).sum(axis=0) / k
-    avg = t.albedo_avg(f0[:1], np.array([alpha]))[0]
-    np.testing.assert_allclose(avg, brute, rtol=0, atol=2e-6)
+    for f90 in (None, np.tile([1.0, 0.7, 0.2], (k, 1))):
+        e = t.albedo(f0, mu, np.full(k, alpha), f90)
+        brute = 2.0 * (e * mu[:, None]).sum(axis=0) / k
+        avg = t.albedo_avg(f0[:1], np.array([alpha]), None if f90 is None else f90[:1])[0]
+        np.testing.assert_allclose(avg, brute, rtol=0, atol=2e-6)
 
 
 def test_fresnel_schlick_limits():
     f0 = np.array([[0.04, 0.5, 1.0]])
     np.testing.assert_allclose(mf.fresnel_schlick(f0, np.array([1.0])), f0)
     np.testing.assert_allclose(mf.fresnel_schlick(f0, np.array([0.0])), [[1.0, 1.0, 1.0]])
+    f90 = np.array([[1.0, 0.7, 0.2]])
+    np.testing.assert_allclose(mf.fresnel_schlick(f0, np.array([1.0]), f90), f0)
+    np.testing.assert_allclose(mf.fresnel_schlick(f0, np.array([0.0]), f90), f90)
+    w = 0.5**5
+    np.testing.assert_allclose(mf.fresnel_schlick(f0, np.array([0.5]), f90), f0 * (1.0 - w) + f90 * w)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from renderer.bsdfs.microfacet import ALPHA_MIN
+from renderer.bsdfs.microfacet import ALPHA_MIN, compute_albedo_tables
 from renderer.bsdfs.preview_surface import LOBE_DIFFUSE, LOBE_SPECULAR, PreviewSurfaceBSDF
 from tests.bsdfs.helpers import direction, preview, reflect_z, tile
 from tests.stats import SIGNIFICANCE, chi2_directions, z_test
@@ -217,13 +217,21 @@ def _mc_albedo(b: PreviewSurfaceBSDF, wo1: np.ndarray, n: int, rng) -> np.ndarra
 TABLE_TOL = 2e-3
 
 
-@pytest.mark.parametrize("config", ["white_metal", "white_dielectric", "white_coated_mirror"])
+@pytest.mark.parametrize(
+    "config", ["white_metal", "white_dielectric", "white_coated_mirror", "white_base_f90_half", "tinted_half_metal"]
+)
 def test_energy_conservation(config, rng):
-    """Albedo <= 1 over roughness x angle for F0 = 1 and for a white base under a coat; the white
-    diffuse + dielectric case is energy *preserving* (furnace == 1)."""
+    """Albedo <= 1 over roughness x angle for F0 = 1, for a white base under a coat and with edge
+    reflectivity F90 < 1; a white diffuse base under any coat is energy *preserving* (furnace
+    == 1), which holds only if E(wo) and E_avg use the same F90."""
     n = 100_000
     for roughness in (0.0, 0.05, 0.3, 0.8, 1.0):
-        if config == "white_metal":
+        if config == "white_base_f90_half":
+            alpha = np.full(n, max(roughness * roughness, ALPHA_MIN))
+            b = PreviewSurfaceBSDF(np.ones((n, 3)), np.full((n, 3), 0.04), alpha, np.full((n, 3), 0.5))
+        elif config == "tinted_half_metal":  # channel 1: F0 0.196, F90 0.58, rho_d 0.12
+            b = preview(n, diffuse=(1.0, 0.3, 1.0), metallic=0.6, roughness=roughness)
+        elif config == "white_metal":
             b = preview(n, diffuse=(1, 1, 1), metallic=1.0, roughness=roughness)
         elif config == "white_dielectric":
             b = preview(n, diffuse=(1, 1, 1), roughness=roughness)
@@ -233,7 +241,7 @@ def test_energy_conservation(config, rng):
             w = _mc_albedo(b, direction(theta), n, rng)[:, 1]
             mean, se = w.mean(), w.std(ddof=1) / np.sqrt(n)
             assert mean <= 1.0 + 4.0 * se + TABLE_TOL, (roughness, theta, mean, se)
-            if config == "white_dielectric":
+            if config in ("white_dielectric", "white_base_f90_half"):
                 assert mean >= 1.0 - 4.0 * se - TABLE_TOL, (roughness, theta, mean, se)
 
 
@@ -287,6 +295,52 @@ def test_specular_albedo_table_matches_the_lobe(roughness, theta, rng):
         assert abs(mean - e[k]) <= 4.0 * se + TABLE_TOL, (k, mean, e[k], se)
 
 
+# --------------------------------------------------------------------------------------
+# Edge reflectivity F90 (spec: "If metallic is 1, then both F0 [...] and edge F90 reflectivity
+# will simply be the Albedo"; F90 is white for metallic 0 and in the specular workflow)
+# --------------------------------------------------------------------------------------
+ALBEDO = np.array([0.9, 0.5, 0.2])
+
+
+@pytest.mark.parametrize("theta", [30.0, 60.0, 80.0, 89.0])
+def test_metal_reflection_keeps_the_albedo_tint_at_grazing(theta):
+    """metallic = 1: F0 = F90 = diffuseColor, so Fresnel is the albedo at every angle and the
+    channels of f (and of the specular albedo) keep the albedo's ratios. With F90 = 1 the
+    grazing reflection would whiten (at 80 degrees the blue/red ratio of f at the mirror
+    direction would be 0.54 instead of 0.22)."""
+    wo1 = direction(theta, 30.0)
+    wi = np.stack([reflect_z(wo1), direction(max(theta - 25.0, 0.0), 150.0)])  # mirror, off-mirror
+    for roughness in (0.05, 0.3, 0.8):
+        b = preview(2, diffuse=tuple(ALBEDO), metallic=1.0, roughness=roughness)
+        f = b.f(tile(wo1, 2), wi)
+        assert np.all(f > 0.0)
+        np.testing.assert_allclose(f / ALBEDO, np.repeat(f[:, 1:2] / ALBEDO[1], 3, axis=1), rtol=1e-12)
+        e = b.specular_albedo(tile(wo1, 1))[0]
+        np.testing.assert_allclose(e / ALBEDO, e[1] / ALBEDO[1], rtol=1e-12)
+
+
+@pytest.mark.parametrize("roughness,theta,metallic", [(0.5, 80.0, 1.0), (0.3, 85.0, 1.0), (0.5, 80.0, 0.5)])
+def test_albedo_matches_closed_form_with_f90(roughness, theta, metallic, rng):
+    """The directional albedo, by quadrature and by Monte Carlo, equals E + rho_d (1 - E) with
+    E = F0 A + F90 B, F0 = lerp(((ior - 1) / (ior + 1))^2, albedo, metallic),
+    F90 = lerp(1, albedo, metallic), and A, B computed afresh by VNDF quadrature at this
+    (mu, alpha) rather than read from the stored tables."""
+    kw = dict(diffuse=tuple(ALBEDO), roughness=roughness, metallic=metallic, ior=1.5)
+    wo1 = direction(theta, 45.0)
+    a_tab, b_tab = compute_albedo_tables(256, mu=[wo1[2]], alpha=[max(roughness * roughness, ALPHA_MIN)])
+    f0 = 0.04 * (1.0 - metallic) + ALBEDO * metallic
+    f90 = (1.0 - metallic) + ALBEDO * metallic
+    e = f0 * a_tab[0, 0] + f90 * b_tab[0, 0]
+    expected = e + ALBEDO * (1.0 - metallic) * (1.0 - e)
+    ref = _quadrature_albedo(preview(1, **kw), wo1, np.array([0.0, 0.0, 1.0]), -1.0)
+    np.testing.assert_allclose(ref, expected, rtol=0.0, atol=TABLE_TOL)
+    n = 200_000
+    w = _mc_albedo(preview(n, **kw), wo1, n, rng)
+    for k in range(3):
+        mean, se = w[:, k].mean(), w[:, k].std(ddof=1) / np.sqrt(n)
+        assert abs(mean - expected[k]) <= 4.0 * se + TABLE_TOL, (k, mean, expected[k], se)
+
+
 @pytest.mark.parametrize("roughness,theta", [(0.05, 0.0), (0.5, 60.0), (1.0, 85.0)])
 def test_diffuse_lobe_albedo(roughness, theta):
     """integral f_diffuse cos dwi == pi * diffuse_constant(wo) == rho_d (1 - E(wo))."""
@@ -321,11 +375,14 @@ def test_metallic_workflow_mapping():
     )
     f0_d = ((1.5 - 1.0) / (1.5 + 1.0)) ** 2
     np.testing.assert_allclose(b.f0[0], [f0_d] * 3)
+    np.testing.assert_allclose(b.f90[0], [1.0] * 3)  # spec: "If metallic is 0 [...] F90 is white"
     np.testing.assert_allclose(b.diffuse_albedo()[0], [0.8, 0.4, 0.2])
     np.testing.assert_allclose(b.f0[1], [0.8, 0.4, 0.2])
+    np.testing.assert_allclose(b.f90[1], [0.8, 0.4, 0.2])  # "both F0 and edge F90 [...] the Albedo"
     np.testing.assert_allclose(b.diffuse_albedo()[1], [0.0, 0.0, 0.0])
     f0_2 = (1.0 / 3.0) ** 2
     np.testing.assert_allclose(b.f0[2], 0.5 * f0_2 + 0.5 * np.array([0.8, 0.4, 0.2]))
+    np.testing.assert_allclose(b.f90[2], 0.5 + 0.5 * np.array([0.8, 0.4, 0.2]))
     np.testing.assert_allclose(b.diffuse_albedo()[2], [0.4, 0.2, 0.1])
     np.testing.assert_allclose(b.alpha, [0.25, ALPHA_MIN, 1.0])  # roughness clamped to [0, 1]
 
@@ -340,6 +397,7 @@ def test_specular_workflow_mapping_and_clamps():
         np.array([1.5]),
     )
     np.testing.assert_allclose(b.f0[0], [0.2, 0.9, 1.0])
+    np.testing.assert_allclose(b.f90[0], [1.0, 1.0, 1.0])  # "color at 90 is assumed white"
     np.testing.assert_allclose(b.diffuse_albedo()[0], [1.0, 0.5, 0.0])
     np.testing.assert_allclose(b.alpha, [0.09])
 
@@ -353,7 +411,8 @@ def test_take_subsets_rows(rng):
     wi = _random_unit(rng, rows.size)
     wo[:, 2] = np.abs(wo[:, 2])
     wi[:, 2] = np.abs(wi[:, 2])
-    ref = PreviewSurfaceBSDF(b.rho_d[rows], b.f0[rows], b.alpha[rows])
+    assert np.any(b.f90[rows] < 1.0)  # metallic rows: F90 must come along too
+    ref = PreviewSurfaceBSDF(b.rho_d[rows], b.f0[rows], b.alpha[rows], b.f90[rows])
     np.testing.assert_array_equal(sub.f(wo, wi), ref.f(wo, wi))
     np.testing.assert_array_equal(sub.pdf(wo, wi), ref.pdf(wo, wi))
     assert len(sub) == 4
