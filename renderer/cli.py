@@ -60,6 +60,9 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-depth", type=_positive_int("max-depth"), default=8,
                    help="scattering events: 0 = emitters only, 1 = direct lighting (pbrt's maxdepth)")
     p.add_argument("--light-sampler", default="auto", help="lighting service: auto, uniform, power")
+    p.add_argument("--emitter-samples", type=_positive_int("emitter-samples"), default=0, metavar="K",
+                   help="camera rays per pixel and pass that see emitters directly (one continues as the "
+                        "path): anti-aliases small bright lights on screen; 0 = auto (2 with >= 64 lights)")
     p.add_argument("--estimator", action="append", metavar="[/Light=]TOKEN",
                    help="direct-lighting estimator for all lights, or /Path=TOKEN for one (repeatable)")
     p.add_argument("--cv-alpha", action="append", metavar="[/Light=]TOKEN")
@@ -88,6 +91,7 @@ def options_from_args(a) -> "RenderOptions":
         threads=getattr(a, "threads", None),
         max_depth=a.max_depth,
         light_sampler=a.light_sampler,
+        emitter_samples=a.emitter_samples,
         estimator=_overrides(a.estimator, "estimator"),
         cv_alpha=_overrides(a.cv_alpha, "cv-alpha"),
         light_samples=samples,

@@ -48,6 +48,7 @@ class RenderOptions:
     max_depth: int = 8
     rr_depth: int = 3
     light_sampler: str = "auto"
+    emitter_samples: int = 0                            # camera samples of emitters seen directly; 0 = auto
     estimator: dict = field(default_factory=dict)       # {"": token} for all lights or {path: token}
     cv_alpha: dict = field(default_factory=dict)
     light_samples: dict = field(default_factory=dict)
@@ -64,6 +65,8 @@ class RenderOptions:
             bad("time_budget", f"must be a positive number of seconds, got {self.time_budget!r}")
         if not isinstance(self.max_depth, (int, np.integer)) or not (0 <= self.max_depth <= 1024):
             bad("max_depth", f"must be an integer in [0, 1024], got {self.max_depth!r}")
+        if not isinstance(self.emitter_samples, (int, np.integer)) or not (0 <= self.emitter_samples <= 64):
+            bad("emitter_samples", f"must be an integer in [0, 64] (0 = auto), got {self.emitter_samples!r}")
         if self.threads is not None and not (1 <= self.threads <= 256):
             bad("threads", f"must be in [1, 256], got {self.threads!r}")
         if self.frame is not None and not math.isfinite(self.frame):
@@ -152,7 +155,8 @@ def render(
     shading_threads = threads
     integrator = PathIntegrator(scene, camera, IntegratorOptions(
         max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed, threads=shading_threads,
-        estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples)))
+        estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples),
+        emitter_samples=int(opt.emitter_samples)))
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
     t0 = time.perf_counter()
@@ -205,6 +209,7 @@ def render(
         "threads": threads,
         "max_depth": opt.max_depth,
         "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
+        "emitter_samples": integrator.emitter_samples,
         "wall_seconds": time.perf_counter() - t_start,
         "seconds": phases,
         "rays": rays,

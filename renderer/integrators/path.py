@@ -76,6 +76,13 @@ class IntegratorOptions:
     estimator: dict = field(default_factory=dict)
     cv_alpha: dict = field(default_factory=dict)
     light_samples: dict = field(default_factory=dict)
+    emitter_samples: int = 0  # camera samples per pass for emitters seen directly; 0 = auto
+
+
+# `auto` emitter samples: with this many finite lights or more, most of them are small on screen
+# (the talk's fireflies), and anti-aliasing their directly seen emission dominates the error.
+EMITTER_SAMPLES_AUTO_LIGHTS = 64
+EMITTER_SAMPLES_AUTO = 2
 
 
 def resolve_estimators(lights, opt: IntegratorOptions) -> list[dict]:
@@ -198,6 +205,14 @@ class PathIntegrator:
         else:
             self.cont_ok = np.zeros(0, dtype=bool)
         self.samples_one = self.est_samples == 1
+        # Emitter samples K (see trace_paths): K camera rays per pixel and pass see the emitters,
+        # one of them continues as the path.
+        k = int(options.emitter_samples)
+        if k < 0 or k > 64:
+            raise SettingsError(f"must be in [0, 64] (0 = auto), got {k}", attribute="emitter-samples")
+        if k == 0:
+            k = EMITTER_SAMPLES_AUTO if self.finite.size >= EMITTER_SAMPLES_AUTO_LIGHTS else 1
+        self.emitter_samples = k
         # Whether a continuation ray can carry any light's MIS half, from a deeper vertex (1)
         # or from the first one (2). Where none can, continuation rays skip the light probes.
         self.cont_from = (bool(self.cont_ok.any()), bool((self.cont_ok & self.samples_one).any()))
@@ -234,20 +249,43 @@ class PathIntegrator:
 
         With pass_index, the filter samples are that pass's point of each pixel's own
         low-discrepancy sequence (sampling.pixel_sequence); without, independent uniforms.
+
+        With K = self.emitter_samples > 1, the emitters seen directly (depth 0: lights, the
+        environment, emissive surfaces, through cutouts) are estimated from K camera rays per
+        pixel, weighted 1/K each, and only the first ray continues as the path, whose depth-0
+        emission is weighted 1/K too. Each part stays unbiased, and the anti-aliasing noise of
+        small bright emitters on screen (a firefly covering part of a pixel) falls ~K-fold in
+        variance (more, as the K rays continue the pixel's stratified sequence) for the cost of
+        K - 1 rays that do not scatter.
         """
         m = px.size
+        K = self.emitter_samples if pass_index is not None else 1
+        pixel = py.astype(np.int64) * max(width, 1) + px
         u_filter, u_lens = rng.random((m, 2)), rng.random((m, 2))
         if pass_index is not None:
-            u_filter = pixel_sequence(self.opt.seed, py.astype(np.int64) * max(width, 1) + px, pass_index)
+            u_filter = pixel_sequence(self.opt.seed, pixel, pass_index * K)
         rays = self.camera.generate(px, py, u_filter, u_lens)
         self.rays.add(camera=m)
         # Near clip: start the ray at the near plane.
-        return self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng)
+        L = self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng, emit0=1.0 / K)
+        for k in range(1, K):
+            rays = self.camera.generate(px, py, pixel_sequence(self.opt.seed, pixel, pass_index * K + k),
+                                        rng.random((m, 2)))
+            self.rays.add(camera=m)
+            L += self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng,
+                            emit0=1.0 / K, max_depth=0)
+        return L
 
-    def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Radiance (m, 3) arriving at the origins o (m, 3) along -d (unsampled primary rays)."""
+    def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
+              emit0: float = 1.0, max_depth: int | None = None) -> np.ndarray:
+        """Radiance (m, 3) arriving at the origins o (m, 3) along -d (unsampled primary rays).
+
+        emit0: weight of the emission the unsampled rays see directly (see trace_paths);
+        max_depth: override of the options' maximum depth (0: emitters seen directly only).
+        """
         scene = self.scene
         opt = self.opt
+        max_depth = opt.max_depth if max_depth is None else max_depth
         m = o.shape[0]
 
         # ---- loop state: one row per live ray ---------------------------------------------
@@ -263,7 +301,7 @@ class PathIntegrator:
         prev = np.zeros((m, 10))
         prev_mesh = np.zeros(m, dtype=np.int64)
         cont = np.zeros(m, dtype=np.int8)
-        budget = opt.max_depth + 64          # bound on loop trips (cutout pass-throughs included)
+        budget = max_depth + 64              # bound on loop trips (cutout pass-throughs included)
 
         while path.size and budget > 0:
             budget -= 1
@@ -275,7 +313,7 @@ class PathIntegrator:
             # in full on unsampled rays, MIS-weighted on continuation rays (module docstring).
             seen = unsampled | (cont > 0)
             if np.any(seen):
-                em = _Emission(self, path, beta, d, unsampled, cont, prev, prev_mesh)
+                em = _Emission(self, path, beta, d, unsampled, cont, prev, prev_mesh, emit0)
                 if self.finite.size:
                     self._add_light_hits(L, em, o, t_geo, seen)
                 if self.infinite.size:
@@ -293,6 +331,9 @@ class PathIntegrator:
             keep = np.nonzero(hits.hit)[0]
             if not keep.size:
                 break
+            if (not scene.materials.has_cutout and not scene.materials.has_emission
+                    and int(depth.min()) >= max_depth):
+                break  # no row scatters, passes through or glows: the surfaces add nothing
             path, beta, o, d, tmax, depth = path[keep], _t(beta, keep), _t(o, keep), _t(d, keep), tmax[keep], depth[keep]
             unsampled, cont, prev, prev_mesh = unsampled[keep], cont[keep], _t(prev, keep), prev_mesh[keep]
             si = self._interaction(hits.prim[keep], hits.b1[keep], hits.b2[keep], d)
@@ -311,17 +352,22 @@ class PathIntegrator:
                 pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr], unsampled[tr],
                               cont[tr], prev[tr], prev_mesh[tr])
                 solid = np.nonzero(~through)[0]
-                path, beta, d, depth = path[solid], beta[solid], d[solid], depth[solid]
+                path, beta, d, depth, unsampled = path[solid], beta[solid], d[solid], depth[solid], unsampled[solid]
                 si = _take(si, solid)
                 params = _take(params, solid)
             else:
                 pass_state = None
 
             if scene.materials.has_emission and np.any(params.emission):
-                add_rows(L, path, beta * params.emission)
+                # Emissive surfaces are reached by BSDF samples only (no MIS); seen directly,
+                # they take the depth-0 weight.
+                w_e = beta * params.emission
+                if emit0 != 1.0:
+                    w_e *= np.where(unsampled, emit0, 1.0)[:, None]
+                add_rows(L, path, w_e)
 
             # ---- stop at the maximum depth -----------------------------------------------
-            alive = depth < opt.max_depth
+            alive = depth < max_depth
             if not np.all(alive):
                 a = np.nonzero(alive)[0]
                 path, beta, d, depth = path[a], beta[a], d[a], depth[a]
@@ -340,7 +386,7 @@ class PathIntegrator:
                 eps = scene.accel.ray_epsilon(si.p)
                 # The continuation ray can carry MIS halves only where it is traced and its hit
                 # may still add emission: not from the last scattering vertex.
-                continues = depth + 1 < opt.max_depth
+                continues = depth + 1 < max_depth
 
                 # ---- direct lighting, per light, by its estimator --------------------------
                 if self.has_lights:
@@ -632,15 +678,16 @@ class _Emission:
     covered them already. Arrays are the live rows of the tracing loop.
     """
 
-    def __init__(self, integ: "PathIntegrator", path, beta, d, unsampled, cont, prev, prev_mesh):
+    def __init__(self, integ: "PathIntegrator", path, beta, d, unsampled, cont, prev, prev_mesh, emit0=1.0):
         self.integ = integ
+        self.emit0 = emit0  # weight of emission seen directly (unsampled rays; see trace_paths)
         self.path, self.beta, self.d = path, beta, d
         self.unsampled, self.cont, self.prev, self.prev_mesh = unsampled, cont, prev, prev_mesh
 
     def weight(self, rows: np.ndarray, light: np.ndarray) -> np.ndarray:
         """(m,) weight of each (row, light) pair's emission."""
         integ = self.integ
-        w = self.unsampled[rows].astype(np.float64)
+        w = self.unsampled[rows] * self.emit0
         cont = self.cont[rows]
         mis = (cont > 0) & integ.cont_ok[light] & ((cont == 1) | integ.samples_one[light])
         if integ.scene.illuminates is not None:
