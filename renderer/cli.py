@@ -62,7 +62,8 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--light-sampler", default="auto", help="lighting service: auto, uniform, power")
     p.add_argument("--emitter-samples", type=_positive_int("emitter-samples"), default=0, metavar="K",
                    help="camera rays per pixel and pass that see emitters directly (one continues as the "
-                        "path): anti-aliases small bright lights on screen; 0 = auto (2 with >= 64 lights)")
+                        "path): anti-aliases small bright lights on screen; 0 = auto (2 where subpixel "
+                        "lights touch >= 1%% of the pixels, else 1)")
     p.add_argument("--estimator", action="append", metavar="[/Light=]TOKEN",
                    help="direct-lighting estimator for all lights, or /Path=TOKEN for one (repeatable)")
     p.add_argument("--cv-alpha", action="append", metavar="[/Light=]TOKEN")

@@ -79,9 +79,11 @@ class IntegratorOptions:
     emitter_samples: int = 0  # camera samples per pass for emitters seen directly; 0 = auto
 
 
-# `auto` emitter samples: with this many finite lights or more, most of them are small on screen
-# (the talk's fireflies), and anti-aliasing their directly seen emission dominates the error.
-EMITTER_SAMPLES_AUTO_LIGHTS = 64
+# `auto` emitter samples: K = EMITTER_SAMPLES_AUTO when lights smaller than a pixel on screen
+# (bounding radius < 1 px, centre inside the image) could touch at least this share of the
+# pixels (4 pixels each): then anti-aliasing their directly seen emission is a large part of the
+# image error (the talk's fireflies: 90 % of the light BVH's error), else K = 1.
+EMITTER_SAMPLES_AUTO_SHARE = 0.01
 EMITTER_SAMPLES_AUTO = 2
 
 
@@ -116,6 +118,37 @@ def resolve_estimators(lights, opt: IntegratorOptions) -> list[dict]:
         out.append({"path": path, "estimator": token, "cv_alpha": alpha, "samples": int(samples),
                     "mis_heuristic": heuristic, "auto": auto})
     return out
+
+
+def small_lights_on_screen(lights, finite: np.ndarray, camera: Camera) -> int:
+    """How many of the finite lights ``finite`` (indices) have their centre inside the image, in
+    front of the camera, and a bounding radius (from their proxy triangles) under one pixel there."""
+    tris, owner = lights.proxy_triangles()
+    if not tris.shape[0]:
+        return 0
+    n = lights.count
+    lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+    np.minimum.at(lo, owner, tris.min(axis=1))
+    np.maximum.at(hi, owner, tris.max(axis=1))
+    lo, hi = lo[finite], hi[finite]
+    ok = np.all(np.isfinite(lo), axis=1)
+    center, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1)
+    M = np.linalg.inv(camera.camera_to_world)
+    p = center @ M[:3, :3].T + M[:3, 3]
+    # Camera-space lengths per world length (a scaled camera matrix scales everything alike).
+    scale = float(np.cbrt(abs(np.linalg.det(M[:3, :3])))) or 1.0
+    wx0, wx1, wy0, wy1 = camera.window
+    depth = -p[:, 2]
+    if camera.orthographic:
+        x, y = p[:, 0], p[:, 1]
+        px_size = np.full(p.shape[0], (wx1 - wx0) / camera.width)
+    else:
+        ok &= depth > 0.0
+        safe = np.where(depth > 0.0, depth, 1.0)
+        x, y = p[:, 0] / safe, p[:, 1] / safe
+        px_size = (wx1 - wx0) / camera.width * safe
+    ok &= (x >= wx0) & (x <= wx1) & (y >= wy0) & (y <= wy1)
+    return int(np.count_nonzero(ok & (radius * scale < px_size)))
 
 
 def auto_estimator(lights, i: int, samples: int) -> str:
@@ -211,7 +244,8 @@ class PathIntegrator:
         if k < 0 or k > 64:
             raise SettingsError(f"must be in [0, 64] (0 = auto), got {k}", attribute="emitter-samples")
         if k == 0:
-            k = EMITTER_SAMPLES_AUTO if self.finite.size >= EMITTER_SAMPLES_AUTO_LIGHTS else 1
+            small = small_lights_on_screen(self.lights, self.finite, camera) if self.finite.size else 0
+            k = EMITTER_SAMPLES_AUTO if 4 * small >= EMITTER_SAMPLES_AUTO_SHARE * camera.width * camera.height else 1
         self.emitter_samples = k
         # Whether a continuation ray can carry any light's MIS half, from a deeper vertex (1)
         # or from the first one (2). Where none can, continuation rays skip the light probes.

@@ -13,7 +13,7 @@ from renderer.render import RenderOptions, render
 from tests.stage_builders import add_camera, add_settings, bind, new_stage, preview_material
 
 
-def _small_lights_stage(path, n_lights=6, res=(24, 24)):
+def _small_lights_stage(path, n_lights=6, res=(24, 24), radius=0.05):
     """A grey floor seen from above, with n_lights small bright sphere lights between camera
     and floor, each covering about one pixel: subpixel emitters on camera, like the fireflies."""
     stage = new_stage(path)
@@ -27,7 +27,7 @@ def _small_lights_stage(path, n_lights=6, res=(24, 24)):
     rng = np.random.default_rng(4)
     for i in range(n_lights):
         light = UsdLux.SphereLight.Define(stage, f"/World/L{i}")
-        light.CreateRadiusAttr(0.05)
+        light.CreateRadiusAttr(radius)
         light.CreateIntensityAttr(float(rng.uniform(50.0, 200.0)))
         x, z = rng.uniform(-1.5, 1.5, size=2)
         light.AddTranslateOp().Set(Gf.Vec3d(float(x), 1.0, float(z)))
@@ -66,11 +66,16 @@ def test_emitter_samples_cut_the_anti_aliasing_variance(tmp_path):
     assert v4 < 0.4 * v1
 
 
-def test_auto_uses_more_emitter_samples_only_with_many_lights(tmp_path):
-    few = _small_lights_stage(tmp_path / "few.usda", n_lights=3, res=(8, 8))
-    many = _small_lights_stage(tmp_path / "many.usda", n_lights=64, res=(8, 8))
-    assert render(few, RenderOptions(spp=1, threads=1)).stats["emitter_samples"] == 1
-    assert render(many, RenderOptions(spp=1, threads=1)).stats["emitter_samples"] == 2
+def test_auto_uses_more_emitter_samples_only_where_subpixel_lights_touch_many_pixels(tmp_path):
+    """auto: K = 2 when lights under a pixel on screen could touch >= 1 % of the pixels."""
+    cases = {  # name: (lights, resolution, radius, expected K); a pixel is ~0.64 units at the lights
+        "few": (3, (64, 64), 0.05, 1),       # 12 of 4096 pixels
+        "many": (64, (8, 8), 0.05, 2),       # every pixel
+        "large": (64, (8, 8), 1.0, 1),       # as many lights, but each wider than a pixel
+    }
+    for name, (n, res, radius, k) in cases.items():
+        stage = _small_lights_stage(tmp_path / f"{name}.usda", n_lights=n, res=res, radius=radius)
+        assert render(stage, RenderOptions(spp=1, threads=1)).stats["emitter_samples"] == k, name
 
 
 @pytest.mark.parametrize("bad", [-1, 65, 2.5])
