@@ -59,7 +59,7 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=_positive_int("seed"), default=0)
     p.add_argument("--max-depth", type=_positive_int("max-depth"), default=8,
                    help="scattering events: 0 = emitters only, 1 = direct lighting (pbrt's maxdepth)")
-    p.add_argument("--light-sampler", default="auto", help="lighting service: auto, uniform, power")
+    p.add_argument("--light-sampler", default="auto", help="lighting service: auto, exhaustive, uniform, power, bvh (auto: by light count)")
     p.add_argument("--emitter-samples", type=_positive_int("emitter-samples"), default=0, metavar="K",
                    help="camera rays per pixel and pass that see emitters directly (one continues as the "
                         "path): anti-aliases small bright lights on screen; 0 = auto (2 where subpixel "
