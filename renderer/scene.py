@@ -103,6 +103,9 @@ class Scene:
     # shadow_accel: (count,) int index into shadow_accels (-1: the full scene BVH).
     # shadow_params: per shadow group, the UsdLux ShadowAPI ray behaviour (None: plain rays).
     illuminates: np.ndarray | None = None
+    # light_spheres: (centre (count, 3), radius (count,)) bounding spheres of every light, from
+    # the proxy triangles (built with light_accel, else None; infinite lights: inf centre).
+    light_spheres: tuple | None = None
     shadow_group: np.ndarray | None = None
     shadow_accels: list = field(default_factory=list)
     shadow_params: list = field(default_factory=list)
@@ -161,12 +164,14 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         skipped.append(f"light {path}: emits nothing or is degenerate; dropped before the lighting services")
     light_accel = None
     light_owner = None
+    light_spheres = None
     # Mesh lights are in the scene BVH already: no proxies, no light BVH for them.
     finite = np.nonzero(~lights.is_infinite & ~lights.is_geometry)[0] if lights.count else np.zeros(0, np.int64)
     if finite.size > BRUTE_FORCE_LIGHTS:
         tris, owner = lights.proxy_triangles()
         light_accel = Accel(tris, threads=threads)
         light_owner = owner
+        light_spheres = _bounding_spheres(tris, owner, lights.count)
     if lights.count == 0:
         skipped.append("no lights: next-event estimation disabled")
     if not np.any(lights.is_infinite) if lights.count else True:
@@ -190,6 +195,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         warnings=warnings,
         skipped=skipped,
         illuminates=illuminates,
+        light_spheres=light_spheres,
         shadow_group=shadow_group,
         shadow_accels=shadow_accels,
         shadow_params=shadow_params,
@@ -278,3 +284,15 @@ def build_linking(lights, geo: GeometryTables, threads: int | None, accel: Accel
             params.append(sp)
         shadow_group[i] = groups[key]
     return illuminates, (shadow_group if accels else None), accels, params
+
+
+def _bounding_spheres(tris: np.ndarray, owner: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per light: (centre (count, 3), radius (count,)) of the sphere around the AABB of its proxy
+    triangles tris (T, 3, 3) with owner (T,); lights without proxies get inf / 0."""
+    lo, hi = np.full((count, 3), np.inf), np.full((count, 3), -np.inf)
+    np.minimum.at(lo, owner, tris.min(axis=1))
+    np.maximum.at(hi, owner, tris.max(axis=1))
+    has = np.all(np.isfinite(lo), axis=1)
+    centre = np.where(has[:, None], 0.5 * (lo + hi), np.inf)
+    radius = np.where(has, 0.5 * np.linalg.norm(np.where(has[:, None], hi - lo, 0.0), axis=1), 0.0)
+    return centre, radius

@@ -120,19 +120,13 @@ def resolve_estimators(lights, opt: IntegratorOptions) -> list[dict]:
     return out
 
 
-def small_lights_on_screen(lights, finite: np.ndarray, camera: Camera) -> int:
+def small_lights_on_screen(spheres, finite: np.ndarray, camera: Camera) -> int:
     """How many of the finite lights ``finite`` (indices) have their centre inside the image, in
-    front of the camera, and a bounding radius (from their proxy triangles) under one pixel there."""
-    tris, owner = lights.proxy_triangles()
-    if not tris.shape[0]:
-        return 0
-    n = lights.count
-    lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
-    np.minimum.at(lo, owner, tris.min(axis=1))
-    np.maximum.at(hi, owner, tris.max(axis=1))
-    lo, hi = lo[finite], hi[finite]
-    ok = np.all(np.isfinite(lo), axis=1)
-    center, radius = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1)
+    front of the camera, and a bounding radius under one pixel there. spheres: the scene's
+    (centre (count, 3), radius (count,)) light bounds (Scene.light_spheres)."""
+    center, radius = spheres[0][finite], spheres[1][finite]
+    ok = np.all(np.isfinite(center), axis=1)
+    center = np.where(ok[:, None], center, 0.0)
     M = np.linalg.inv(camera.camera_to_world)
     p = center @ M[:3, :3].T + M[:3, 3]
     # Camera-space lengths per world length (a scaled camera matrix scales everything alike).
@@ -244,7 +238,10 @@ class PathIntegrator:
         if k < 0 or k > 64:
             raise SettingsError(f"must be in [0, 64] (0 = auto), got {k}", attribute="emitter-samples")
         if k == 0:
-            small = small_lights_on_screen(self.lights, self.finite, camera) if self.finite.size else 0
+            # Bounds exist where the light proxies were built anyway (more than a handful of
+            # lights); scenes with fewer lights keep K = 1.
+            spheres = getattr(scene, "light_spheres", None)
+            small = small_lights_on_screen(spheres, self.finite, camera) if spheres is not None else 0
             k = EMITTER_SAMPLES_AUTO if 4 * small >= EMITTER_SAMPLES_AUTO_SHARE * camera.width * camera.height else 1
         self.emitter_samples = k
         # Whether a continuation ray can carry any light's MIS half, from a deeper vertex (1)
