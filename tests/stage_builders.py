@@ -95,3 +95,29 @@ def quad_light_stage(path, res=(16, 16), intensity=5.0, light_kind="rect", **lig
     lx.AddRotateXOp().Set(-90.0)
     stage.GetRootLayer().Save()
     return stage
+
+
+def add_point_instancer(stage, path, prototypes, proto_indices, positions, *, orientations=None,
+                        orientationsf=None, scales=None, ids=None, invisible_ids=None):
+    """A UsdGeom.PointInstancer at ``path`` over existing prototype prims.
+
+    orientations: (w, x, y, z) tuples stored as quath; orientationsf: the same stored as quatf
+    (UsdGeom >= 24.03); scales: (sx, sy, sz) tuples; ids / invisible_ids: int lists.
+    """
+    pi = UsdGeom.PointInstancer.Define(stage, path)
+    rel = pi.CreatePrototypesRel()
+    for proto in prototypes:
+        rel.AddTarget(proto)
+    pi.CreateProtoIndicesAttr(list(proto_indices))
+    pi.CreatePositionsAttr([Gf.Vec3f(*p) for p in positions])
+    if orientations is not None:
+        pi.CreateOrientationsAttr([Gf.Quath(q[0], Gf.Vec3h(*q[1:])) for q in orientations])
+    if orientationsf is not None:
+        pi.CreateOrientationsfAttr([Gf.Quatf(q[0], Gf.Vec3f(*q[1:])) for q in orientationsf])
+    if scales is not None:
+        pi.CreateScalesAttr([Gf.Vec3f(*s) for s in scales])
+    if ids is not None:
+        pi.CreateIdsAttr(list(ids))
+    if invisible_ids is not None:
+        pi.CreateInvisibleIdsAttr(list(invisible_ids))
+    return pi

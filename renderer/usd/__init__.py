@@ -14,8 +14,10 @@ What is read and what is not (each unsupported feature gives one warning per sta
 * Lights: Rect, Disk, Sphere, Cylinder, Distant, DomeLight, DomeLight_1, mesh lights (a Mesh
   or implicit gprim with MeshLightAPI / LightAPI, with light:materialSyncMode) and the
   PortalLights a dome's ``portals`` targets. GeometryLight, PluginLight, VolumeLightAPI
-  emission and light filters (one warning per light) are skipped or ignored; lights inside
-  PointInstancer prototypes are skipped. ShapingAPI and ShadowAPI are read by ``lux_shaping``.
+  emission and light filters (one warning per light) are skipped or ignored. Lights inside
+  PointInstancer prototypes give one light per instance, named ``<prototype light path>[id]``
+  (one ``[id]`` per instancer level; ``stage_reader``); mesh lights and PortalLights there are
+  skipped with a warning. ShapingAPI and ShadowAPI are read by ``lux_shaping``.
 * Materials: UsdPreviewSurface (universal render context) with UsdUVTexture and
   UsdPrimvarReader_float2 and UsdTransform2d; materialBind GeomSubsets split a mesh by
   material; normal, displacement, clearcoat and occlusion inputs are ignored; UDIM paths use

@@ -78,6 +78,7 @@ class ReadContext:
             "triangles": 0,
             "instancers": 0,
             "instances": 0,
+            "instanced_lights": 0,  # LightDescs made from PointInstancer prototype lights
             "lights": 0,
             "materials": 0,
         }

@@ -79,8 +79,13 @@ def _light_api_fields(prim: Usd.Prim, ctx: ReadContext) -> dict:
     return fields
 
 
-def read_light(prim: Usd.Prim, ctx: ReadContext) -> LightDesc | None:
+def read_light(prim: Usd.Prim, ctx: ReadContext, to_world: np.ndarray | None = None) -> LightDesc | None:
     """One light prim (already known to have LightAPI and to be visible) -> LightDesc.
+
+    to_world: (4, 4) column-vector matrix to use instead of the prim's world transform. A
+    PointInstancer prototype light is read once with the identity, so its ``light_to_world`` is
+    the light's frame in its own prim space (the DomeLight_1 pole turn, else identity), and each
+    instance composes its matrix on the left (``stage_reader._Traversal._instanced_lights``).
 
     Returns None, with a warning, for light types illum does not render yet and for
     degenerate lights (zero size); silently for geometry lights (gprims with LightAPI, read by
@@ -155,7 +160,7 @@ def read_light(prim: Usd.Prim, ctx: ReadContext) -> LightDesc | None:
     fields["shadow"] = read_shadow(prim, ctx)
     warn_light_filters(prim, ctx)
 
-    to_world = ctx.finite_world(prim)
+    to_world = ctx.finite_world(prim) if to_world is None else np.asarray(to_world, dtype=np.float64)
     if kind == "dome" and _pole_is_z(prim, ctx):
         to_world = to_world @ POLE_Z_FROM_Y
 
@@ -297,15 +302,26 @@ def _excluded_paths(collection: Usd.CollectionAPI, mesh_paths: list[str]) -> fro
 
 def resolve_light_links(light_prims: dict[str, Usd.Prim], lights: list[LightDesc],
                         mesh_paths: list[str]) -> list[LightDesc]:
-    """Fill ``light_link_excludes`` / ``shadow_link_excludes`` of each light."""
+    """Fill ``light_link_excludes`` / ``shadow_link_excludes`` of each light.
+
+    light_prims: light path -> the prim whose collections apply (for the instances of a
+    PointInstancer prototype light, that one prototype prim).
+    """
     if not mesh_paths:
         return lights
     unique = list(dict.fromkeys(mesh_paths))
     out = []
+    # Every instance of a PointInstancer prototype light maps to the same prim, whose
+    # collections apply to all of them: resolve each prim once.
+    resolved: dict[str, tuple] = {}
     for light in lights:
-        api = UsdLux.LightAPI(light_prims[light.path])
-        link = _excluded_paths(api.GetLightLinkCollectionAPI(), unique)
-        shadow = _excluded_paths(api.GetShadowLinkCollectionAPI(), unique)
+        prim = light_prims[light.path]
+        key = str(prim.GetPath())
+        if key not in resolved:
+            api = UsdLux.LightAPI(prim)
+            resolved[key] = (_excluded_paths(api.GetLightLinkCollectionAPI(), unique),
+                             _excluded_paths(api.GetShadowLinkCollectionAPI(), unique))
+        link, shadow = resolved[key]
         if link is None and shadow is None:
             out.append(light)
             continue

@@ -14,6 +14,17 @@ Pruning rules (a pruned subtree's geometry is never read; ``stats`` proves it):
 Instanceable references are flattened through ``Usd.TraverseInstanceProxies``; each proxy keeps
 its proxy path. PointInstancer instances become one world-space MeshDesc per prototype gprim
 (all visible instances merged), named by that prototype gprim's path.
+
+A UsdLux light inside a PointInstancer prototype is read once and becomes one LightDesc per
+visible instance, placed by the same instance matrices as the geometry (``_instancer_items``:
+positions, orientations / orientationsf, scales, the prototype root's xform, protoIndices,
+invisibleIds / inactiveIds, nested instancers), so ``normalize`` sees each instance's world
+area. Its path is the prototype light's path with one ``[id]`` per instancer level, outermost
+first: ``/World/Lamps/Protos/Lamp/Bulb[17]``, the id being the instancer's authored ``ids``
+entry (the number ``invisibleIds`` uses), else the instance index; a prototype outside the
+instancer's namespace (it may be shared) names the instancer too: ``/Protos/Lamp/Bulb[/World/Lamps:17]``.
+Instances share the prototype light's settings and light/shadow linking collections.
+Zero-scale instances are hidden, lights included.
 """
 
 from __future__ import annotations
@@ -25,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Ar, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
-from renderer.description import MeshDesc, SceneDescription
+from renderer.description import LightDesc, MeshDesc, SceneDescription
 from renderer.errors import StageError
 
 from . import implicit
@@ -163,6 +174,32 @@ class _LocalMesh:
     material: int
     double_sided: bool
     tri_material: np.ndarray | None = None
+
+
+@dataclass
+class _ProtoLight:
+    """A UsdLux light inside a PointInstancer prototype, read once for all its instances.
+
+    desc: its LightDesc with ``light_to_world`` the light's frame in its own prim space (read
+    with the identity; see ``lux.read_light``); prim: the prototype light prim, whose
+    collections (light / shadow linking) apply to every instance.
+    """
+
+    prim: Usd.Prim
+    desc: LightDesc
+
+
+# Instance keys of an item placed directly in a prototype: no PointInstancer level below it.
+_NO_KEYS = np.zeros((1, 0), dtype=np.int64)
+
+
+def _instance_light_path(light_path: str, key: np.ndarray, qualifier: str) -> str:
+    """Path of one instance of a prototype light: the prototype light's path and one ``[id]``
+    per PointInstancer level, outermost first (``/W/PI/Protos/Lamp/Light[17]``). ids are the
+    instancer's ``ids`` when authored (the numbers ``invisibleIds`` uses), else the instance
+    indices. ``qualifier`` (the top instancer's path and ':') is set when the prototype lies
+    outside that instancer's namespace, where another instancer may share it."""
+    return light_path + f"[{qualifier}" + "][".join(str(int(k)) for k in key) + "]"
 
 
 def _smooth_vertex_normals(points: np.ndarray, tris: np.ndarray, tri_face: np.ndarray,
@@ -339,15 +376,54 @@ class _Traversal:
 
     # ---- point instancers ------------------------------------------------------------
     def _top_instancer(self, prim: Usd.Prim, info) -> None:
+        """Place every prototype gprim and light of a PointInstancer that is not itself inside
+        a prototype: gprims as one merged MeshDesc each, lights one LightDesc per instance."""
         groups: dict[int, tuple[_LocalMesh, list[np.ndarray]]] = {}
-        for lm, mats in self._instancer_items(prim, info, 0):
-            groups.setdefault(id(lm), (lm, []))[1].append(mats)
         world = self.ctx.local_to_world(prim)
+        for item, mats, keys in self._instancer_items(prim, info, 0):
+            if isinstance(item, _ProtoLight):
+                self._instanced_lights(prim, item, np.einsum("ij,njk->nik", world, mats), keys)
+            else:
+                groups.setdefault(id(item), (item, []))[1].append(mats)
         for lm, mats_list in groups.values():
             self._emit(lm, np.einsum("ij,njk->nik", world, np.concatenate(mats_list)))
 
-    def _instancer_items(self, prim: Usd.Prim, info, depth: int) -> list[tuple[_LocalMesh, np.ndarray]]:
-        """(local mesh, (N, 4, 4) gprim-local -> instancer-local matrices) for every prototype gprim."""
+    def _instanced_lights(self, instancer: Usd.Prim, pl: _ProtoLight, mats: np.ndarray,
+                          keys: np.ndarray) -> None:
+        """One LightDesc per instance of a prototype light.
+
+        mats: (N, 4, 4) light-prim-local -> world matrices (instancer world @ instance @ the
+        light's transform within the prototype); keys: (N, L) instance ids, one column per
+        PointInstancer level. The prototype's radiometry inputs are shared; the frame, and so
+        the world-space area ``normalize`` divides by, is each instance's own.
+        """
+        ctx = self.ctx
+        frames = np.einsum("nij,jk->nik", mats, pl.desc.light_to_world)
+        bad = ~np.isfinite(frames).all(axis=(1, 2)) | (np.abs(frames).max(axis=(1, 2), initial=0.0) > 1e30)
+        if bad.any():
+            raise ctx.error(f"the world transform of {pl.desc.path} in instance "
+                            f"{keys[int(np.argmax(bad))].tolist()} is not finite (or exceeds 1e30)",
+                            instancer, "positions")
+        # A zero instance scale (the usual way to hide instances, which hides geometry in
+        # _emit) must hide its lamps too: a normalized point light would otherwise still shine.
+        # Only an all-zero linear part counts, since a flat light with zero Z scale is valid.
+        live = np.any(frames[:, :3, :3] != 0.0, axis=(1, 2))
+        instancer_path = instancer.GetPath()
+        qualifier = "" if pl.prim.GetPath().HasPrefix(instancer_path) else f"{instancer_path}:"
+        for frame, key in zip(frames[live], keys[live]):
+            path = _instance_light_path(pl.desc.path, key, qualifier)
+            self.lights.append(dataclasses.replace(pl.desc, path=path, light_to_world=frame.copy()))
+            self.light_prims[path] = pl.prim
+        ctx.stats["instanced_lights"] += int(live.sum())
+
+    def _instancer_items(self, prim: Usd.Prim, info, depth: int) -> list[tuple]:
+        """(item, (N, 4, 4) item-local -> instancer-local matrices, (N, L) int64 instance keys)
+        for every prototype gprim (item a _LocalMesh) and light (a _ProtoLight).
+
+        This is the one place instance matrices are made, for geometry and lights alike.
+        keys: per matrix, the instance id at this instancer then at each nested one (L levels);
+        ids are the authored ``ids`` when they are one per instance and distinct, else indices.
+        """
         ctx = self.ctx
         if depth > _MAX_INSTANCER_DEPTH:
             raise ctx.error(f"PointInstancers nested deeper than {_MAX_INSTANCER_DEPTH} (a cycle?)",
@@ -375,25 +451,47 @@ class _Traversal:
         if mask is not None and len(mask):
             keep = np.asarray(mask, dtype=bool)
         ctx.stats["instances"] += int(keep.sum())
-        items: list[tuple[_LocalMesh, np.ndarray]] = []
+        ids, ids_usable = self._instance_ids(pi, len(proto_indices))
+        items: list[tuple] = []
         for k in np.unique(proto_indices[keep]):
-            sel = mats[keep & (proto_indices == k)]
+            chosen = np.nonzero(keep & (proto_indices == k))[0]
+            sel = mats[chosen]
             proto = ctx.stage.GetPrimAtPath(protos[int(k)])
             if not proto:
                 raise ctx.error(f"prototype {protos[int(k)]} does not exist", prim, "prototypes")
-            for lm, rel in self._prototype_items(proto, info, depth):
+            for item, rel, rel_keys in self._prototype_items(proto, info, depth):
+                # instance-major order: matrix s * R + r is instance s placing item copy r
                 both = np.einsum("sij,rjk->srik", sel, rel).reshape(-1, 4, 4)
-                items.append((lm, both))
+                keys = np.concatenate([np.repeat(ids[chosen], len(rel))[:, None],
+                                       np.tile(rel_keys, (len(chosen), 1))], axis=1)
+                items.append((item, both, keys))
+        if not ids_usable and any(isinstance(item, _ProtoLight) for item, _m, _k in items):
+            ctx.warn(f"instancer-ids-{prim.GetPath()}",
+                     f"{prim.GetPath()}: ids are not one distinct id per instance; its instanced lights "
+                     "are named by instance index instead")
         return items
 
-    def _prototype_items(self, root: Usd.Prim, info, depth: int) -> list[tuple[_LocalMesh, np.ndarray]]:
-        """Gprims under a prototype root with (K, 4, 4) gprim-local -> root-local matrices.
+    def _instance_ids(self, pi: UsdGeom.PointInstancer, n: int) -> tuple[np.ndarray, bool]:
+        """(n,) int64 ids naming the instances (authored ``ids`` if one distinct id each, else
+        0..n-1) and False when ids are authored but unusable (so they were replaced)."""
+        raw = pi.GetIdsAttr().Get(self.ctx.time)
+        if raw is None or len(raw) == 0:
+            return np.arange(n, dtype=np.int64), True
+        ids = np.asarray(raw, dtype=np.int64)
+        if len(ids) != n or len(np.unique(ids)) != n:
+            return np.arange(n, dtype=np.int64), False
+        return ids, True
+
+    def _prototype_items(self, root: Usd.Prim, info, depth: int) -> list[tuple]:
+        """Gprims (_LocalMesh) and lights (_ProtoLight) under a prototype root, each with
+        (K, 4, 4) item-local -> root-local matrices and (K, L) keys of the nested instancers'
+        instances (L = 0 for items directly in the prototype).
 
         Visibility and purpose are judged from the root down (the root's ancestors often hide
         the prototypes on purpose); nested instancers recurse.
         """
         ctx = self.ctx
-        out: list[tuple[_LocalMesh, np.ndarray]] = []
+        out: list[tuple] = []
         infos: dict = {root.GetPath().GetParentPath(): info}
         it = iter(Usd.PrimRange(root, _PROTOTYPE_PREDICATE))
         for prim in it:
@@ -403,20 +501,32 @@ class _Traversal:
                 it.PruneChildren()
                 continue
             infos[prim.GetPath()] = pinfo
+            if prim.HasAuthoredMetadata("apiSchemas"):
+                check_light_api_target(prim, ctx)
             if not render:
                 continue
             rel = ctx.relative_transform(prim, root) if prim != root else np.eye(4)
+            is_light = prim.HasAPI(UsdLux.LightAPI)
             if prim.IsA(UsdGeom.PointInstancer):
                 it.PruneChildren()
-                for lm, mats in self._instancer_items(prim, pinfo, depth + 1):
-                    out.append((lm, np.einsum("ij,njk->nik", rel, mats)))
-            elif prim.HasAPI(UsdLux.LightAPI):
-                ctx.warn("instanced-light", f"{prim.GetPath()}: lights inside PointInstancer prototypes "
-                                            "are not supported; skipped")
-            elif prim.IsA(UsdGeom.Gprim):
-                lm = self._local_geometry(prim)
-                if lm is not None:
-                    out.append((lm, rel[None]))
+                for item, mats, keys in self._instancer_items(prim, pinfo, depth + 1):
+                    out.append((item, np.einsum("ij,njk->nik", rel, mats), keys))
+            elif is_light and prim.IsA(UsdGeom.Gprim) and not prim.HasAPI(UsdLux.VolumeLightAPI):
+                ctx.warn("instanced-mesh-light", f"{prim.GetPath()}: mesh lights inside PointInstancer "
+                                                 "prototypes are not supported; skipped")
+            else:
+                if is_light and prim.IsA(UsdLux.PortalLight):
+                    ctx.warn("instanced-portal", f"{prim.GetPath()}: PortalLights inside PointInstancer "
+                                                 "prototypes are not instanced; ignored")
+                elif is_light:
+                    # Read once; every instance shares these inputs (_instanced_lights).
+                    desc = read_light(prim, ctx, to_world=np.eye(4))
+                    if desc is not None:
+                        out.append((_ProtoLight(prim, desc), rel[None], _NO_KEYS))
+                if prim.IsA(UsdGeom.Gprim):  # a VolumeLightAPI gprim still renders its surface
+                    lm = self._local_geometry(prim)
+                    if lm is not None:
+                        out.append((lm, rel[None], _NO_KEYS))
         return out
 
     # ---- gprims ----------------------------------------------------------------------
