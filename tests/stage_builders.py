@@ -69,17 +69,23 @@ def furnace_stage(path, L=2.0, rho=1.0, res=(24, 24)):
     return stage
 
 
+def add_floor(stage, half=5.0, diffuse=(0.5, 0.5, 0.5)):
+    """A flat grey square floor at y = 0, 2 * half wide, facing +Y, at /World/Floor."""
+    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
+    floor.CreatePointsAttr([(-half, 0, -half), (half, 0, -half), (half, 0, half), (-half, 0, half)])
+    floor.CreateFaceVertexCountsAttr([4])
+    floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
+    floor.CreateSubdivisionSchemeAttr("none")
+    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=diffuse))
+    return floor
+
+
 def quad_light_stage(path, res=(16, 16), intensity=5.0, light_kind="rect", **light_attrs):
     """A grey floor lit from above by one light; the camera looks down at it."""
     stage = new_stage(path)
     add_camera(stage, pos=(0, 6, 0), tilt_x=-90.0)
     add_settings(stage, res)
-    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-5, 0, -5), (5, 0, -5), (5, 0, 5), (-5, 0, 5)])
-    floor.CreateFaceVertexCountsAttr([4])
-    floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
-    floor.CreateSubdivisionSchemeAttr("none")
-    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5)))
+    add_floor(stage)
     if light_kind == "rect":
         light = UsdLux.RectLight.Define(stage, "/World/Light")
         light.CreateWidthAttr(light_attrs.get("width", 1.0))

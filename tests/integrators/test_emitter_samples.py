@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pxr import Gf, UsdGeom, UsdLux
+from pxr import Gf, UsdLux
 
 from renderer.errors import SettingsError
 from renderer.render import RenderOptions, render
-from tests.stage_builders import add_camera, add_settings, bind, new_stage, preview_material
+from tests.stage_builders import add_camera, add_floor, add_settings, new_stage
 
 
 def _small_lights_stage(path, n_lights=6, res=(24, 24), radius=0.05):
@@ -19,11 +19,7 @@ def _small_lights_stage(path, n_lights=6, res=(24, 24), radius=0.05):
     stage = new_stage(path)
     add_camera(stage, pos=(0, 6, 0), tilt_x=-90.0)
     add_settings(stage, res)
-    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-5, 0, -5), (5, 0, -5), (5, 0, 5), (-5, 0, 5)])
-    floor.CreateFaceVertexCountsAttr([4])
-    floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
-    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey"))
+    add_floor(stage)
     rng = np.random.default_rng(4)
     for i in range(n_lights):
         light = UsdLux.SphereLight.Define(stage, f"/World/L{i}")

@@ -18,7 +18,7 @@ from renderer.lights.rect import RectLight
 from renderer.lights.sphere import SphereLight
 from renderer.render import RenderOptions, render
 from renderer.usd import load_stage
-from tests.stage_builders import add_camera, add_point_instancer, add_settings, bind, new_stage, preview_material
+from tests.stage_builders import add_camera, add_floor, add_point_instancer, add_settings, new_stage
 from tests.stats import SIGNIFICANCE, z_test
 
 LAMPS = "/World/Lamps"
@@ -89,12 +89,7 @@ def _base(path):
     # pixels carry only their (lower-variance) illumination
     add_camera(stage, pos=(0, 1.5, 0), focal=12.0, tilt_x=-90.0)
     add_settings(stage, res=(32, 32))
-    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-6, 0, -6), (6, 0, -6), (6, 0, 6), (-6, 0, 6)])
-    floor.CreateFaceVertexCountsAttr([4])
-    floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
-    floor.CreateSubdivisionSchemeAttr("none")
-    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5)))
+    add_floor(stage, half=6.0)
     return stage
 
 
