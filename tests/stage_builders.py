@@ -69,14 +69,14 @@ def furnace_stage(path, L=2.0, rho=1.0, res=(24, 24)):
     return stage
 
 
-def add_floor(stage, half=5.0, diffuse=(0.5, 0.5, 0.5)):
+def add_floor(stage, half=5.0, diffuse=(0.5, 0.5, 0.5), roughness=0.5):
     """A flat grey square floor at y = 0, 2 * half wide, facing +Y, at /World/Floor."""
     floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
     floor.CreatePointsAttr([(-half, 0, -half), (half, 0, -half), (half, 0, half), (-half, 0, half)])
     floor.CreateFaceVertexCountsAttr([4])
     floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
     floor.CreateSubdivisionSchemeAttr("none")
-    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=diffuse))
+    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=diffuse, roughness=roughness))
     return floor
 
 

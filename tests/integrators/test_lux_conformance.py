@@ -25,7 +25,7 @@ from pxr import Gf, Sdf, UsdGeom, UsdLux
 
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
 from renderer.render import RenderOptions, render
-from tests.stage_builders import add_camera, add_settings, bind, new_stage, preview_material
+from tests.stage_builders import add_camera, add_floor, add_settings, new_stage
 
 COLOR = (1.0, 0.5, 0.25)
 _SCHEMAS = {"rect": UsdLux.RectLight, "disk": UsdLux.DiskLight, "sphere": UsdLux.SphereLight,
@@ -169,12 +169,7 @@ def test_distant_light_lights_a_floor_with_its_cone(tmp_path, angle, normalize):
     path = tmp_path / "floor.usda"
     stage = new_stage(path)
     _narrow_camera(stage, pos=(0, 5, 0), tilt_x=-90.0)
-    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-50, 0, -50), (50, 0, -50), (50, 0, 50), (-50, 0, 50)])
-    floor.CreateFaceVertexCountsAttr([4])
-    floor.CreateFaceVertexIndicesAttr([0, 3, 2, 1])
-    floor.CreateSubdivisionSchemeAttr("none")
-    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/M", diffuse=(0.6, 0.6, 0.6), roughness=0.7))
+    add_floor(stage, half=50.0, diffuse=(0.6, 0.6, 0.6), roughness=0.7)
     sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
     sun.CreateIntensityAttr(2.0)
     sun.CreateAngleAttr(angle)

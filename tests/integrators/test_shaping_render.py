@@ -15,7 +15,7 @@ import pytest
 from pxr import Gf, Sdf, UsdGeom, UsdLux
 
 from renderer.render import RenderOptions, render
-from tests.stage_builders import add_camera, add_settings, bind, new_stage, preview_material
+from tests.stage_builders import add_camera, add_floor, add_settings, new_stage
 
 IES = os.path.join(os.path.dirname(__file__), "..", "..", "stages", "ies", "wallwash.ies")
 
@@ -27,12 +27,7 @@ def _spot_stage(path, ies: bool):
     stage = new_stage(path)
     add_camera(stage, pos=(0.0, 0.8, 0.0), focal=20.0, tilt_x=-90.0, clip=(0.01, 100.0))
     add_settings(stage, res=(8, 8))
-    floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-10, 0, 10), (10, 0, 10), (10, 0, -10), (-10, 0, -10)])
-    floor.CreateFaceVertexCountsAttr([4])
-    floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    floor.CreateSubdivisionSchemeAttr("none")
-    bind(floor.GetPrim(), preview_material(stage, "/World/Looks/Grey", diffuse=(0.5, 0.5, 0.5), roughness=0.7))
+    add_floor(stage, half=10.0, roughness=0.7)
     spot = UsdLux.DiskLight.Define(stage, "/World/Spot")
     spot.CreateRadiusAttr(0.9)
     spot.CreateIntensityAttr(6.0)
