@@ -5,11 +5,24 @@ of the two children of each node it visits (``_importance``) and going left with
 I_left / (I_left + I_right). The numpy traversal this replaces moved every still-descending row
 one level per pass, with a few dozen (2, k)-array operations per level and a compaction when
 rows finished: 2.3-3.5 us of CPU per pick on the fireflies stage (mean depth 13), most of it
-numpy dispatch and temporaries, against ~0.9 us here, where what is left is the latency of
-each level's chain of a division and two or three square roots.
+numpy dispatch and temporaries, against ~0.5 us here (0.4 us per pmf replay; measured on the
+picks of a real fireflies render, bench/bench_light_samplers.py throughput and profile).
+
+**What made it fast.** (1) The importance is branch-free where it used to branch: the emission
+cone test, the incidence factor and the choice between a child's cosines are selects, not
+ifs, which halved the cost of a pmf replay (0.81 -> 0.40 us): with an early ``return 0`` LLVM
+kept every data-dependent test a branch, and those mispredict. (2) Cosines and sines are
+carried multiplied by the distance d (``_importance``), so the square roots and the one
+division depend on d^2 only and run side by side instead of one after the other. (3) The
+descent decides a branch with a multiplication (u (I_0 + I_1) >= I_0) instead of waiting
+for the division I_0 / (I_0 + I_1), which only enters the pmf, and it walks sibling pairs:
+``pair_next`` gives the pair of the chosen child's children (or its light) directly, one
+dependent load per level instead of two. (A 64-byte record per node, centres, bounds and
+links in one cache line, and float32 maths were tried too: no measurable gain; numba's
+error_model="numpy", which drops the zero-division checks, made picks slower.)
 
 **Exactness.** ``bvh_sample_kernel`` and ``bvh_pmf_kernel`` reach every branching probability
-through the same function (``_first_child_prob``) with the same scalar float64 operations in
+through the same function (``_pair_importances``) with the same scalar float64 operations in
 the same order (fastmath is off, so LLVM neither contracts nor reassociates), and multiply
 the probabilities in the same order: pmf(ctx, sample(ctx, u).index) equals the pmf that sample
 reported, bit for bit.
@@ -19,10 +32,11 @@ reported, bit for bit.
 (children are allocated in pairs after the root), one pair's values contiguous; ``root_c``
 (1, 1, 3) and ``root_b`` (1, 1, 8) the root's. Bounds columns: r = |diagonal| / 2 (the
 bounding sphere's radius), w (3) the cone axis, phi, cos theta_o, sin theta_o, cos theta_e,
-each rounded the conservative way to float32 (bvh.py ``_traversal_columns``). ``child`` (N,) int32 first child
-(-1 for a leaf), ``leaf_light`` (N,) int32 global light of a leaf; ``trail`` (m, words) uint64
-root-to-leaf bits (0 = first child) and ``depth`` (m,) int32 per tree light, ``slot`` (count,)
-int32 the tree light of each global light (-1: not in the tree).
+each rounded the conservative way to float32 (bvh.py ``_traversal_columns``). ``pair_next``
+(P, 2) int32: for each node of a pair, the pair of its own children, or -1 - its global light
+when it is a leaf; ``root_light`` the global light of a one-light tree (no pairs), else -1.
+``trail`` (m, words) uint64 root-to-leaf bits (0 = first child) and ``depth`` (m,) int32 per
+tree light, ``slot`` (count,) int32 the tree light of each global light (-1: not in the tree).
 
 The constants below are the traversal's and live here because numba freezes globals into its
 on-disk cache per defining file (see ``renderer.kernels``); the build's CONE_PAD is bvh.py's.
@@ -62,7 +76,7 @@ CLAMP_R2 = 1.0 / 3.0
 
 
 # inline="always" (numba-level inlining) on the two functions of the descent: ~10 % faster
-# picks, measured. (Walking two or four rows down together, to overlap their latency chains,
+# picks, measured when they still branched. (Walking two or four rows down together, to overlap their latency chains,
 # was measured too: slower, 1.2-1.7 us per pick, from the per-lane state.)
 @njit(cache=True, nogil=True, inline="always")
 def _importance(px, py, pz, nx, ny, nz, has_n, c, b, pair, side):
@@ -71,8 +85,14 @@ def _importance(px, py, pz, nx, ny, nz, has_n, c, b, pair, side):
 
     The point is (px, py, pz); (nx, ny, nz) its shading normal, used for the clamped-incidence
     factor when has_n. Returns phi cos(theta') / max(d^2, CLAMP_R2 r^2) * max(cos(theta_i'), 0),
-    0 when theta' >= theta_e (see bvh.py's module docstring for the angles). One division and
-    two square roots on the common path (the sines of theta_w and theta_i only when needed).
+    0 when theta' >= theta_e (see bvh.py's module docstring for the angles).
+
+    Every cosine and sine is carried multiplied by d = |p - centre| (d cos_w = w . (p - c),
+    d sin_w = sqrt(d^2 - (w . (p - c))^2), ...), so that neither the unit direction nor 1 / d
+    is needed: the square roots (d, d cos_b, d sin_i, d sin_w) and the one division (by
+    d^2 d^2 max(d^2, clamp)) depend on d^2 and a dot product only and run side by side.
+    Data-dependent tests are written as selects (``x if c else y`` on values already
+    computed), which LLVM compiles without branches; see the module docstring.
     """
     dx = px - c[pair, side, 0]
     dy = py - c[pair, side, 1]
@@ -80,57 +100,37 @@ def _importance(px, py, pz, nx, ny, nz, has_n, c, b, pair, side):
     r = np.float64(b[pair, side, 0])      # bounding-sphere radius, rounded up to float32
     r2 = r * r
     d2_true = dx * dx + dy * dy + dz * dz
-    inv_d2 = 1.0 / max(d2_true, D2_MIN)
-    inv_d = math.sqrt(inv_d2)
-    # wi: unit direction from the node centre toward the point (zero when they coincide).
-    dx *= inv_d
-    dy *= inv_d
-    dz *= inv_d
-    cos_w = (np.float64(b[pair, side, 1]) * dx + np.float64(b[pair, side, 2]) * dy
-             + np.float64(b[pair, side, 3]) * dz)
+    d2 = max(d2_true, D2_MIN)
+    d = math.sqrt(d2)
+    # 1 / (d^2 for the cosine of theta', d^2 for the incidence cosine, the clamped d^2).
+    inv_den = 1.0 / (d2 * d2 * max(d2_true, CLAMP_R2 * r2, D2_MIN))
     # theta_b: half-angle of the cone of directions from the point to the bounding sphere,
-    # the whole sphere when the point is inside it.
-    if d2_true < r2:
-        cos_b = -1.0
-        sin_b = 0.0
-    else:
-        sin_b = min(r * inv_d, 1.0)
-        cos_b = math.sqrt(max(1.0 - sin_b * sin_b, 0.0))
-    # theta_x = max(theta_w - theta_o, 0).
+    # the whole sphere when the point is inside it. cb = d cos_b, sb = d sin_b.
+    inside = d2_true < r2
+    cb = -d if inside else math.sqrt(max(d2 - r2, 0.0))
+    sb = 0.0 if inside else r
+    # theta_x = max(theta_w - theta_o, 0): xc = d cos_x, xs = d sin_x.
+    wd = (np.float64(b[pair, side, 1]) * dx + np.float64(b[pair, side, 2]) * dy
+          + np.float64(b[pair, side, 3]) * dz)
     cos_o = np.float64(b[pair, side, 5])
-    if cos_w > cos_o:
-        cos_x = 1.0
-        sin_x = 0.0
-    else:
-        sin_o = np.float64(b[pair, side, 6])
-        sin_w = math.sqrt(max(1.0 - cos_w * cos_w, 0.0))
-        cos_x = cos_w * cos_o + sin_w * sin_o
-        sin_x = max(sin_w * cos_o - cos_w * sin_o, 0.0)
-    # theta' = max(theta_x - theta_b, 0).
-    if cos_x > cos_b:
-        cos_p = 1.0
-    else:
-        cos_p = cos_x * cos_b + sin_x * sin_b
-    if not cos_p > np.float64(b[pair, side, 7]):
-        return 0.0
-    # phi cos(theta') / max(d^2, CLAMP_R2 r^2, D2_MIN), dividing only where the clamp acts.
-    clamp = max(CLAMP_R2 * r2, D2_MIN)
-    if d2_true >= clamp:
-        imp = np.float64(b[pair, side, 4]) * cos_p * inv_d2
-    else:
-        imp = np.float64(b[pair, side, 4]) * cos_p / clamp
-    if has_n:
-        # Clamped incidence at the shading normal (the light is toward -wi from the point):
-        # cos of max(theta_i - theta_b, 0), clamped at 0.
-        cos_i = -(nx * dx + ny * dy + nz * dz)
-        if cos_i > cos_b:
-            cos_ib = 1.0
-        else:
-            sin_i = math.sqrt(max(1.0 - cos_i * cos_i, 0.0))
-            cos_ib = cos_i * cos_b + sin_i * sin_b
-        cos_ib = min(max(cos_ib + INCIDENCE_PAD, 0.0), 1.0)
-        imp *= cos_ib
-    return min(max(imp, 0.0), MAX_IMPORTANCE)
+    sin_o = np.float64(b[pair, side, 6])
+    sw = math.sqrt(max(d2 - wd * wd, 0.0))
+    in_cone = wd > cos_o * d
+    xc = d if in_cone else wd * cos_o + sw * sin_o
+    xs = 0.0 if in_cone else max(sw * cos_o - wd * sin_o, 0.0)
+    # theta' = max(theta_x - theta_b, 0): pc = d^2 cos(theta').
+    pc = d2 if xc > cb else xc * cb + xs * sb
+    # Clamped incidence at the shading normal (the light is toward c - p from the point):
+    # ic = d^2 cos of max(theta_i - theta_b, 0), clamped at 0 (padded against rounding).
+    ci = -(nx * dx + ny * dy + nz * dz)
+    si = math.sqrt(max(d2 - ci * ci, 0.0))
+    ic = d2 if ci > cb else ci * cb + si * sb
+    ic = min(max(ic + INCIDENCE_PAD * d2, 0.0), d2)
+    ic = ic if has_n else d2
+    imp = np.float64(b[pair, side, 4]) * pc * ic * inv_den
+    imp = min(max(imp, 0.0), MAX_IMPORTANCE)
+    # 0 outside the emission cone: theta' >= theta_e.
+    return imp if pc > np.float64(b[pair, side, 7]) * d2 else 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -145,27 +145,26 @@ def _normal(ng, ns, row):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _first_child_prob(node, px, py, pz, nx, ny, nz, has_n, child, pair_c, pair_b):
-    """(probability of the first child of interior node ``node``, False where both children
-    have importance 0). The only place either traversal computes a branching probability."""
-    pair = (child[node] - 1) >> 1
+def _pair_importances(pair, px, py, pz, nx, ny, nz, has_n, pair_c, pair_b):
+    """Importances (i0, i1) of the two nodes of sibling pair ``pair``, and the probability of
+    the first, i0 / (i0 + i1) (0 where both are 0). The only place either traversal computes
+    a branching probability."""
     i0 = _importance(px, py, pz, nx, ny, nz, has_n, pair_c, pair_b, pair, 0)
     i1 = _importance(px, py, pz, nx, ny, nz, has_n, pair_c, pair_b, pair, 1)
     tot = i0 + i1
-    if tot > 0.0:
-        return i0 / tot, True
-    return 0.0, False
+    p0 = i0 / tot if tot > 0.0 else 0.0
+    return i0, i1, tot, p0
 
 
 @njit(cache=True, nogil=True)
-def _tree_alive(px, py, pz, nx, ny, nz, has_n, child, root_c, root_b, pair_c, pair_b):
+def _tree_alive(px, py, pz, nx, ny, nz, has_n, root_light, root_c, root_b, pair_c, pair_b):
     """Can the tree give a light here: the root's children do not both have importance 0 (for a
     one-light tree, that light's importance is positive)."""
-    if child.shape[0] == 0:
-        return False
-    if child[0] < 0:
+    if root_light >= 0:
         return _importance(px, py, pz, nx, ny, nz, has_n, root_c, root_b, 0, 0) > 0.0
-    return _first_child_prob(0, px, py, pz, nx, ny, nz, has_n, child, pair_c, pair_b)[1]
+    if pair_c.shape[0] == 0:
+        return False
+    return _pair_importances(0, px, py, pz, nx, ny, nz, has_n, pair_c, pair_b)[2] > 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -178,16 +177,17 @@ def bvh_importance_kernel(p, nrm, has_n, c, b, out):
 
 
 @njit(cache=True, nogil=True)
-def bvh_sample_kernel(u, p, ng, ns, p_inf, infinite, child, leaf_light, root_c, root_b, pair_c, pair_b,
+def bvh_sample_kernel(u, p, ng, ns, p_inf, infinite, pair_next, root_light, root_c, root_b, pair_c, pair_b,
                       out_index, out_pmf, out_u):
     """BVHLightSampler.sample for rows of u (n,) in [0, 1) at points p with geometric and
     shading normals ng, ns (n, 3) (see _normal). Infinite lights (global indices ``infinite``)
     are picked with probability p_inf uniformly among themselves, or with probability 1 where
-    the tree cannot give a light; otherwise the tree is descended reusing u. Writes the global index and the pmf (0, index 0:
-    no light), and on rows given a tree light, out_u: u rescaled into that leaf's interval (a
-    fresh uniform in [0, 1); other rows of out_u are left as they are)."""
+    the tree cannot give a light; otherwise the tree is descended reusing u. Writes the global
+    index and the pmf (0, index 0: no light), and on rows given a tree light, out_u: u rescaled
+    into that leaf's interval (a fresh uniform in [0, 1); other rows of out_u are left as they
+    are). root_light: the global light of a one-light tree, else -1."""
     k_inf = infinite.shape[0]
-    has_tree = child.shape[0] > 0
+    has_tree = root_light >= 0 or pair_c.shape[0] > 0
     for row in range(u.shape[0]):
         out_index[row] = 0
         out_pmf[row] = 0.0
@@ -196,7 +196,7 @@ def bvh_sample_kernel(u, p, ng, ns, p_inf, infinite, child, leaf_light, root_c, 
         ur = u[row]
         if k_inf > 0:
             p_row = p_inf
-            if not _tree_alive(px, py, pz, nx, ny, nz, hn, child, root_c, root_b, pair_c, pair_b):
+            if not _tree_alive(px, py, pz, nx, ny, nz, hn, root_light, root_c, root_b, pair_c, pair_b):
                 p_row = 1.0
             if ur < p_row:
                 j = min(int(ur / p_row * k_inf), k_inf - 1)
@@ -207,37 +207,45 @@ def bvh_sample_kernel(u, p, ng, ns, p_inf, infinite, child, leaf_light, root_c, 
             continue
         uu = min((ur - p_inf) / (1.0 - p_inf), ONE_MINUS_EPSILON)
         pr = 1.0 - p_inf
-        node = 0
-        if child[0] < 0:
+        if root_light >= 0:
             if _importance(px, py, pz, nx, ny, nz, hn, root_c, root_b, 0, 0) > 0.0:
-                out_index[row] = leaf_light[0]
+                out_index[row] = root_light
                 out_pmf[row] = pr
                 out_u[row] = uu
             continue
-        while child[node] >= 0:
-            p0, ok = _first_child_prob(node, px, py, pz, nx, ny, nz, hn, child, pair_c, pair_b)
-            if not ok:
+        pair = 0
+        side = 0
+        while True:
+            i0, i1, tot, p0 = _pair_importances(pair, px, py, pz, nx, ny, nz, hn, pair_c, pair_b)
+            if not tot > 0.0:
                 pr = 0.0
                 break
-            if uu >= p0:
-                q = 1.0 - p0
-                uu = uu - p0
-                node = child[node] + 1
+            # Go to the second child where u tot >= i0 (and it can be picked), and rescale the
+            # chosen sub-interval of u to [0, 1): one multiplication decides the branch, so
+            # the next level need not wait for a division (p0 only enters the pmf).
+            t = uu * tot
+            if t >= i0 and i1 > 0.0:
+                side = 1
+                pr = pr * (1.0 - p0)
+                uu = (t - i0) / i1
             else:
-                q = p0
-                node = child[node]
-            pr = pr * q
-            # Reuse u: rescale the chosen sub-interval to [0, 1).
-            uu = min(uu / (q if q > 0.0 else 1.0), ONE_MINUS_EPSILON)
+                side = 0
+                pr = pr * p0
+                uu = t / i0
+            uu = min(uu, ONE_MINUS_EPSILON)
+            nxt = pair_next[pair, side]
+            if nxt < 0:
+                break
+            pair = nxt
         if pr > 0.0:
-            out_index[row] = leaf_light[node]
+            out_index[row] = -1 - pair_next[pair, side]
             out_pmf[row] = pr
             out_u[row] = uu
 
 
 @njit(cache=True, nogil=True)
-def bvh_pmf_kernel(index, p, ng, ns, p_inf, is_inf, k_inf, slot, depth, trail, child, root_c, root_b,
-                   pair_c, pair_b, out):
+def bvh_pmf_kernel(index, p, ng, ns, p_inf, is_inf, k_inf, slot, depth, trail, pair_next, root_light, root_c,
+                   root_b, pair_c, pair_b, out):
     """BVHLightSampler.pmf: the probability (n,) that bvh_sample_kernel picks global light
     index (n,) at p, ng, ns, replaying the light's root-to-leaf trail with the same
     arithmetic. is_inf (count,) bool marks the infinite lights (k_inf of them)."""
@@ -250,7 +258,7 @@ def bvh_pmf_kernel(index, p, ng, ns, p_inf, is_inf, k_inf, slot, depth, trail, c
         px, py, pz = p[row, 0], p[row, 1], p[row, 2]
         nx, ny, nz, hn = _normal(ng, ns, row)
         if is_inf[li]:
-            if _tree_alive(px, py, pz, nx, ny, nz, hn, child, root_c, root_b, pair_c, pair_b):
+            if _tree_alive(px, py, pz, nx, ny, nz, hn, root_light, root_c, root_b, pair_c, pair_b):
                 out[row] = p_inf / k_inf
             else:
                 out[row] = 1.0 / k_inf
@@ -259,21 +267,20 @@ def bvh_pmf_kernel(index, p, ng, ns, p_inf, is_inf, k_inf, slot, depth, trail, c
         if s < 0:
             continue
         pr = 1.0 - p_inf
-        if child[0] < 0:
+        if root_light >= 0:
             if _importance(px, py, pz, nx, ny, nz, hn, root_c, root_b, 0, 0) > 0.0:
                 out[row] = pr
             continue
-        node = 0
+        pair = 0
         for level in range(depth[s]):
-            right = (trail[s, level >> 6] >> np.uint64(level & 63)) & np.uint64(1)
-            p0, ok = _first_child_prob(node, px, py, pz, nx, ny, nz, hn, child, pair_c, pair_b)
-            if not ok:
+            side = (trail[s, level >> 6] >> np.uint64(level & 63)) & np.uint64(1)
+            i0, i1, tot, p0 = _pair_importances(pair, px, py, pz, nx, ny, nz, hn, pair_c, pair_b)
+            if not tot > 0.0:
                 pr = 0.0
                 break
-            if right:
+            if side:
                 pr = pr * (1.0 - p0)
-                node = child[node] + 1
             else:
                 pr = pr * p0
-                node = child[node]
+            pair = pair_next[pair, side]
         out[row] = pr

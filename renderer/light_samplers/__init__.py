@@ -11,8 +11,9 @@ choice follows the light count (finite and infinite lights together):
   20 CPU seconds per render, median of 3 seeds, relMSE over pixels that see no light
   directly): 13.9x lower than uniform and 9.6x lower than power on stages/fireflies (5000
   sphere lights), 10.2x and 2.4x on stages/city_lights (293 rect and disk lights), although a
-  pick costs ~0.9 us (a descent of ~13 levels) against ~0.02 us for the power sampler's
-  alias table. (Over the whole image the margins are 1.5x and 1.2x on fireflies: there the
+  pick costs ~0.5 us (a descent of ~13 levels) against ~0.02 us for the power sampler's
+  alias table. (Over the whole image the margins are 1.5x and 1.2x on fireflies at 160x90, and
+  2.7x and 2.2x at the stage's own 480x270, 30 CPU seconds per render: there the
   anti-aliasing noise of the fireflies seen directly, which no lighting service touches, is
   most of the error; see that file.) Just above the threshold
   it still wins: with 9 / 16 / 32 mixed lights at random points the relative variance of the

@@ -71,10 +71,11 @@ mean of the node's normals, theta_o = largest angle from it to a light's cone pl
 for rounding, so they never exclude a light (which would be bias).
 
 **Cost.** A pick visits O(depth) nodes, O(log n) for a balanced tree, evaluating both
-children's importance at each: a per-row numba loop (renderer/kernels/light_bvh.py), ~1-1.5 us
-of CPU per pick or pmf replay on the fireflies stage (5000 lights, mean depth 13), where the
-level-at-a-time numpy traversal it replaced took ~3.5 us for either.
-Memory per node (2 m - 1 nodes for m lights): 3 float64 + 8 float32 of bounds and 2 int32;
+children's importance at each: a per-row numba loop (renderer/kernels/light_bvh.py), ~0.5 us
+of CPU per pick and ~0.4 us per pmf replay on the fireflies stage (5000 lights, mean depth
+13; 0.86 and 0.81 us before its importance became branch-free), where the level-at-a-time
+numpy traversal it replaced took ~3.5 us for either.
+Memory per node (2 m - 1 nodes for m lights): 3 float64 + 8 float32 of bounds and 3 int32;
 per light one 64-bit word of trail per 64 levels and an int32 depth; an int32 slot per global
 light: about 140 bytes per light (``memory_bytes``).
 """
@@ -443,11 +444,12 @@ def _choose_split(F: np.ndarray, sizes: np.ndarray, nb: int, n_lo, n_hi, n_axis,
 class BVHLightSampler:
     """Light BVH lighting service (see the module docstring).
 
-    Attributes: ``root_pc``, ``root_nd``, ``pair_pc``, ``pair_nd`` the node bounds in traversal
+    Attributes: ``root_c``, ``root_b``, ``pair_c``, ``pair_b`` the node bounds in traversal
     layout (``nodes`` rebuilds the (N, 11) table); ``child`` (N,) int32 index of the first
     child (the second is child + 1), -1 for leaves; ``leaf_light`` (N,) int32 global light of
-    a leaf, -1 for interior nodes; ``trail`` (m, words) uint64 root-to-leaf bits per tree
-    light; ``depth`` (m,) int32; ``slot`` (count,) int32 tree light of each global light, -1
+    a leaf, -1 for interior nodes; ``pair_next`` (P, 2) and ``root_light``, the same links in
+    the traversal's pair form (renderer/kernels/light_bvh.py); ``trail`` (m, words) uint64
+    root-to-leaf bits per tree light; ``depth`` (m,) int32; ``slot`` (count,) int32 tree light of each global light, -1
     when the light is infinite or not in the tree; ``infinite`` (k,) int64 global indices;
     ``p_infinite`` the probability of picking an infinite light; ``build_seconds``.
     """
@@ -602,6 +604,13 @@ class BVHLightSampler:
         pc, nd = _traversal_columns(nodes[1:].reshape(-1, 2, _NCOLS).transpose(2, 0, 1))   # (.., P, 2)
         self.pair_c = np.ascontiguousarray(pc.transpose(1, 2, 0))
         self.pair_b = np.ascontiguousarray(nd.transpose(1, 2, 0))
+        # The traversal walks sibling pairs: per node of a pair, the pair of its own children,
+        # or -1 - its light for a leaf (one load per level; the kernel module says why).
+        P = self.pair_c.shape[0]
+        node = 1 + np.arange(2 * P)
+        ch = self.child[node]
+        self.pair_next = np.where(ch >= 0, (ch - 1) >> 1, -1 - self.leaf_light[node]).astype(np.int32).reshape(P, 2)
+        self.root_light = int(self.leaf_light[0]) if self.child.size == 1 else -1
         self._is_inf = np.zeros(self.count, bool)
         self._is_inf[self.infinite] = True
 
@@ -651,8 +660,8 @@ class BVHLightSampler:
             return index, pmf
         p, ng, ns = self._points(ctx)
         out_u = remapped if remapped is not None else np.empty(n)
-        _kern.bvh_sample_kernel(u, p, ng, ns, float(self.p_infinite), self.infinite, self.child,
-                                self.leaf_light, self.root_c, self.root_b, self.pair_c, self.pair_b,
+        _kern.bvh_sample_kernel(u, p, ng, ns, float(self.p_infinite), self.infinite, self.pair_next,
+                                self.root_light, self.root_c, self.root_b, self.pair_c, self.pair_b,
                                 index, pmf, out_u)
         return index, pmf
 
@@ -667,13 +676,14 @@ class BVHLightSampler:
             return out
         p, ng, ns = self._points(ctx)
         _kern.bvh_pmf_kernel(index, p, ng, ns, float(self.p_infinite), self._is_inf, int(self.infinite.size),
-                             self.slot, self.depth, self.trail, self.child, self.root_c, self.root_b,
-                             self.pair_c, self.pair_b, out)
+                             self.slot, self.depth, self.trail, self.pair_next, self.root_light, self.root_c,
+                             self.root_b, self.pair_c, self.pair_b, out)
         return out
 
     # ------------------------------------------------------------------------------------
     def memory_bytes(self) -> int:
         """Bytes held by the tree and the per-light replay data."""
         return int(self.root_c.nbytes + self.root_b.nbytes + self.pair_c.nbytes
-                   + self.pair_b.nbytes + self.child.nbytes + self.leaf_light.nbytes + self.trail.nbytes
+                   + self.pair_b.nbytes + self.pair_next.nbytes + self.child.nbytes + self.leaf_light.nbytes
+                   + self.trail.nbytes
                    + self.depth.nbytes + self.slot.nbytes + self.infinite.nbytes + self._is_inf.nbytes)
