@@ -293,6 +293,6 @@ def _bounding_spheres(tris: np.ndarray, owner: np.ndarray, count: int) -> tuple[
     np.minimum.at(lo, owner, tris.min(axis=1))
     np.maximum.at(hi, owner, tris.max(axis=1))
     has = np.all(np.isfinite(lo), axis=1)
+    lo, hi = np.where(has[:, None], lo, 0.0), np.where(has[:, None], hi, 0.0)  # no inf - inf
     centre = np.where(has[:, None], 0.5 * (lo + hi), np.inf)
-    radius = np.where(has, 0.5 * np.linalg.norm(np.where(has[:, None], hi - lo, 0.0), axis=1), 0.0)
-    return centre, radius
+    return centre, 0.5 * np.linalg.norm(hi - lo, axis=1)

@@ -13,7 +13,7 @@ from renderer.render import RenderOptions, render
 from tests.stage_builders import add_camera, add_floor, add_settings, new_stage
 
 
-def _small_lights_stage(path, n_lights=6, res=(24, 24), radius=0.05):
+def _small_lights_stage(path, n_lights=6, res=(24, 24), radius=0.05, dome=False):
     """A grey floor seen from above, with n_lights small bright sphere lights between camera
     and floor, each covering about one pixel: subpixel emitters on camera, like the fireflies."""
     stage = new_stage(path)
@@ -27,6 +27,8 @@ def _small_lights_stage(path, n_lights=6, res=(24, 24), radius=0.05):
         light.CreateIntensityAttr(float(rng.uniform(50.0, 200.0)))
         x, z = rng.uniform(-1.5, 1.5, size=2)
         light.AddTranslateOp().Set(Gf.Vec3d(float(x), 1.0, float(z)))
+    if dome:  # an infinite light among them: it has no bounds
+        UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.1)
     stage.GetRootLayer().Save()
     return str(path)
 
@@ -64,13 +66,14 @@ def test_emitter_samples_cut_the_anti_aliasing_variance(tmp_path):
 
 def test_auto_uses_more_emitter_samples_only_where_subpixel_lights_touch_many_pixels(tmp_path):
     """auto: K = 2 when lights under a pixel on screen could touch >= 1 % of the pixels."""
-    cases = {  # name: (lights, resolution, radius, expected K); a pixel is ~0.64 units at the lights
-        "few": (3, (64, 64), 0.05, 1),       # 12 of 4096 pixels
-        "many": (64, (8, 8), 0.05, 2),       # every pixel
-        "large": (64, (8, 8), 1.0, 1),       # as many lights, but each wider than a pixel
+    cases = {  # name: (lights, resolution, radius, dome, expected K); a pixel is ~0.64 units at the lights
+        "few": (3, (64, 64), 0.05, False, 1),       # 12 of 4096 pixels
+        "many": (64, (8, 8), 0.05, False, 2),       # every pixel
+        "many+dome": (64, (8, 8), 0.05, True, 2),   # an unbounded light among them changes nothing
+        "large": (64, (8, 8), 1.0, False, 1),       # as many lights, but each wider than a pixel
     }
-    for name, (n, res, radius, k) in cases.items():
-        stage = _small_lights_stage(tmp_path / f"{name}.usda", n_lights=n, res=res, radius=radius)
+    for name, (n, res, radius, dome, k) in cases.items():
+        stage = _small_lights_stage(tmp_path / f"{name}.usda", n_lights=n, res=res, radius=radius, dome=dome)
         assert render(stage, RenderOptions(spp=1, threads=1)).stats["emitter_samples"] == k, name
 
 
