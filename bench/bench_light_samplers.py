@@ -29,7 +29,11 @@ choice, and render throughput (project issues #5 and #8).
    bench/out/light_samplers_errmaps_STAGE.png. Other processes on the machine still add
    noise (the load average is recorded); the table also prints the samples per pixel each
    sampler reached, the CPU seconds it took, and mean(image)/mean(ref) as a bias check (~1).
-   Errors are heavy-tailed, so the summary takes the median over seeds.
+   Errors are heavy-tailed, so the summary takes the median over seeds. The table ends with
+   relMSE x CPU seconds, the comparison at exactly equal CPU time. A run at another ``--res``
+   than 160x90 (the stages' own 480x270, where a subpixel firefly covers a smaller share of
+   the pixels) keeps its JSON and error maps under names ending in _WxH (and the JSON of a
+   run of some of the stages, _STAGE...), and ``report`` shows those first.
 3. ``pick``: the exact, noise-free relative variance of the light *choice* at the camera's
    first hits (every light's unoccluded irradiance against the sampler's pmf; bench_pick),
    with the share of it from lights picked far less often than their share ("tails"), by
@@ -71,6 +75,16 @@ STAGES = {
     "city_lights": os.path.join(ROOT, "stages", "city_lights", "city_lights.usda"),
 }
 REL_EPS = 1e-2
+# The bench's default resolution; quality runs at another one (e.g. the stages' own 480x270)
+# keep their JSON and error maps under names with the resolution, so both stay reportable.
+DEFAULT_RES = (160, 90)
+
+
+def _res_suffix(res) -> str:
+    """'' at DEFAULT_RES, else '_WxH' (file names of quality runs)."""
+    return "" if tuple(res) == DEFAULT_RES else f"_{res[0]}x{res[1]}"
+
+
 # Independent max_depth-0 renders per (stage, sampler) that measure the anti-aliasing floor.
 AA_RENDERS = 4
 
@@ -343,7 +357,7 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
                 print(f"  {name:12} {sampler:8} seed {seed}: spp {x['spp']:4d}  relMSE {e:.4g}  surfaces {e_s:.4g}"
                       f"  emitter px {x['relMSE_emitter_px']:.4g} ({100 * x['emitter_share']:.0f} % of the sum)"
                       f"  worst 1 % px: {100 * x['top1pct_share']:.0f} %", flush=True)
-        _error_maps_png(os.path.join(OUT, f"light_samplers_errmaps_{name}.png"), ref, images, errs, m)
+        _error_maps_png(os.path.join(OUT, f"light_samplers_errmaps_{name}{_res_suffix(res)}.png"), ref, images, errs, m)
         # The anti-aliasing floor: the relMSE that emitters seen directly by camera rays add at
         # a sampler's spp, whatever the lighting service (max_depth 0 renders only them). The
         # spread of AA_RENDERS independent renders at that spp measures it without bias,
@@ -372,17 +386,24 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
 
 
 def format_quality_table(rows: list[dict], info: dict, samplers=("uniform", "power", "bvh")) -> str:
-    """Markdown table of the medians over seeds (rows as bench_quality returns them)."""
+    """Markdown table of the medians over seeds (rows as bench_quality returns them).
+
+    The last three columns, relMSE x CPU s (per seed, then the median) and its ratios, put the
+    samplers on exactly equal CPU time: the calibrated spp miss the budget by up to ~20 % on a
+    loaded machine (the *CPU s* column), and relMSE falls as 1 / time where the reference's
+    floor (which does not) is small against it (at 480x270; not quite at 160x90)."""
     keys = ("spp", "cpu_s", "relMSE", "relMSE_surfaces", "relMSE_emitter_px", "emitter_share",
-            "top1pct_share", "relMSE_x_spp", "relMSE_surf_x_spp", "mean_ratio", "aa_floor", "relMSE_lighting")
+            "top1pct_share", "relMSE_x_spp", "relMSE_surf_x_spp", "mean_ratio", "aa_floor", "relMSE_lighting",
+            "relMSE_x_cpu")
     out = ["| stage | sampler | spp | CPU s | relMSE | uniform/x | power/x | surf. relMSE | uniform/x | "
            "power/x | emitter-px relMSE | emit % | worst 1 % px | AA floor | relMSE - floors | uniform/x | "
-           "power/x | relMSE x spp | surf. x spp | mean/ref |",
-           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+           "power/x | relMSE x spp | surf. x spp | mean/ref | relMSE x CPU s | uniform/x | power/x |",
+           "|---|---|" + "---:|" * 21]
     for name in dict.fromkeys(r["stage"] for r in rows):
         agg = {}
         for sampler in samplers:
             sel = [r for r in rows if r["stage"] == name and r["sampler"] == sampler]
+            sel = [dict(r, relMSE_x_cpu=r["relMSE"] * r["cpu_s"]) for r in sel]
             agg[sampler] = {k: float(np.median([r[k] for r in sel])) for k in keys}
         u, p = agg["uniform"], agg["power"]
 
@@ -402,10 +423,12 @@ def format_quality_table(rows: list[dict], info: dict, samplers=("uniform", "pow
                        f"{p['relMSE_surfaces'] / a['relMSE_surfaces']:.2f} | {a['relMSE_emitter_px']:.4g} | "
                        f"{100 * a['emitter_share']:.0f} | {100 * a['top1pct_share']:.0f} % | {a['aa_floor']:.3g} | "
                        f"{light(a)} | "
-                       f"{a['relMSE_x_spp']:.3g} | {a['relMSE_surf_x_spp']:.3g} | {a['mean_ratio']:.3f} |")
+                       f"{a['relMSE_x_spp']:.3g} | {a['relMSE_surf_x_spp']:.3g} | {a['mean_ratio']:.3f} | "
+                       f"{a['relMSE_x_cpu']:.3g} | {u['relMSE_x_cpu'] / a['relMSE_x_cpu']:.2f} | "
+                       f"{p['relMSE_x_cpu'] / a['relMSE_x_cpu']:.2f} |")
         i = info[name]
         out.append(f"| {name} | *reference floor* | | | {i['floor']:.3g} | | | {i['floor_surfaces']:.3g} | | | | "
-                   f"{100 * i['floor_emitter_share']:.0f} | | | | | | | | |")
+                   f"{100 * i['floor_emitter_share']:.0f} | | | | | | | | | | | |")
     return "\n".join(out)
 
 
@@ -666,23 +689,48 @@ def write_report() -> str:
          "Made by `bench/bench_light_samplers.py` (its docstring explains every column); this file by "
          "`.venv/bin/python bench/bench_light_samplers.py report` from the JSON files the runs below left in "
          "`bench/out/`. Wall-clock budgets on a shared 2-core machine: the load average is given with each run.", ""]
-    q = _load("quality")
-    if q:
-        L += ["## relMSE at equal time", "", f"    .venv/bin/python {q['command']}", "", _load_line(q), ""]
+    # Quality runs: the stages' own resolution first (the honest whole-image number), then the
+    # bench's default 160x90 (cheaper references; emitter pixels weigh more there).
+    pre = "light_samplers_quality_"
+    extra = sorted((f[len("light_samplers_"):-len(".json")] for f in os.listdir(OUT)
+                    if f.startswith(pre) and f.endswith(".json") and f[len(pre):][:1].isdigit()),
+                   key=lambda k: (k.split("_")[1], [i for i, st in enumerate(STAGES) if st in k][:1]))
+    for key in extra + ["quality"]:
+        q = _load(key)
+        if not q:
+            continue
+        res = tuple(q.get("res", DEFAULT_RES))
+        role = ("the stages' own resolution" if res == (480, 270) else
+                "secondary: the bench's default resolution" if res == DEFAULT_RES else "")
         rows = q["quality"]
+        stages = list(dict.fromkeys(r["stage"] for r in rows))
+        L += [f"## relMSE at equal time, {res[0]}x{res[1]}" + (f" ({role})" if role else "")
+              + (f": {', '.join(stages)}" if res != DEFAULT_RES else ""), "",
+              f"    .venv/bin/python {q['command']}", "", _load_line(q), ""]
+        if q.get("uptime"):
+            L += [f"`uptime` before the run: {q['uptime']}", ""]
         info = {r["stage"]: {"floor": r["stage_floor"], "floor_surfaces": r["stage_floor_surfaces"],
                              "floor_emitter_share": r["stage_floor_emitter_share"]} for r in rows}
+        masks = ", ".join(f"{k} {100 * r['stage_mask_fraction']:.0f} %" for k, r in
+                          {r["stage"]: r for r in rows}.items())
         L += [format_quality_table(rows, info), "",
-              "Medians over seeds. *surf.*: pixels that cannot see a light directly (emitter_mask); "
-              "*emit %*: share of the whole-image error sum in the other (emitter-visible) pixels; *AA floor*: "
+              f"Medians over seeds. *surf.*: pixels that cannot see a light directly (emitter_mask; the others, "
+              f"emitter-visible, are {masks} of the image); "
+              "*emit %*: share of the whole-image error sum in the emitter-visible pixels; *AA floor*: "
               f"relMSE of the emitters seen directly at that spp (max_depth 0, the spread of {AA_RENDERS} independent "
               "renders; heavy-tailed, so only indicative), which no lighting service changes; *relMSE - floors*: "
               "relMSE less the AA floor and the reference's own floor, the part the lighting service decides "
-              "(unresolved where the floors take it all). *relMSE x spp*: per-sample error. The reference is bvh "
-              "at 2048 spp; *mean/ref* checks bias. Equal CPU time: each render's spp is calibrated to fill the "
-              "budget in CPU seconds (a 2 s calibration render per sampler); *CPU s* is what it took.", ""]
-        png = os.path.join(OUT, "light_samplers_errmaps_fireflies_1x.png")
-        png2 = os.path.join(OUT, "light_samplers_errmaps_fireflies.png")
+              "(unresolved where the floors take it all). *relMSE x spp*: per-sample error. *relMSE x CPU s*: the "
+              "error at exactly equal CPU time (the calibrated spp miss the budget by up to ~20 % on a loaded "
+              "machine, see *CPU s*), with its ratios. The reference is bvh "
+              f"at {q.get('ref_spp', 2048)} spp; *mean/ref* checks bias. Equal CPU time: each render's spp is "
+              "calibrated to fill the budget in CPU seconds (a 2 s calibration render per sampler); *CPU s* is what "
+              "it took.", ""]
+        suffix = _res_suffix(res)
+        if "fireflies" not in stages:
+            continue
+        png = os.path.join(OUT, f"light_samplers_errmaps_fireflies{suffix}_1x.png")
+        png2 = os.path.join(OUT, f"light_samplers_errmaps_fireflies{suffix}.png")
         if not os.path.exists(png) and os.path.exists(png2):
             import OpenImageIO as oiio
 
@@ -692,9 +740,11 @@ def write_report() -> str:
             out.open(png, oiio.ImageSpec(px.shape[1], px.shape[0], px.shape[2], oiio.UINT8))
             out.write_image(np.ascontiguousarray(px))
             out.close()
-        if os.path.exists(png):
-            shutil.copy(png, os.path.join(RESULTS, "errmaps_fireflies.png"))
-            L += ["![per-pixel error, fireflies](errmaps_fireflies.png)", "",
+        if os.path.exists(png) and os.path.getsize(png) > 400_000:
+            L += [f"Error maps: `bench/out/{os.path.basename(png)}` (too large to commit).", ""]
+        elif os.path.exists(png):
+            shutil.copy(png, os.path.join(RESULTS, f"errmaps_fireflies{suffix}.png"))
+            L += [f"![per-pixel error, fireflies](errmaps_fireflies{suffix}.png)", "",
                   "Fireflies, first seed: reference and emitter mask (top), then uniform, power, bvh: the image "
                   "(tone-mapped) and its per-pixel relMSE term on a log scale from 1e-4 (black) to 1e2 (white); "
                   "emitter-visible pixels tinted red.", ""]
@@ -736,11 +786,9 @@ def write_report() -> str:
         L += ["## Render throughput, before / after", "", f"    .venv/bin/python {t['command']}", "", _load_line(t), "",
               format_throughput_table(t["throughput"]), "",
               "Each figure is the median over rounds of one render() process each (160x90, 8 s, threads 1, max depth 8, "
-              "after a warm-up render), current and baseline alternating. Here `/tmp/illum_new` was a copy of the "
-              "working tree and `/tmp/illum_base` the same copy with `renderer/light_samplers/bvh.py` as it was "
-              "before this change (numpy traversal, full-radius clamp) and without `renderer/kernels/light_bvh.py`; "
-              "once committed, `git archive <commit before> | tar -x -C /tmp/base` and `--baseline /tmp/base` "
-              "reproduce it.", ""]
+              "after a warm-up render), current and baseline alternating. "
+              + (t.get("note") or "The trees are named in the command (`--current`, `--baseline`); once committed, "
+                 "`git archive <commit before> | tar -x -C /tmp/base` and `--baseline /tmp/base` reproduce it."), ""]
     for key, title in (("profile_baseline", "baseline tree, the command run there"), ("profile", "current")):
         pr = _load(key)
         if pr:
@@ -769,7 +817,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--stages", nargs="+", default=list(STAGES), choices=list(STAGES))
     ap.add_argument("--samplers", nargs="+", default=["uniform", "power", "bvh"])
-    ap.add_argument("--res", type=int, nargs=2, default=[160, 90])
+    ap.add_argument("--res", type=int, nargs=2, default=list(DEFAULT_RES))
     ap.add_argument("--budget", type=float, default=30.0, help="seconds of rendering per sampler and seed")
     ap.add_argument("--ref-spp", type=int, default=2048)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
@@ -780,17 +828,25 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=3, help="throughput: alternations")
     ap.add_argument("--baseline", default=None, help="throughput: another source tree to compare with")
     ap.add_argument("--current", default=ROOT, help="throughput: the tree measured as 'current' (default: this one)")
+    ap.add_argument("--note", default="", help="throughput: what the trees are (printed in the report)")
     args = ap.parse_args(argv)
     if args.what == "report":
         write_report()
         return
     report = {"command": " ".join(["bench/bench_light_samplers.py"] + list(argv if argv is not None else sys.argv[1:])),
-              "machine": {"cpus": os.cpu_count(), "load_avg_before": os.getloadavg()}}
+              "machine": {"cpus": os.cpu_count(), "load_avg_before": os.getloadavg()}, "note": args.note}
+    try:   # `uptime` as the shell prints it (load and how long the machine has been busy)
+        import subprocess
+
+        report["uptime"] = subprocess.run(["uptime"], capture_output=True, text=True, timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
     if args.what in ("build", "all"):
         report["build"] = bench_build(tuple(args.sizes), args.repeats)
     if args.what in ("quality", "all"):
         report["quality"] = bench_quality(args.stages, tuple(args.res), args.budget, args.ref_spp, args.seeds,
                                           tuple(args.samplers), args.threads, args.equal)
+        report["res"], report["ref_spp"] = list(args.res), args.ref_spp
     if args.what == "pick":
         report["pick"] = bench_pick(args.stages, tuple(args.res), args.stride, tuple(args.samplers))
     if args.what == "throughput":
@@ -800,7 +856,13 @@ def main(argv=None):
         report["profile"] = {s: bench_profile(args.stages[0], args.res, args.budget, s) for s in args.samplers}
     report["machine"]["load_avg_after"] = os.getloadavg()
     os.makedirs(OUT, exist_ok=True)
-    path = os.path.join(OUT, f"light_samplers_{args.what}.json")
+    suffix = ""
+    if args.what == "quality":
+        # Runs at another resolution, or of a subset of the stages, keep their own file.
+        suffix = _res_suffix(args.res)
+        if list(args.stages) != list(STAGES):
+            suffix += "_" + "_".join(args.stages)
+    path = os.path.join(OUT, f"light_samplers_{args.what}{suffix}.json")
     with open(path, "w") as fh:
         json.dump(report, fh, indent=1)
     print(f"\nload average before {report['machine']['load_avg_before']}, after {report['machine']['load_avg_after']}")

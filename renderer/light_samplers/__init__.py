@@ -7,15 +7,15 @@ choice follows the light count (finite and infinite lights together):
   more shadow rays cost less than the variance of picking;
 * above that: ``bvh``, the light BVH. Its importance (power, distance, orientation, horizon)
   beats power-proportional picking as soon as the lights are spread out in space, which is
-  why a scene has many of them. Measured (bench/results/light_samplers/results.md: 160x90,
-  20 CPU seconds per render, median of 3 seeds, relMSE over pixels that see no light
-  directly): 13.9x lower than uniform and 9.6x lower than power on stages/fireflies (5000
-  sphere lights), 10.2x and 2.4x on stages/city_lights (293 rect and disk lights), although a
-  pick costs ~0.5 us (a descent of ~13 levels) against ~0.02 us for the power sampler's
-  alias table. (Over the whole image the margins are 1.5x and 1.2x on fireflies at 160x90, and
-  2.7x and 2.2x at the stage's own 480x270, 30 CPU seconds per render: there the
-  anti-aliasing noise of the fireflies seen directly, which no lighting service touches, is
-  most of the error; see that file.) Just above the threshold
+  why a scene has many of them. Measured (bench/results/light_samplers/results.md: the
+  stages' own 480x270, 30 CPU seconds per render, median of 3 seeds, relMSE over the whole
+  image): 5.75x lower than uniform and 3.91x lower than power on stages/fireflies (5000
+  sphere lights; 23x and 15x over the pixels that see no light directly), 8.6x and 2.0x on
+  stages/city_lights (293 rect and disk lights), although a pick costs ~0.5 us (a descent of
+  ~13 levels) against ~0.02 us for the power sampler's alias table. (At 160x90 the
+  whole-image margins on fireflies are only 2.7x and 2.0x: there the anti-aliasing noise of
+  the fireflies seen directly, which no lighting service touches, is most of the error; see
+  that file's README.) Just above the threshold
   it still wins: with 9 / 16 / 32 mixed lights at random points the relative variance of the
   pick (unshadowed) was 1.8 / 2.3 / 4.3 for bvh, 5.5 / 8.7 / 13 for uniform and 34 / 17 / 18
   for power (measured before the distance clamp became r^2/3; at the stages' first hits that
