@@ -34,7 +34,7 @@ from .models import JobCreate, request_hash, validate_settings
 from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
                     resolve_upload, upload_name)
 from .store import STATES, IdempotencyConflict, Job, JobStore
-from .supervisor import Supervisor
+from .supervisor import Supervisor, append_job_log
 from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON
 
 __all__ = ["create_app"]
@@ -454,6 +454,11 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(404, f"no job {job_id}")
         if job.state in ("succeeded", "failed"):
             raise HTTPException(409, f"job {job_id} already {job.state}")
+        # The log tells the whole story, also for a job canceled before any worker took it.
+        d = config.job_dir(job.id)
+        with contextlib.suppress(OSError):
+            os.makedirs(d, exist_ok=True)
+        append_job_log(d, f"[api] canceled by request (attempts so far: {job.attempts})")
         return job_json(job)
 
     @app.delete("/jobs/{job_id}", status_code=204, dependencies=auth,

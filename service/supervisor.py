@@ -212,11 +212,11 @@ class Supervisor:
                     job_id = late[slot.worker_id]
                     log.warning("worker %s did not drop canceled job %s in time: killing it", slot.worker_id, job_id)
                     slot.proc.kill()
-                    _append_job_log(self.config.job_dir(job_id), f"[supervisor] worker {slot.worker_id} was still "
+                    append_job_log(self.config.job_dir(job_id), f"[supervisor] worker {slot.worker_id} was still "
                                     f"busy {self.config.cancel_grace:g} s after the cancel (a long pass): killed")
 
 
-def _append_job_log(job_dir: str, message: str) -> None:
+def append_job_log(job_dir: str, message: str) -> None:
     """One line in the job's log, in the worker's format (the job directory may be gone)."""
     stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime())
     try:

@@ -75,7 +75,8 @@ def test_submit_list_show_cancel(server, illum):
     r = illum("jobs", "--server", server.url, "--json", "--limit", "3")
     assert r.returncode == 0 and 1 <= len(json.loads(r.stdout)["jobs"]) <= 3
     r = illum("jobs", job_id, "--log", "--server", server.url)
-    assert r.returncode == 0 and "attempt" in r.stdout
+    # Whether or not a worker had taken the job (its "attempt" line), the log records the cancel.
+    assert r.returncode == 0 and "canceled by request" in r.stdout
 
 
 def test_submit_upload(server, illum):
