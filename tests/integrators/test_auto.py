@@ -75,21 +75,25 @@ def test_point_light_is_light_sampled_without_a_pilot(tmp_path):
 # The pilot's rules: CPU-time cost, racing, the cached decision.
 
 
+def _before_each_call(monkeypatch, token: str, before) -> None:
+    """Make the pilot's estimator ``token`` call before() ahead of each real estimate."""
+    real = auto.REGISTRY[token]
+
+    class Wrapped:
+        def estimate(self, *a, **kw):
+            before()
+            return real.estimate(*a, **kw)
+
+    Wrapped.token = token
+    monkeypatch.setitem(auto.REGISTRY, token, Wrapped())
+
+
 def test_a_candidate_that_waits_is_not_charged_for_the_wait(tmp_path, monkeypatch):
     """The pilot charges process CPU seconds, so a call that sits descheduled (here: sleeps, as
     under another job's load) costs what it computes, not what the wall clock shows."""
     stage = tmp_path / "q.usda"
     quad_light_stage(stage, width=2.0, height=2.0)
-    est = auto.REGISTRY["mis"]
-
-    class Sleepy:
-        token = "mis"
-
-        def estimate(self, *a, **kw):
-            time.sleep(0.05)
-            return est.estimate(*a, **kw)
-
-    monkeypatch.setitem(auto.REGISTRY, "mis", Sleepy())
+    _before_each_call(monkeypatch, "mis", lambda: time.sleep(0.05))
     r = render(str(stage), RenderOptions(spp=1, max_depth=1, threads=1, estimator={"": "auto"},
                                          light_samples={"": 2}))
     pilot = r.stats["lights"][0]["auto_pilot"]
@@ -106,21 +110,16 @@ def test_one_off_costs_of_the_first_round_are_not_charged(tmp_path, monkeypatch)
     call only."""
     stage = tmp_path / "q.usda"
     quad_light_stage(stage, width=2.0, height=2.0)
-    est = auto.REGISTRY["lightSampling"]
     calls = []
 
-    class ColdStart:
-        token = "lightSampling"
+    def cold_start():
+        if not calls:
+            t0 = time.process_time()
+            while time.process_time() - t0 < 0.1:
+                pass
+        calls.append(1)
 
-        def estimate(self, *a, **kw):
-            if not calls:
-                t0 = time.process_time()
-                while time.process_time() - t0 < 0.1:
-                    pass
-            calls.append(1)
-            return est.estimate(*a, **kw)
-
-    monkeypatch.setitem(auto.REGISTRY, "lightSampling", ColdStart())
+    _before_each_call(monkeypatch, "lightSampling", cold_start)
     r = render(str(stage), RenderOptions(spp=1, max_depth=1, threads=1, estimator={"": "auto"},
                                          light_samples={"": 2}))
     pilot = r.stats["lights"][0]["auto_pilot"]
