@@ -324,11 +324,15 @@ def lambert_materials():
         rho = params.diffuse if params is not None else self.const["diffuse"][mat]
         return LambertBSDF(np.clip(rho, 0.0, 1.0))
 
+    orig_packed = MaterialTable.packed_bsdf
     MaterialTable.bsdf = lambert
+    # No packed UsdPreviewSurface rows: the compiled path vertex (which reads them) stands aside.
+    MaterialTable.packed_bsdf = lambda self: None
     try:
         yield
     finally:
         MaterialTable.bsdf = orig
+        MaterialTable.packed_bsdf = orig_packed
 
 
 def illum_render(stage, variant, **kw):

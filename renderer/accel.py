@@ -91,6 +91,11 @@ class Accel:
         mag = np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])  # cheaper than max(axis=1) on (n, 3)
         return _REL_EPS * np.maximum(mag, 1e-3 * self.diagonal) + 1e-9 * self.diagonal + 1e-30
 
+    def epsilon_terms(self) -> tuple[float, float, float]:
+        """(rel, floor, add) with ray_epsilon(p) = rel max(max_k |p_k|, floor) + add, for kernels
+        that offset origins themselves."""
+        return _REL_EPS, 1e-3 * self.diagonal, 1e-9 * self.diagonal + 1e-30
+
     def _map(self, fn, n: int):
         bounds = [(s, min(n, s + CHUNK)) for s in range(0, n, CHUNK)]
         if self._pool is None or len(bounds) == 1:

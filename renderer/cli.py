@@ -64,6 +64,9 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
                    help="camera rays per pixel and pass that see emitters directly (one continues as the "
                         "path): anti-aliases small bright lights on screen; 0 = auto (2 where subpixel "
                         "lights touch >= 1%% of the pixels, else 1)")
+    p.add_argument("--no-fast-path", dest="fast_path", action="store_false",
+                   help="always use the general integrator, even where the scene qualifies for the compiled "
+                        "path vertex (stats 'fast_path' says whether it ran and why not)")
     p.add_argument("--estimator", action="append", metavar="[/Light=]TOKEN",
                    help="direct-lighting estimator for all lights, or /Path=TOKEN for one (repeatable)")
     p.add_argument("--cv-alpha", action="append", metavar="[/Light=]TOKEN")
@@ -93,6 +96,7 @@ def options_from_args(a) -> "RenderOptions":
         max_depth=a.max_depth,
         light_sampler=a.light_sampler,
         emitter_samples=a.emitter_samples,
+        fast_path=a.fast_path,
         estimator=_overrides(a.estimator, "estimator"),
         cv_alpha=_overrides(a.cv_alpha, "cv-alpha"),
         light_samples=samples,

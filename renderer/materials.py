@@ -38,6 +38,7 @@ from typing import Optional
 
 import numpy as np
 
+from renderer.bsdfs.microfacet import albedo_tables
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
 from renderer.description import MaterialDesc, MaterialInput, TextureDesc
 from renderer.errors import StageError
@@ -263,6 +264,17 @@ class MaterialTable:
         """Whether a renderer needs ``evaluate`` at hits at all: for emission, cutouts or a
         textured BSDF input (otherwise ``bsdf(mat)`` alone describes the surface)."""
         return self.has_emission or self.has_cutout or not self.bsdf_is_constant
+
+    def packed_bsdf(self):
+        """(rows (materials, K), table_a, table_b): every material's packed PreviewSurfaceBSDF
+        row and the albedo tables its kernels read, or None where a BSDF input is textured
+        (for the compiled path vertex, renderer/integrators/fast_path.py)."""
+        if not (self.bsdf_is_constant and len(self)):
+            return None
+        if self._bsdf_rows is None:
+            self._bsdf_rows = make_bsdf(SurfaceParams(**self.const)).packed
+        tables = albedo_tables()
+        return np.ascontiguousarray(self._bsdf_rows), tables.a, tables.b
 
     def bsdf(self, mat: np.ndarray, params: Optional[SurfaceParams] = None) -> PreviewSurfaceBSDF:
         """The BSDF at hits of materials mat (n,). Where no BSDF input is textured, each hit

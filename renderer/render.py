@@ -49,6 +49,7 @@ class RenderOptions:
     rr_depth: int = 3
     light_sampler: str = "auto"
     emitter_samples: int = 0                            # camera samples of emitters seen directly; 0 = auto
+    fast_path: bool = True                              # compiled path vertex where the scene qualifies
     estimator: dict = field(default_factory=dict)       # {"": token} for all lights or {path: token}
     cv_alpha: dict = field(default_factory=dict)
     light_samples: dict = field(default_factory=dict)
@@ -157,7 +158,7 @@ def render(
     integrator = PathIntegrator(scene, camera, IntegratorOptions(
         max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed, threads=shading_threads,
         estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples),
-        emitter_samples=int(opt.emitter_samples)))
+        emitter_samples=int(opt.emitter_samples), fast_path=bool(opt.fast_path)))
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
     t0 = time.perf_counter()
@@ -211,6 +212,9 @@ def render(
         "max_depth": opt.max_depth,
         "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
         "emitter_samples": integrator.emitter_samples,
+        # The compiled path vertex (integrators/fast_path.py): "on", or why the scene needs the
+        # general path.
+        "fast_path": "on" if integrator.fast is not None else integrator.fast_path_reason,
         "wall_seconds": time.perf_counter() - t_start,
         "seconds": phases,
         "rays": rays,

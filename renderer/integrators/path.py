@@ -77,6 +77,7 @@ class IntegratorOptions:
     cv_alpha: dict = field(default_factory=dict)
     light_samples: dict = field(default_factory=dict)
     emitter_samples: int = 0  # camera samples per pass for emitters seen directly; 0 = auto
+    fast_path: bool = True  # the compiled path vertex where the scene qualifies (fast_path.py)
 
 
 # `auto` emitter samples: K = EMITTER_SAMPLES_AUTO when lights smaller than a pixel on screen
@@ -202,6 +203,7 @@ class PathIntegrator:
         self.params_needed = scene.materials.params_needed
         self.pool = ThreadPoolExecutor(max(1, options.threads)) if options.threads > 1 else None
         self.skipped: list[str] = []
+        self.fast = None  # the compiled-vertex tracer, where the scene qualifies (set below)
         self.rule_counts = {"own_samples": 0, "alpha_one_fallback": 0}
         self.light_settings = resolve_estimators(self.lights, options) if self.has_lights else []
         ls = self.light_settings
@@ -247,6 +249,11 @@ class PathIntegrator:
         # Whether a continuation ray can carry any light's MIS half, from a deeper vertex (1)
         # or from the first one (2). Where none can, continuation rays skip the light probes.
         self.cont_from = (bool(self.cont_ok.any()), bool((self.cont_ok & self.samples_one).any()))
+        from .fast_path import FastPath, fast_path_reason
+
+        self.fast_path_reason = fast_path_reason(self)
+        if not self.fast_path_reason:
+            self.fast = FastPath(self)
         if options.max_depth <= 1:
             self.skipped.append("max depth <= 1: no extension rays are traced (unless emissive geometry needs them)")
 
@@ -317,6 +324,8 @@ class PathIntegrator:
         scene = self.scene
         opt = self.opt
         max_depth = opt.max_depth if max_depth is None else max_depth
+        if self.fast is not None and emit0 == 1.0:
+            return self.fast.trace(o, d, tmax, rng, max_depth)
         m = o.shape[0]
 
         # ---- loop state: one row per live ray ---------------------------------------------

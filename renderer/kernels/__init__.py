@@ -14,5 +14,46 @@ Conventions shared by every kernel here:
 * Kernels never import numba functions or constants from other modules: numba's on-disk cache
   is keyed on the defining file only, so a kernel that inlined a function (or froze a global)
   from another file would silently keep a stale copy after that file changed. Tunable
-  constants (thresholds) are passed in as arguments instead.
+  constants (thresholds) are passed in as arguments instead. The one exception is a module
+  that calls ``guard_cache`` (below) with the files it inlines from: the fused path vertex,
+  renderer/integrators/_vertex_kernels.py.
 """
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+_ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def guard_cache(module: str, dispatchers: list, sources: list[str]) -> None:
+    """Let the kernels of ``module`` inline numba functions from the files ``sources`` (paths
+    relative to the repository root) safely: numba keys a kernel's on-disk cache on its own
+    file only, so when any of ``sources`` changed since the cache was written (a digest of
+    their contents, stored next to the cache), the dispatchers' cached code is flushed and
+    compiles afresh. Call it at the end of the module, after the kernels are defined."""
+    h = hashlib.sha256()
+    for rel in sources:
+        with open(os.path.join(_ROOT, rel), "rb") as fh:
+            h.update(rel.encode() + b"\0" + fh.read() + b"\0")
+    digest = h.hexdigest()
+    caches = [d._cache for d in dispatchers if getattr(d, "_cache", None) is not None
+              and hasattr(d._cache, "_cache_path")]
+    if not caches:
+        return
+    stamp = os.path.join(caches[0]._cache_path, f"{module.rsplit('.', 1)[-1]}.deps")
+    try:
+        with open(stamp) as fh:
+            if fh.read().strip() == digest:
+                return
+    except OSError:
+        pass
+    for c in caches:
+        c.flush()
+    try:
+        os.makedirs(os.path.dirname(stamp), exist_ok=True)
+        with open(stamp, "w") as fh:
+            fh.write(digest)
+    except OSError:
+        pass  # a read-only cache: the kernels compile in every process, still correct

@@ -32,9 +32,8 @@ _TWO_PI = 2.0 * math.pi
 # --------------------------------------------------------------------------------------
 # 3-vector helpers (tuples)
 #
-# Helpers take scalars and tuples; only the branch-free ``_row``/``_put``/``_rect_corner``
-# touch arrays. LLVM inlines these small njit calls. (In the BSDF kernels, helpers that took
-# arrays and returned from several branches, numba-inlined with ``inline="always"``, made the
+# Helpers take scalars and tuples; only the branch-free ``_row``/``_put`` touch arrays. LLVM
+# inlines these small njit calls. (In the BSDF kernels, helpers that took arrays and returned from several branches, numba-inlined with ``inline="always"``, made the
 # loop 4x slower; keeping array reads with branches in the kernel bodies avoids that.) LLVM
 # does *not* inline the large spherical-rectangle helpers: called, they passed their tuples
 # through memory, so those two (scalars and tuples only) are numba-inlined, which measured
@@ -273,9 +272,62 @@ def _rect_hit(o, d, c, n, exd, eyd):
 # Rect light
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
-def _rect_corner(i, center, ex, ey):
-    """Corner c - ex/2 - ey/2 of rect i."""
-    return _sub(_sub(_row(center, i), _scale(0.5, _row(ex, i))), _scale(0.5, _row(ey, i)))
+def _rect_sample_row(pr, u0, u1, c, e1, e2, xh, yh, lx, ly, nl, area_i, textured, is_rect_i, tex_a, tex_b,
+                     tex_pdf, min_sa, graz):
+    """One row of RectLight.sample_li from pr with (u0, u1): (wi, dist, pdf, pl, ok). The rect
+    is c + [-1/2, 1/2] e1 + [-1/2, 1/2] e2 (xh, yh, lx, ly: e1, e2 as unit vectors and lengths),
+    nl its emitting normal; textured rows sample (tex_a, tex_b) with area pdf tex_pdf (texel
+    sampling, done by the caller). ok = False (pdf 0): seen from behind or unusable."""
+    use = False
+    pdf_sph = 0.0
+    pdf_area = 0.0
+    pl = c
+    if not textured and is_rect_i:
+        # Strategy choice and sampling share this one setup.
+        corner = _sub(_sub(c, _scale(0.5, e1)), _scale(0.5, e2))
+        st = _sr_setup(pr, corner, xh, yh, lx, ly, min_sa, graz)
+        if st[14]:
+            use = True
+            pdf_sph = 1.0 / st[13]
+            pl = _sr_sample(pr, st, u0, u1)
+    if not use:
+        if textured:
+            a = tex_a
+            b = tex_b
+            pdf_area = tex_pdf
+        else:
+            a = u0 - 0.5
+            b = u1 - 0.5
+            pdf_area = 1.0 / area_i if area_i > 0.0 else 0.0
+        pl = _add(_add(c, _scale(a, e1)), _scale(b, e2))
+    wi, dist = _dir_dist(pr, pl)
+    cos_l = -_dot(wi, nl)
+    pdf = pdf_sph if use else _area_to_solid_angle(pdf_area, dist, cos_l)
+    front = _dot(_sub(pr, c), nl) > 0.0
+    ok = front and cos_l > 0.0 and dist > 0.0 and pdf > 0.0
+    return wi, dist, (pdf if ok else 0.0), pl, ok
+
+
+@njit(cache=True, nogil=True)
+def _rect_pdf_row(pr, w, c, nl, exd_i, eyd_i, e1, e2, xh, yh, lx, ly, area_i, textured, is_rect_i, tex_pdf,
+                  min_sa, graz):
+    """One row of RectLight.pdf_li: the solid-angle pdf of sampling direction w from pr (0 where
+    w misses the front of the rect). Arguments as _rect_sample_row; exd_i, eyd_i: the duals."""
+    t, a, b, hit = _rect_hit(pr, w, c, nl, exd_i, eyd_i)
+    cos_l = -_dot(w, nl)
+    if not (hit and _dot(_sub(pr, c), nl) > 0.0 and cos_l > 0.0):
+        return 0.0
+    if textured:
+        pdf_area = tex_pdf
+    else:
+        pdf_area = 1.0 / area_i if area_i > 0.0 else 0.0
+    pdf = _area_to_solid_angle(pdf_area, t, cos_l)
+    if not textured and is_rect_i:
+        corner = _sub(_sub(c, _scale(0.5, e1)), _scale(0.5, e2))
+        st = _sr_setup(pr, corner, xh, yh, lx, ly, min_sa, graz)
+        if st[14]:
+            pdf = 1.0 / st[13]
+    return pdf
 
 
 @njit(cache=True, nogil=True)
@@ -288,39 +340,13 @@ def rect_sample_kernel(
     x_hat, y_hat (count, 3) and edge_len (count, 2) are ex, ey as unit vectors and lengths."""
     for r in range(idx.shape[0]):
         i = idx[r]
-        pr = _row(p, r)
-        c = _row(center, i)
-        e1 = _row(ex, i)
-        e2 = _row(ey, i)
-        nl = _row(nrm, i)
-        use = False
-        pdf_sph = 0.0
-        pdf_area = 0.0
-        pl = c
-        if tex[i] < 0 and is_rect[i]:
-            # Strategy choice and sampling share this one setup.
-            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), _row(x_hat, i), _row(y_hat, i),
-                           edge_len[i, 0], edge_len[i, 1], min_sa, graz)
-            if st[14]:
-                use = True
-                pdf_sph = 1.0 / st[13]
-                pl = _sr_sample(pr, st, u[r, 0], u[r, 1])
-        if not use:
-            if tex[i] >= 0:
-                a = tex_ab[r, 0]
-                b = tex_ab[r, 1]
-                pdf_area = tex_pdf_area[r]
-            else:
-                a = u[r, 0] - 0.5
-                b = u[r, 1] - 0.5
-                pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
-            pl = _add(_add(c, _scale(a, e1)), _scale(b, e2))
-        wi, dist = _dir_dist(pr, pl)
-        cos_l = -_dot(wi, nl)
-        pdf = pdf_sph if use else _area_to_solid_angle(pdf_area, dist, cos_l)
-        front = _dot(_sub(pr, c), nl) > 0.0
-        ok = front and cos_l > 0.0 and dist > 0.0 and pdf > 0.0
-        out_pdf[r] = pdf if ok else 0.0
+        textured = tex[i] >= 0
+        wi, dist, pdf, pl, ok = _rect_sample_row(
+            _row(p, r), u[r, 0], u[r, 1], _row(center, i), _row(ex, i), _row(ey, i), _row(x_hat, i),
+            _row(y_hat, i), edge_len[i, 0], edge_len[i, 1], _row(nrm, i), area[i], textured, is_rect[i],
+            tex_ab[r, 0] if textured else 0.0, tex_ab[r, 1] if textured else 0.0,
+            tex_pdf_area[r] if textured else 0.0, min_sa, graz)
+        out_pdf[r] = pdf
         for k in range(3):
             out_L[r, k] = radiance[i, k] if ok else 0.0
         _put(out_wi, r, wi)
@@ -337,27 +363,11 @@ def rect_pdf_kernel(
     edge_len as in rect_sample_kernel."""
     for r in range(idx.shape[0]):
         i = idx[r]
-        pr = _row(p, r)
-        w = _row(wi, r)
-        c = _row(center, i)
-        nl = _row(nrm, i)
-        t, a, b, hit = _rect_hit(pr, w, c, nl, _row(exd, i), _row(eyd, i))
-        cos_l = -_dot(w, nl)
-        hit = hit and _dot(_sub(pr, c), nl) > 0.0 and cos_l > 0.0
-        if not hit:
-            out_pdf[r] = 0.0
-            continue
-        if tex[i] >= 0:
-            pdf_area = tex_pdf_area[r]
-        else:
-            pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
-        pdf = _area_to_solid_angle(pdf_area, t, cos_l)
-        if tex[i] < 0 and is_rect[i]:
-            st = _sr_setup(pr, _rect_corner(i, center, ex, ey), _row(x_hat, i), _row(y_hat, i),
-                           edge_len[i, 0], edge_len[i, 1], min_sa, graz)
-            if st[14]:
-                pdf = 1.0 / st[13]
-        out_pdf[r] = pdf
+        textured = tex[i] >= 0
+        out_pdf[r] = _rect_pdf_row(
+            _row(p, r), _row(wi, r), _row(center, i), _row(nrm, i), _row(exd, i), _row(eyd, i), _row(ex, i),
+            _row(ey, i), _row(x_hat, i), _row(y_hat, i), edge_len[i, 0], edge_len[i, 1], area[i], textured,
+            is_rect[i], tex_pdf_area[r] if textured else 0.0, min_sa, graz)
 
 
 @njit(cache=True, nogil=True)

@@ -1,0 +1,265 @@
+"""The compiled path vertex of the fast path (renderer/integrators/fast_path.py).
+
+One call per bounce does, for every live ray, all the work between two embree calls that the
+general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
+lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
+material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
+for every light (spherical-rectangle sampling), and the BSDF sample with the throughput update
+and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
+only calls embree and adds the unblocked shadow contributions.
+
+The maths is not restated here: it calls the per-row helpers of the rect light
+(renderer/kernels/lights.py) and of the BSDF (renderer/bsdfs/_preview_kernels.py), the same
+functions the general path's kernels use. numba's on-disk cache is keyed on this file only, so
+``guard_cache`` (renderer/kernels/__init__.py) flushes this file's cache whenever any of the
+files it inlines from changes.
+
+Shapes: n live rays; S (n, 20) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
+``D`` (unit direction), ``TMAX``, ``PP``/``PNG``/``PNS`` (the previous vertex's point, geometric
+and shading normal) and ``PB`` (the BSDF pdf of d there); U (n, 4 + 2 lights) uniforms.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from renderer.bsdfs._preview_kernels import (
+    ALPHA, F0, F90, FY, J0, KD, RHO,
+    _lookup, _mis_weight, _p_diffuse, _sample_dir, _specular,
+)
+from renderer.kernels import guard_cache
+from renderer.kernels.lights import _rect_hit, _rect_pdf_row, _rect_sample_row, _row
+
+_INV_PI = 1.0 / math.pi
+
+# State columns.
+B = 0
+O = 3
+D = 6
+TMAX = 9
+PP = 10
+PNG = 13
+PNS = 16
+PB = 19
+NS = 20
+# Uniform columns: lobe choice, direction (2), roulette, then (2 per light) light samples.
+U_LOBE = 0
+U_DIR = 1
+U_RR = 3
+U_LIGHT = 4
+
+
+@njit(cache=True, nogil=True)
+def vertex_kernel(
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U,
+    vertices, face_normal, normals, tri_mat, Pm, ta, tb,
+    center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, power,
+    min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
+    L, n_path, n_depth, n_S, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
+):
+    """One bounce for n live rays (see the module docstring).
+
+    path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,)
+    bool (camera rays: emission counts fully; all others carry continuation MIS for every
+    light); hit_*: embree's closest hits (t inf, prim -1 on a miss); Pm: (materials, K) packed
+    BSDF rows; light tables: the RectLight arrays (all lights untextured, global = local index);
+    power: (lights,) bool heuristic. L (m, 3) receives emission in place. Next rays go to
+    n_path, n_depth, n_S (capacity n) and shadow rays to sh_* (capacity n * lights) with sh_c
+    (k, 3) the radiance each adds if unblocked; counts[0], counts[1] = how many of each.
+    """
+    nl = center.shape[0]
+    k_next = 0
+    k_sh = 0
+    for r in range(path.shape[0]):
+        pr_path = path[r]
+        b0 = S[r, B]
+        b1 = S[r, B + 1]
+        b2 = S[r, B + 2]
+        o = (S[r, O], S[r, O + 1], S[r, O + 2])
+        d = (S[r, D], S[r, D + 1], S[r, D + 2])
+        t_hit = hit_t[r]
+        t_geo = min(t_hit, S[r, TMAX])
+        # ---- emission of the lights crossed before the surface (lights are transparent) ----
+        for j in range(nl):
+            tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
+            if not (hit and tl < t_geo):
+                continue
+            if -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) <= 0.0:
+                continue  # the back of a one-sided light
+            if unsampled[r]:
+                w = 1.0
+            else:
+                # h(p_b, p_l): p_l from the vertex the ray left, as the light half there used.
+                pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
+                p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
+                                    _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
+                                    edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
+                w = _mis_weight(S[r, PB], p_l, power[j])
+            L[pr_path, 0] += b0 * radiance[j, 0] * w
+            L[pr_path, 1] += b1 * radiance[j, 1] * w
+            L[pr_path, 2] += b2 * radiance[j, 2] * w
+        k = hit_prim[r]
+        if k < 0 or depth[r] >= max_depth:
+            continue
+        # ---- surface interaction (geometry._interaction_kernel's formulas) ----------------
+        w1 = hit_b1[r]
+        w2 = hit_b2[r]
+        w0 = 1.0 - w1 - w2
+        px = vertices[k, 0, 0] * w0 + vertices[k, 1, 0] * w1 + vertices[k, 2, 0] * w2
+        py = vertices[k, 0, 1] * w0 + vertices[k, 1, 1] * w1 + vertices[k, 2, 1] * w2
+        pz = vertices[k, 0, 2] * w0 + vertices[k, 1, 2] * w1 + vertices[k, 2, 2] * w2
+        sx = normals[k, 0, 0] * w0 + normals[k, 1, 0] * w1 + normals[k, 2, 0] * w2
+        sy = normals[k, 0, 1] * w0 + normals[k, 1, 1] * w1 + normals[k, 2, 1] * w2
+        sz = normals[k, 0, 2] * w0 + normals[k, 1, 2] * w1 + normals[k, 2, 2] * w2
+        ln = math.sqrt(sx * sx + sy * sy + sz * sz)
+        ln = ln if ln > 0.0 else 1.0
+        sx /= ln
+        sy /= ln
+        sz /= ln
+        gx = face_normal[k, 0]
+        gy = face_normal[k, 1]
+        gz = face_normal[k, 2]
+        if -(gx * d[0] + gy * d[1] + gz * d[2]) < 0.0:
+            gx, gy, gz = -gx, -gy, -gz
+        if sx * gx + sy * gy + sz * gz < 0.0:
+            sx, sy, sz = -sx, -sy, -sz
+        if -(sx * d[0] + sy * d[1] + sz * d[2]) <= 0.0:
+            sx, sy, sz = gx, gy, gz
+        # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
+        sign = 1.0 if sz >= 0.0 else -1.0
+        fa = -1.0 / (sign + sz)
+        fb = sx * sy * fa
+        s = (1.0 + sign * sx * sx * fa, sign * fb, -sign * sx)
+        t = (fb, sign + sy * sy * fa, -sy)
+        wox = -(d[0] * s[0] + d[1] * s[1] + d[2] * s[2])
+        woy = -(d[0] * t[0] + d[1] * t[1] + d[2] * t[2])
+        woz = -(d[0] * sx + d[1] * sy + d[2] * sz)
+        # ---- the material's BSDF and its wo terms -----------------------------------------
+        m = tri_mat[k]
+        a = Pm[m, ALPHA]
+        j0 = int(Pm[m, J0])
+        fy = Pm[m, FY]
+        ao, bo = _lookup(woz, j0, fy, ta, tb)
+        p_d = _p_diffuse(Pm[m, RHO], Pm[m, RHO + 1], Pm[m, RHO + 2], Pm[m, F0], Pm[m, F0 + 1], Pm[m, F0 + 2],
+                         Pm[m, F90], Pm[m, F90 + 1], Pm[m, F90 + 2], ao, bo)
+        mag = max(max(abs(px), abs(py)), abs(pz))
+        eps = eps_rel * max(mag, eps_floor) + eps_add
+        # ---- the light half of continuation MIS, every light (the exhaustive sampler) ------
+        for j in range(nl):
+            wi, dist, pdf_l, _pl, ok = _rect_sample_row(
+                (px, py, pz), U[r, U_LIGHT + 2 * j], U[r, U_LIGHT + 2 * j + 1], _row(center, j), _row(ex, j),
+                _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0], edge_len[j, 1], _row(nrm, j),
+                area[j], False, is_rect[j], 0.0, 0.0, 0.0, min_sa, graz)
+            if not ok or not math.isfinite(pdf_l):
+                continue
+            wx = wi[0] * s[0] + wi[1] * s[1] + wi[2] * s[2]
+            wy = wi[0] * t[0] + wi[1] * t[1] + wi[2] * t[2]
+            wz = wi[0] * sx + wi[1] * sy + wi[2] * sz
+            cos_g = wi[0] * gx + wi[1] * gy + wi[2] * gz
+            if not (wz > 0.0 and cos_g > 0.0 and woz > 0.0):
+                continue
+            oks, dv, fw, pdf_s = _specular(wox, woy, woz, wx, wy, wz, a)
+            if not oks:
+                continue
+            ai, bi = _lookup(wz, j0, fy, ta, tb)
+            p_b = p_d * wz * _INV_PI + (1.0 - p_d) * pdf_s
+            kk = wz * _mis_weight(pdf_l, p_b, power[j]) / pdf_l
+            c0 = b0 * _f_channel(Pm, m, 0, ao, bo, ai, bi, fw, dv) * radiance[j, 0] * kk
+            c1 = b1 * _f_channel(Pm, m, 1, ao, bo, ai, bi, fw, dv) * radiance[j, 1] * kk
+            c2 = b2 * _f_channel(Pm, m, 2, ao, bo, ai, bi, fw, dv) * radiance[j, 2] * kk
+            if not (c0 > 0.0 or c1 > 0.0 or c2 > 0.0):
+                continue
+            side = eps if cos_g >= 0.0 else -eps
+            sh_o[k_sh, 0] = px + gx * side
+            sh_o[k_sh, 1] = py + gy * side
+            sh_o[k_sh, 2] = pz + gz * side
+            sh_d[k_sh, 0] = wi[0]
+            sh_d[k_sh, 1] = wi[1]
+            sh_d[k_sh, 2] = wi[2]
+            # Stop short of the light by a relative margin and the origin offset (as _visible).
+            sh_t[k_sh] = dist * (1.0 - 1e-5) - eps
+            sh_path[k_sh] = pr_path
+            sh_c[k_sh, 0] = c0
+            sh_c[k_sh, 1] = c1
+            sh_c[k_sh, 2] = c2
+            k_sh += 1
+        # ---- BSDF sample, throughput, Russian roulette (_preview_kernels.scatter_kernel) ----
+        wix, wiy, wiz = _sample_dir(wox, woy, woz, a, U[r, U_LOBE] < p_d, U[r, U_DIR], U[r, U_DIR + 1])
+        wx = wix * s[0] + wiy * t[0] + wiz * sx
+        wy = wix * s[1] + wiy * t[1] + wiz * sy
+        wz = wix * s[2] + wiy * t[2] + wiz * sz
+        okb, dv, fw, pdf_s = _specular(wox, woy, woz, wix, wiy, wiz, a)
+        pdf_b = p_d * wiz * _INV_PI + (1.0 - p_d) * pdf_s if okb else 0.0
+        cos_g = wx * gx + wy * gy + wz * gz
+        if not (okb and pdf_b > 0.0 and math.isfinite(pdf_b) and cos_g > 0.0):
+            continue
+        ai, bi = _lookup(wiz, j0, fy, ta, tb)
+        kk = abs(wiz) / pdf_b
+        nb0 = b0 * _f_channel(Pm, m, 0, ao, bo, ai, bi, fw, dv) * kk
+        nb1 = b1 * _f_channel(Pm, m, 1, ao, bo, ai, bi, fw, dv) * kk
+        nb2 = b2 * _f_channel(Pm, m, 2, ao, bo, ai, bi, fw, dv) * kk
+        if not ((nb0 > 0.0 or nb1 > 0.0 or nb2 > 0.0) and math.isfinite(nb0 + nb1 + nb2)):
+            continue
+        if depth[r] + 1 >= rr_depth:
+            q = min(max(1.0 - max(nb0, max(nb1, nb2)), 0.0), 0.95)
+            if U[r, U_RR] < q:
+                continue
+            inv = 1.0 / (1.0 - q)
+            nb0 *= inv
+            nb1 *= inv
+            nb2 *= inv
+        # ---- the next bounce's ray ------------------------------------------------------
+        side = eps if cos_g >= 0.0 else -eps
+        n_path[k_next] = pr_path
+        n_depth[k_next] = depth[r] + 1
+        n_S[k_next, B] = nb0
+        n_S[k_next, B + 1] = nb1
+        n_S[k_next, B + 2] = nb2
+        n_S[k_next, O] = px + gx * side
+        n_S[k_next, O + 1] = py + gy * side
+        n_S[k_next, O + 2] = pz + gz * side
+        n_S[k_next, D] = wx
+        n_S[k_next, D + 1] = wy
+        n_S[k_next, D + 2] = wz
+        n_S[k_next, TMAX] = math.inf
+        n_S[k_next, PP] = px
+        n_S[k_next, PP + 1] = py
+        n_S[k_next, PP + 2] = pz
+        n_S[k_next, PNG] = gx
+        n_S[k_next, PNG + 1] = gy
+        n_S[k_next, PNG + 2] = gz
+        n_S[k_next, PNS] = sx
+        n_S[k_next, PNS + 1] = sy
+        n_S[k_next, PNS + 2] = sz
+        n_S[k_next, PB] = pdf_b
+        k_next += 1
+    counts[0] = k_next
+    counts[1] = k_sh
+
+
+@njit(cache=True, nogil=True)
+def _f_channel(Pm, m, c, ao, bo, ai, bi, fw, dv):
+    """f(wo, wi) of material m in channel c, from the wo terms (ao, bo), the wi terms (ai, bi),
+    the Schlick weight fw and D V of _specular (the formula of _preview_kernels.eval_kernel)."""
+    fk = Pm[m, F0 + c]
+    gk = Pm[m, F90 + c]
+    c_o = 1.0 - (fk * ao + gk * bo)
+    c_i = 1.0 - (fk * ai + gk * bi)
+    return Pm[m, KD + c] * c_o * c_i + (fk + (gk - fk) * fw) * dv
+
+
+@njit(cache=True, nogil=True)
+def add_unblocked_kernel(L, sh_path, sh_c, blocked):
+    """L[sh_path[i]] += sh_c[i] where not blocked[i] (repeated paths accumulate)."""
+    for i in range(sh_path.shape[0]):
+        if not blocked[i]:
+            r = sh_path[i]
+            L[r, 0] += sh_c[i, 0]
+            L[r, 1] += sh_c[i, 1]
+            L[r, 2] += sh_c[i, 2]
+
+
+guard_cache(__name__, [vertex_kernel, _f_channel, add_unblocked_kernel],
+            ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py"])

@@ -1,0 +1,137 @@
+"""The fast path of the path tracer: one compiled vertex per bounce, for the common scene.
+
+Where a scene needs none of the general integrator's machinery (renderer/integrators/path.py),
+each bounce is two embree calls and one compiled kernel (``_vertex_kernels.vertex_kernel``)
+instead of ~150 numpy passes. It estimates exactly what the general path estimates, with the
+same sampling techniques and MIS weights; the tests (tests/integrators/test_fast_path.py)
+z-test the two against each other and render with each on the same stages.
+
+A scene qualifies when it has
+* only RectLights, untextured, without ShapingAPI, ShadowAPI or light linking, with unit
+  diffuse/specular multipliers, few enough for the exhaustive light sampler (every light at
+  every vertex, pmf 1);
+* every light on the `mis` estimator with one sample (the default `auto` picks it for such
+  lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
+* UsdPreviewSurface materials without textures, cutouts or emission (one packed BSDF row per
+  material), no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
+  maximum depth of at least 2.
+``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
+
+One difference in the order of work, not in the estimate: at the last scattering vertex
+(depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
+a BSDF sample of its own), while the fast path keeps continuation MIS there too and traces the
+extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
+direct light; the variance differs slightly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..lights.light_set import KIND_NAMES
+from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
+from . import _vertex_kernels as vk
+
+
+def fast_path_reason(integ) -> str:
+    """'' when the integrator's scene and options qualify for the fast path (module docstring),
+    else the first reason why not."""
+    scene, lights, opt = integ.scene, integ.lights, integ.opt
+    if not getattr(opt, "fast_path", True):
+        return "disabled (--no-fast-path)"
+    if not integ.has_lights:
+        return "no lights"
+    rect = KIND_NAMES.index("rect")
+    if not np.all(lights.kind_of == rect):
+        return "a light other than a RectLight"
+    rl = lights.kinds[rect]
+    if np.any(rl.tex >= 0):
+        return "a textured RectLight"
+    if not getattr(scene.light_sampler, "exhaustive", False):
+        return "a stochastic light sampler"
+    if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
+        return "ShapingAPI, ShadowAPI or light linking"
+    if not np.all(integ.cont_ok) or not np.all(integ.samples_one):
+        return "a light not on the mis estimator with one sample"
+    if scene.tri_light is not None or scene.tri_absorb is not None:
+        return "mesh lights"
+    if integ.emitter_samples != 1:
+        return "emitter samples > 1"
+    if opt.max_depth <= 1:
+        # Direct lighting only: the general path traces no extension rays at all there, where
+        # this one would trace one per pixel for the BSDF half (module docstring).
+        return "max depth <= 1"
+    mats = scene.materials
+    if mats.params_needed or mats.packed_bsdf() is None:
+        return "textured, emissive or cut-out materials"
+    return ""
+
+
+class FastPath:
+    """The compiled-vertex tracer for one PathIntegrator (see the module docstring)."""
+
+    def __init__(self, integ):
+        self.integ = integ
+        scene = integ.scene
+        lights = integ.lights
+        self.rect = lights.kinds[KIND_NAMES.index("rect")]
+        self.Pm, self.ta, self.tb = scene.materials.packed_bsdf()
+        g = scene.geometry
+        self.geo = (np.ascontiguousarray(g.vertices, dtype=np.float64), np.ascontiguousarray(g.face_normal, dtype=np.float64),
+                    np.ascontiguousarray(g.normals, dtype=np.float64), np.ascontiguousarray(g.material, dtype=np.int64))
+        from ..estimators import HEURISTICS
+
+        self.power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
+        self.eps = scene.accel.epsilon_terms()
+
+    def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
+              max_depth: int) -> np.ndarray:
+        """Radiance (m, 3) arriving at the origins o (m, 3) along -d: PathIntegrator.trace for a
+        qualifying scene, with emit0 = 1."""
+        integ = self.integ
+        accel = integ.scene.accel
+        rl = self.rect
+        nl = rl.count
+        m = o.shape[0]
+        L = np.zeros((m, 3))
+        path = np.arange(m, dtype=np.int64)
+        depth = np.zeros(m, dtype=np.int64)
+        unsampled = np.ones(m, dtype=bool)
+        S = np.zeros((m, vk.NS))
+        S[:, vk.B:vk.B + 3] = 1.0
+        S[:, vk.O:vk.O + 3] = o
+        S[:, vk.D:vk.D + 3] = d
+        S[:, vk.TMAX] = tmax
+        counts = np.zeros(2, dtype=np.int64)
+        eps_rel, eps_floor, eps_add = self.eps
+        opt = integ.opt
+        pairs = 0
+        for _ in range(max_depth + 1):
+            n = path.size
+            if not n:
+                break
+            hits = accel.intersect(S[:, vk.O:vk.O + 3], S[:, vk.D:vk.D + 3], S[:, vk.TMAX])
+            U = rng.random((n, vk.U_LIGHT + 2 * nl))
+            n_path = np.empty(n, dtype=np.int64)
+            n_depth = np.empty(n, dtype=np.int64)
+            n_S = np.empty((n, vk.NS))
+            sh_o = np.empty((n * nl, 3))
+            sh_d = np.empty((n * nl, 3))
+            sh_t = np.empty(n * nl)
+            sh_path = np.empty(n * nl, dtype=np.int64)
+            sh_c = np.empty((n * nl, 3))
+            vk.vertex_kernel(
+                path, depth, unsampled, S, hits.t, hits.prim, hits.b1, hits.b2, U, *self.geo, self.Pm, self.ta, self.tb,
+                rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
+                rl.ex_dual, rl.ey_dual, self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
+                eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, sh_o, sh_d, sh_t, sh_path, sh_c, counts)
+            k_next, k_sh = int(counts[0]), int(counts[1])
+            pairs += int(np.count_nonzero((hits.prim >= 0) & (depth < max_depth))) * nl
+            if k_sh:
+                blocked = accel.occluded(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh])
+                vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
+            integ.rays.add(shadow=k_sh, extension=k_next)
+            path, depth, S = n_path[:k_next], n_depth[:k_next], n_S[:k_next]
+            unsampled = np.zeros(k_next, dtype=bool)
+        integ.rule_counts["continuation_mis"] += pairs
+        return L

@@ -1,0 +1,158 @@
+"""The compiled path vertex (renderer/integrators/fast_path.py) estimates what the general
+integrator estimates.
+
+A rect-lit room (a tilted, a sheared and a partly hidden light; diffuse, glossy and metallic
+materials) is rendered with the fast path and with ``fast_path=False``, and the image means are
+compared: over the whole image and in 16 blocks, z-tested with each film's own per-pixel
+variance of the mean. Depth 2 checks the one place the two differ in the order of work (the
+last vertex), depth 5 with roulette from depth 1 the rest. A 5 % error in the fast path must
+fail the same test, and scenes the fast path cannot serve must say why.
+"""
+
+import os
+
+import numpy as np
+import pytest
+from pxr import Gf, UsdGeom, UsdLux
+
+from renderer.integrators import fast_path as fp_mod
+from renderer.render import RenderOptions, render
+from tests.stage_builders import add_camera, add_settings, bind, new_stage, preview_material
+
+Z_MAX = 4.0
+Z_BLOCK = 4.5  # 16 blocks: a Bonferroni margin
+
+
+def _room(path, sphere_light: bool = False, textured: bool = False):
+    stage = new_stage(path)
+    add_camera(stage, pos=(0, 1.4, 5.5))
+    add_settings(stage, (48, 36))
+    looks = [preview_material(stage, "/World/Looks/Matte", diffuse=(0.7, 0.6, 0.5), roughness=1.0),
+             preview_material(stage, "/World/Looks/Gloss", diffuse=(0.2, 0.3, 0.6), roughness=0.2),
+             preview_material(stage, "/World/Looks/Metal", diffuse=(0.9, 0.6, 0.3), roughness=0.35, metallic=1.0)]
+    for i, (name, pts) in enumerate((("Floor", [(-3, 0, -3), (3, 0, -3), (3, 0, 3), (-3, 0, 3)]),
+                                     ("Wall", [(-3, 0, -2), (3, 0, -2), (3, 4, -2), (-3, 4, -2)]))):
+        m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        m.CreatePointsAttr(pts)
+        m.CreateFaceVertexCountsAttr([4])
+        m.CreateFaceVertexIndicesAttr([0, 3, 2, 1] if name == "Floor" else [0, 1, 2, 3])
+        m.CreateSubdivisionSchemeAttr("none")
+        bind(m.GetPrim(), looks[i])
+    for name, pos, r, look in (("Ball", (0.9, 0.6, 0.0), 0.6, looks[1]), ("Chrome", (-1.0, 0.5, 0.5), 0.5, looks[2])):
+        ball = UsdGeom.Sphere.Define(stage, f"/World/{name}")
+        ball.CreateRadiusAttr(r)
+        ball.AddTranslateOp().Set(Gf.Vec3d(*pos))
+        bind(ball.GetPrim(), look)
+    if textured:
+        from pxr import Sdf, UsdShade
+
+        shader = UsdShade.Shader.Get(stage, "/World/Looks/Matte/PBR")
+        tex = UsdShade.Shader.Define(stage, "/World/Looks/Matte/Tex")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(os.path.abspath("stages/textures/roughness_stripes.png"))
+        tex.CreateOutput("r", Sdf.ValueTypeNames.Float)
+        shader.GetInput("roughness").ConnectToSource(tex.ConnectableAPI(), "r")
+    # A large tilted light the continuation rays often reach, a sheared one (area sampling) and
+    # one facing partly away, behind the ball.
+    big = UsdLux.RectLight.Define(stage, "/World/Big")
+    big.CreateWidthAttr(2.5)
+    big.CreateHeightAttr(1.5)
+    big.CreateIntensityAttr(3.0)
+    xf = UsdGeom.Xformable(big)
+    xf.AddTranslateOp().Set(Gf.Vec3d(0.0, 3.0, 0.5))
+    xf.AddRotateXOp().Set(-75.0)
+    shear = UsdLux.RectLight.Define(stage, "/World/Sheared")
+    shear.CreateWidthAttr(0.8)
+    shear.CreateHeightAttr(0.8)
+    shear.CreateIntensityAttr(12.0)
+    shear.CreateNormalizeAttr(True)
+    xf = UsdGeom.Xformable(shear)
+    xf.AddTranslateOp().Set(Gf.Vec3d(-2.0, 2.0, 1.0))
+    xf.AddScaleOp().Set(Gf.Vec3f(1.0, 2.5, 1.0))
+    xf.AddRotateZOp().Set(35.0)
+    xf.AddRotateXOp().Set(-60.0)
+    if sphere_light:
+        UsdLux.SphereLight.Define(stage, "/World/Bulb").CreateIntensityAttr(5.0)
+    else:
+        back = UsdLux.RectLight.Define(stage, "/World/Back")
+        back.CreateWidthAttr(1.0)
+        back.CreateHeightAttr(0.6)
+        back.CreateIntensityAttr(8.0)
+        back.CreateColorAttr(Gf.Vec3f(0.4, 0.7, 1.0))
+        xf = UsdGeom.Xformable(back)
+        xf.AddTranslateOp().Set(Gf.Vec3d(1.2, 0.9, -1.2))
+        xf.AddRotateYOp().Set(150.0)
+    stage.GetRootLayer().Save()
+
+
+def _block_z(a, b, blocks=4):
+    """z of the mean difference of a and b (films) over the whole image and per block."""
+    d = a.film.mean().sum(axis=-1).astype(np.float64) - b.film.mean().sum(axis=-1)
+    var = a.film.variance_of_mean().sum(axis=-1) + b.film.variance_of_mean().sum(axis=-1)
+    h, w = d.shape
+
+    def z(sl):
+        return float(d[sl].sum() / np.sqrt(var[sl].sum())) if var[sl].sum() > 0 else 0.0
+
+    zs = [z((slice(i * h // blocks, (i + 1) * h // blocks), slice(j * w // blocks, (j + 1) * w // blocks)))
+          for i in range(blocks) for j in range(blocks)]
+    return z((slice(None), slice(None))), zs
+
+
+def _pair(stage, max_depth, spp, rr_depth=3):
+    common = dict(max_depth=max_depth, rr_depth=rr_depth, threads=1, estimator={"": "mis"}, spp=spp)
+    fast = render(str(stage), RenderOptions(seed=1, **common))
+    slow = render(str(stage), RenderOptions(seed=2, fast_path=False, **common))
+    return fast, slow
+
+
+@pytest.mark.parametrize("max_depth", [2, 5])
+def test_fast_path_matches_general_path(tmp_path, max_depth):
+    stage = tmp_path / "room.usda"
+    _room(stage)
+    # Roulette from the first bounce, so the fast path's roulette is exercised at depth 5.
+    fast, slow = _pair(stage, max_depth, spp=256, rr_depth=1)
+    assert fast.stats["fast_path"] == "on"
+    assert slow.stats["fast_path"].startswith("disabled")
+    assert fast.stats["rays"]["light_probe"] == 0 and slow.stats["rays"]["light_probe"] > 0
+    z, zs = _block_z(fast, slow)
+    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
+    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
+    # Nothing non-finite reaches the film, and the image is not black.
+    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
+
+
+def test_the_comparison_detects_a_five_percent_error(tmp_path, monkeypatch):
+    stage = tmp_path / "room.usda"
+    _room(stage)
+    orig = fp_mod.FastPath.trace
+    monkeypatch.setattr(fp_mod.FastPath, "trace", lambda self, *a, **k: orig(self, *a, **k) * 1.05)
+    fast, slow = _pair(stage, 5, spp=256, rr_depth=1)
+    z, _ = _block_z(fast, slow)
+    assert abs(z) > Z_MAX, f"a 5% error went unseen (z = {z:.2f})"
+
+
+def test_fast_path_on_the_cornell_box():
+    r = render("stages/cornell_box.usda", RenderOptions(spp=1, resolution=(16, 16), threads=1))
+    assert r.stats["fast_path"] == "on"
+
+
+@pytest.mark.parametrize("kw,opt,reason", [
+    ({"sphere_light": True}, {}, "a light other than a RectLight"),
+    ({"textured": True}, {}, "textured, emissive or cut-out materials"),
+    ({}, {"max_depth": 1}, "max depth <= 1"),
+    ({}, {"emitter_samples": 2}, "emitter samples > 1"),
+    ({}, {"light_sampler": "power"}, "a stochastic light sampler"),
+])
+def test_scenes_the_fast_path_cannot_serve_say_why(tmp_path, kw, opt, reason):
+    stage = tmp_path / "room.usda"
+    _room(stage, **kw)
+    r = render(str(stage), RenderOptions(spp=1, threads=1, estimator={"": "mis"}, **opt))
+    assert r.stats["fast_path"] == reason
+
+
+def test_other_estimators_take_the_general_path(tmp_path):
+    stage = tmp_path / "room.usda"
+    _room(stage)
+    r = render(str(stage), RenderOptions(spp=1, threads=1, estimator={"": "controlVariate"}))
+    assert r.stats["fast_path"] == "a light not on the mis estimator with one sample"
