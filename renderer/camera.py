@@ -117,6 +117,8 @@ class Camera:
         if desc.f_stop > 0.0 and desc.focus_distance > 0.0 and not self.orthographic:
             self.lens_radius = float(desc.focal_length) / (2.0 * float(desc.f_stop))
         self.focus_distance = float(desc.focus_distance)
+        # (K, 4) UsdGeomCamera clippingPlanes (camera space), applied to camera rays
+        self.clip_planes = np.asarray(getattr(desc, "clipping_planes", ()), dtype=np.float64).reshape(-1, 4)
         self.filter = GaussianFilter()
 
     def raster_to_camera(self, rx: np.ndarray, ry: np.ndarray) -> np.ndarray:
@@ -152,6 +154,8 @@ class Camera:
             inv_cos = 1.0 / np.maximum(-d_cam[:, 2], 1e-12)
             tmin = self.near * inv_cos
             tmax = self.far * inv_cos
+        if self.clip_planes.size:
+            tmin, tmax = self._clip(o_cam, d_cam, tmin, tmax)
         M = self.camera_to_world
         # Column multiply-adds: much faster than (n,3) @ (3,3) on a transposed view for large n.
         d_w = d_cam[:, 0:1] * M[:3, 0] + d_cam[:, 1:2] * M[:3, 1] + d_cam[:, 2:3] * M[:3, 2]
@@ -160,6 +164,22 @@ class Camera:
         scale = np.sqrt(np.einsum("ij,ij->i", d_w, d_w))
         d = d_w / scale[:, None]
         return CameraRays(o=o, d=d, tmax=tmax * scale, tmin=tmin * scale)
+
+    def _clip(self, o_cam: np.ndarray, d_cam: np.ndarray, tmin: np.ndarray, tmax: np.ndarray):
+        """Narrow each ray's camera-space interval [tmin, tmax] (n,) to the part every clipping
+        plane keeps (a x + b y + c z + d >= 0 along o_cam + t d_cam, both (n, 3)). One plane
+        keeps a half-line of t, so the kept set stays one interval; an empty one becomes
+        tmax = tmin, a ray that sees no geometry (the background, as beyond the far plane)."""
+        n_dot_d = d_cam @ self.clip_planes[:, :3].T  # (n, K)
+        f0 = o_cam @ self.clip_planes[:, :3].T + self.clip_planes[:, 3]  # plane value at t = 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_cross = -f0 / n_dot_d
+        lo = np.where(n_dot_d > 0.0, t_cross, -np.inf)
+        hi = np.where(n_dot_d < 0.0, t_cross, np.inf)
+        hi = np.where((n_dot_d == 0.0) & (f0 < 0.0), -np.inf, hi)  # parallel and outside
+        tmin = np.maximum(tmin, lo.max(axis=1))
+        tmax = np.minimum(tmax, hi.min(axis=1))
+        return tmin, np.maximum(tmax, tmin)
 
     def world_to_camera(self) -> np.ndarray:
         return np.linalg.inv(self.camera_to_world)

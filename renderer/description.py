@@ -122,6 +122,8 @@ class CameraDesc:
     focus_distance is 0 and f_stop 0 when depth of field is off.
     exposure_scale: the linear image scale (2^exposure, times the exposure:* terms of
         UsdGeomCamera.ComputeLinearExposureScale where authored).
+    clipping_planes: UsdGeomCamera clippingPlanes, a tuple of (a, b, c, d) in camera space:
+        points with a x + b y + c z + d < 0 are cut off (camera rays only).
     """
 
     path: str
@@ -136,6 +138,7 @@ class CameraDesc:
     f_stop: float = 0.0
     focus_distance: float = 0.0
     exposure_scale: float = 1.0
+    clipping_planes: tuple = ()
 
 
 @dataclass(frozen=True)

@@ -272,14 +272,21 @@ def _exactness_notes(lights, light_info: list[dict]) -> list[str]:
 
 def _data_window(ndc, width: int, height: int) -> tuple[int, int, int, int]:
     """UsdRender dataWindowNDC (xmin, ymin, xmax, ymax; (0,0) bottom-left) -> pixel window
-    (x0, y0, x1, y1) with y down, clamped to the image (overscan is not rendered)."""
+    (x0, y0, x1, y1) with y down, clamped to the image (overscan is not rendered).
+
+    UsdRenderSettingsBase: "A pixel is included in the rendered result if the pixel center is
+    contained by the data window". A centre exactly on the boundary counts as inside at
+    xmin / ymin and outside at xmax / ymax (half-open, so adjacent windows tile the image)."""
     xmin, ymin, xmax, ymax = (float(v) for v in ndc)
     if not all(math.isfinite(v) for v in (xmin, ymin, xmax, ymax)) or xmax <= xmin or ymax <= ymin:
         raise SettingsError(f"dataWindowNDC {tuple(ndc)} is empty or not finite", attribute="dataWindowNDC")
-    x0 = int(np.clip(math.floor(xmin * width + 1e-9), 0, width))
-    x1 = int(np.clip(math.ceil(xmax * width - 1e-9), 0, width))
-    y0 = int(np.clip(math.floor((1.0 - ymax) * height + 1e-9), 0, height))
-    y1 = int(np.clip(math.ceil((1.0 - ymin) * height - 1e-9), 0, height))
+    eps = 1e-9  # decimal NDC values (0.35 * 20) land on pixel centres up to rounding
+    # column x's centre x + 0.5 lies in [xmin W, xmax W)
+    x0 = int(np.clip(math.ceil(xmin * width - 0.5 - eps), 0, width))
+    x1 = int(np.clip(math.ceil(xmax * width - 0.5 - eps), 0, width))
+    # row y (down) has NDC centre 1 - (y + 0.5) / H, in [ymin, ymax)
+    y0 = int(np.clip(math.floor((1.0 - ymax) * height - 0.5 + eps) + 1, 0, height))
+    y1 = int(np.clip(math.floor((1.0 - ymin) * height - 0.5 + eps) + 1, 0, height))
     if x1 <= x0 or y1 <= y0:
         raise SettingsError(f"dataWindowNDC {tuple(ndc)} covers no pixel", attribute="dataWindowNDC")
     return x0, y0, x1, y1

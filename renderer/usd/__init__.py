@@ -22,8 +22,12 @@ What is read and what is not (each unsupported feature gives one warning per sta
   UsdPrimvarReader_float2 and UsdTransform2d; materialBind GeomSubsets split a mesh by
   material; normal, displacement, clearcoat and occlusion inputs are ignored; UDIM paths use
   the fallback.
-* displayColor fallback uses the first value of ``primvars:displayColor`` for the whole prim.
-* Time: one time code, no motion blur (velocities and multiple samples are not read).
+* displayColor fallback uses the first value of ``primvars:displayColor`` for the whole prim
+  (a constant one may be inherited from an ancestor, UsdGeom primvar inheritance).
+* Time: one time code, no motion blur (velocities and multiple samples are not read); without
+  a frame it is ``stage.GetStartTimeCode()`` (0.0 when unauthored), as usdrecord uses.
+* Camera: clippingPlanes clip camera rays; dataWindowNDC overscan beyond [0, 1] is not
+  rendered (warning).
 * Purpose: a subtree whose authored (or inherited) purpose is excluded is pruned whole, even
   if a descendant authors an included purpose.
 """

@@ -42,11 +42,20 @@ def read_camera(prim: Usd.Prim, ctx: ReadContext) -> CameraDesc:
     if not math.isfinite(exposure_scale) or exposure_scale <= 0.0:
         raise ctx.error(f"linear exposure scale is {exposure_scale:g}", prim, "exposure")
 
+    planes = []
+    for k, plane in enumerate(ctx.get(prim, "clippingPlanes", None) or ()):
+        a, b, c, d = ctx.finite_tuple(prim, "clippingPlanes", plane)
+        if a == 0.0 and b == 0.0 and c == 0.0:
+            raise ctx.error(f"plane {k} {(a, b, c, d)} has a zero normal", prim, "clippingPlanes")
+        planes.append((a, b, c, d))
+
     return CameraDesc(
         path=str(prim.GetPath()),
         camera_to_world=ctx.finite_world(prim),
         projection=projection,
-        focal_length=num("focalLength", positive=True) * TENTHS,
+        # "Perspective focal length": an orthographic camera never uses it, so any finite value
+        # (0 included) is valid there.
+        focal_length=num("focalLength", positive=projection == "perspective") * TENTHS,
         horizontal_aperture=num("horizontalAperture", positive=True) * TENTHS,
         vertical_aperture=num("verticalAperture", positive=True) * TENTHS,
         horizontal_aperture_offset=num("horizontalApertureOffset") * TENTHS,
@@ -55,6 +64,7 @@ def read_camera(prim: Usd.Prim, ctx: ReadContext) -> CameraDesc:
         f_stop=num("fStop", min_value=0.0),
         focus_distance=num("focusDistance", min_value=0.0),
         exposure_scale=exposure_scale,
+        clipping_planes=tuple(planes),
     )
 
 

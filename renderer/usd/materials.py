@@ -118,7 +118,9 @@ class MaterialTable:
         return None
 
     def _fallback(self, prim: Usd.Prim) -> MaterialDesc:
-        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        # UsdGeom primvar inheritance: a constant primvar authored on an ancestor applies to
+        # every descendant gprim that does not author its own.
+        pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance("displayColor")
         if pv and pv.HasValue():
             values = pv.ComputeFlattened(self.ctx.time)
             if values is not None and len(values) > 0:

@@ -29,6 +29,15 @@ def find_settings_prim(ctx: ReadContext, requested: str | None) -> Usd.Prim | No
             "renderSettingsPrimPath") else ""
         where = "renderSettingsPrimPath"
     if not path:
+        # Like usdrecord: without a choice no RenderSettings applies; say so, since an
+        # authored one being ignored is easy to miss. Only /Render, where UsdRender says render
+        # prims live, is searched: a whole-stage traversal would cost a second pass.
+        render_root = ctx.stage.GetPrimAtPath("/Render")
+        found = [str(p.GetPath()) for p in Usd.PrimRange(render_root)
+                 if p.IsA(UsdRender.Settings)] if render_root else []
+        if found:
+            ctx.warn("settings-unselected", f"RenderSettings {', '.join(found[:3])} ignored: no "
+                                            "renderSettingsPrimPath metadata and no settings argument")
         return None
     if not Sdf.Path.IsValidPathString(path) or not Sdf.Path(path).IsAbsolutePath():
         raise ctx.error(f"'{path}' ({where}) is not an absolute prim path")
@@ -94,6 +103,9 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
     window = ctx.finite_tuple(prim, "dataWindowNDC", window)
     if not (window[0] < window[2] and window[1] < window[3]):
         raise ctx.error(f"data window {window} is empty (need xmin < xmax and ymin < ymax)", prim, "dataWindowNDC")
+    if min(window) < 0.0 or max(window) > 1.0:
+        ctx.warn("overscan", f"{prim.GetPath()}: dataWindowNDC {window} extends outside [0, 1] (overscan); "
+                             "illum renders only the part inside the image")
 
     camera = ""
     for p in (product, settings):

@@ -66,8 +66,8 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
     camera: camera prim path (or a unique camera prim name); default: the RenderSettings
         camera, else the first camera in traversal order.
     settings: RenderSettings prim path; default: the stage's ``renderSettingsPrimPath``.
-    frame: time code to read at; default: the stage's startTimeCode if authored, else Default
-        (then ``SceneDescription.time_code`` is NaN, USD's numeric value of the Default time).
+    frame: time code to read at; default: ``stage.GetStartTimeCode()`` (0.0 when unauthored),
+        the time usdrecord and usdview render at.
     purposes: included purposes, replacing RenderSettings.includedPurposes.
 
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
@@ -99,11 +99,16 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         if not math.isfinite(float(frame)):
             raise StageError(f"frame {frame} is not finite", file=source)
         time = Usd.TimeCode(float(frame))
-    elif stage.HasAuthoredMetadata("startTimeCode"):
-        time = Usd.TimeCode(stage.GetStartTimeCode())
     else:
-        time = Usd.TimeCode.Default()
+        # usdrecord / usdview (UsdAppUtils.framesArgs) use GetStartTimeCode(), 0.0 when unauthored,
+        # never the Default time code: at Default, USD ignores time samples, so an animated camera
+        # or mesh would resolve to its default value (often none) instead of its held first sample.
+        time = Usd.TimeCode(stage.GetStartTimeCode())
     ctx = ReadContext(stage, source, time)
+    if frame is None and not stage.HasAuthoredMetadata("startTimeCode") and any(
+            layer.ListAllTimeSamples() for layer in stage.GetUsedLayers()):
+        ctx.warn("default-time", f"the stage has time samples but no startTimeCode: read at time "
+                                 f"{time.GetValue():g} (the startTimeCode fallback, as usdrecord does)")
     try:
         return _read(ctx, camera, settings, purposes)
     except Tf.ErrorException as exc:  # anything pxr itself refuses, as one line naming the file
@@ -121,11 +126,6 @@ def _read(ctx: ReadContext, camera: str | None, settings: str | None,
         ctx.warn(f"composition-{k}", f"composition error: {one_line(err)}")
     if len(errors) > _MAX_COMPOSITION_WARNINGS:
         ctx.warn("composition-more", f"{len(errors) - _MAX_COMPOSITION_WARNINGS} more composition errors")
-    if ctx.time.IsDefault() and any(layer.ListAllTimeSamples() for layer in ctx.stage.GetUsedLayers()):
-        # USD answers Get(Default) with the default value only, ignoring time samples: an animated
-        # camera would silently sit at its un-animated position.
-        ctx.warn("default-time", "the stage has time samples but is read at the Default time code (no "
-                                 "frame given, no startTimeCode authored): time-sampled values are ignored")
     settings_prim = find_settings_prim(ctx, settings)
     settings_desc, dof_off = read_render_settings(ctx, settings_prim, purposes)
     reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes)

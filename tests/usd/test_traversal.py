@@ -222,7 +222,7 @@ def test_default_time_is_start_time_code_when_authored(tmp_path):
 def test_default_time_without_start_time_code(stage):
     add_quad(stage, "/Q", z=3.0)
     d = read(stage)
-    assert np.isnan(d.time_code)  # Usd.TimeCode.Default()
+    assert d.time_code == 0.0  # stage.GetStartTimeCode()'s fallback, as usdrecord reads
     assert np.allclose(mesh(d, "/Q").points[:, 2], 3.0)
 
 
@@ -238,6 +238,6 @@ def test_stage_metrics(stage):
 def test_default_time_with_time_samples_warns(stage):
     _animated_quad(stage)
     d = read(stage)
-    assert d.meshes == []  # USD has no value for the points at the Default time
-    assert any("Default time code" in w for w in d.warnings)
-    assert not any("Default time code" in w for w in read(stage, frame=1).warnings)
+    assert np.allclose(mesh(d, "/Q").points[:, 2], 0.0)  # time 0 holds the first sample (t=1)
+    assert any("no startTimeCode" in w for w in d.warnings)
+    assert not any("no startTimeCode" in w for w in read(stage, frame=1).warnings)
