@@ -57,21 +57,25 @@ def vertex_kernel(
     vertices, face_normal, normals, tri_mat, Pm, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, power,
     min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
-    L, n_path, n_depth, n_S, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
+    L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
     """One bounce for n live rays (see the module docstring).
 
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,)
     bool (camera rays: emission counts fully; all others carry continuation MIS for every
-    light); hit_*: embree's closest hits (t inf, prim -1 on a miss); Pm: (materials, K) packed
-    BSDF rows; light tables: the RectLight arrays (all lights untextured, global = local index);
-    power: (lights,) bool heuristic. L (m, 3) receives emission in place. Next rays go to
-    n_path, n_depth, n_S (capacity n) and shadow rays to sh_* (capacity n * lights) with sh_c
-    (k, 3) the radiance each adds if unblocked; counts[0], counts[1] = how many of each.
+    light); hit_*: embree's closest hits as Accel.intersect_prepared gives them (float32 t, u,
+    v; int32 prim, -1 on a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows;
+    light tables: the RectLight arrays (all lights untextured, global = local index); power:
+    (lights,) bool heuristic. L (m, 3) receives emission in place. Next rays go to n_path,
+    n_depth, n_S and, in embree's float32 format, n_o32, n_d32, n_t32 (capacity n); shadow rays
+    to sh_o, sh_d, sh_t (float32), sh_path, sh_c (capacity n * lights), sh_c (k, 3) being the
+    radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]: how
+    many vertices scattered (took the light half).
     """
     nl = center.shape[0]
     k_next = 0
     k_sh = 0
+    n_vertices = 0
     for r in range(path.shape[0]):
         pr_path = path[r]
         b0 = S[r, B]
@@ -79,7 +83,8 @@ def vertex_kernel(
         b2 = S[r, B + 2]
         o = (S[r, O], S[r, O + 1], S[r, O + 2])
         d = (S[r, D], S[r, D + 1], S[r, D + 2])
-        t_hit = hit_t[r]
+        k = hit_prim[r]
+        t_hit = float(hit_t[r]) if k >= 0 else math.inf
         t_geo = min(t_hit, S[r, TMAX])
         # ---- emission of the lights crossed before the surface (lights are transparent) ----
         for j in range(nl):
@@ -100,9 +105,9 @@ def vertex_kernel(
             L[pr_path, 0] += b0 * radiance[j, 0] * w
             L[pr_path, 1] += b1 * radiance[j, 1] * w
             L[pr_path, 2] += b2 * radiance[j, 2] * w
-        k = hit_prim[r]
         if k < 0 or depth[r] >= max_depth:
             continue
+        n_vertices += 1
         # ---- surface interaction (geometry._interaction_kernel's formulas) ----------------
         w1 = hit_b1[r]
         w2 = hit_b2[r]
@@ -234,9 +239,14 @@ def vertex_kernel(
         n_S[k_next, PNS + 1] = sy
         n_S[k_next, PNS + 2] = sz
         n_S[k_next, PB] = pdf_b
+        for c in range(3):
+            n_o32[k_next, c] = n_S[k_next, O + c]
+            n_d32[k_next, c] = n_S[k_next, D + c]
+        n_t32[k_next] = 1e37
         k_next += 1
     counts[0] = k_next
     counts[1] = k_sh
+    counts[2] = n_vertices
 
 
 @njit(cache=True, nogil=True)

@@ -102,36 +102,45 @@ class FastPath:
         S[:, vk.O:vk.O + 3] = o
         S[:, vk.D:vk.D + 3] = d
         S[:, vk.TMAX] = tmax
-        counts = np.zeros(2, dtype=np.int64)
+        counts = np.zeros(3, dtype=np.int64)
         eps_rel, eps_floor, eps_add = self.eps
         opt = integ.opt
+        # The rays in embree's float32 format; the kernel writes the later bounces' directly.
+        o32 = np.ascontiguousarray(o, dtype=np.float32)
+        d32 = np.ascontiguousarray(d, dtype=np.float32)
+        t32 = np.minimum(tmax, 1e37).astype(np.float32)
         pairs = 0
         for _ in range(max_depth + 1):
             n = path.size
             if not n:
                 break
-            hits = accel.intersect(S[:, vk.O:vk.O + 3], S[:, vk.D:vk.D + 3], S[:, vk.TMAX])
+            prim, b1, b2 = accel.intersect_prepared(o32, d32, t32)
             U = rng.random((n, vk.U_LIGHT + 2 * nl))
             n_path = np.empty(n, dtype=np.int64)
             n_depth = np.empty(n, dtype=np.int64)
             n_S = np.empty((n, vk.NS))
-            sh_o = np.empty((n * nl, 3))
-            sh_d = np.empty((n * nl, 3))
-            sh_t = np.empty(n * nl)
+            n_o32 = np.empty((n, 3), dtype=np.float32)
+            n_d32 = np.empty((n, 3), dtype=np.float32)
+            n_t32 = np.empty(n, dtype=np.float32)
+            sh_o = np.empty((n * nl, 3), dtype=np.float32)
+            sh_d = np.empty((n * nl, 3), dtype=np.float32)
+            sh_t = np.empty(n * nl, dtype=np.float32)
             sh_path = np.empty(n * nl, dtype=np.int64)
             sh_c = np.empty((n * nl, 3))
             vk.vertex_kernel(
-                path, depth, unsampled, S, hits.t, hits.prim, hits.b1, hits.b2, U, *self.geo, self.Pm, self.ta, self.tb,
+                path, depth, unsampled, S, t32, prim, b1, b2, U, *self.geo, self.Pm, self.ta, self.tb,
                 rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
                 rl.ex_dual, rl.ey_dual, self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
-                eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, sh_o, sh_d, sh_t, sh_path, sh_c, counts)
+                eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t,
+                sh_path, sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])
-            pairs += int(np.count_nonzero((hits.prim >= 0) & (depth < max_depth))) * nl
+            pairs += int(counts[2]) * nl
             if k_sh:
-                blocked = accel.occluded(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh])
+                blocked = accel.occluded_prepared(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh])
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
             integ.rays.add(shadow=k_sh, extension=k_next)
             path, depth, S = n_path[:k_next], n_depth[:k_next], n_S[:k_next]
+            o32, d32, t32 = n_o32[:k_next], n_d32[:k_next], n_t32[:k_next]
             unsampled = np.zeros(k_next, dtype=bool)
         integ.rule_counts["continuation_mis"] += pairs
         return L

@@ -61,3 +61,30 @@ def test_threads_give_identical_answers():
     b = Accel(tri, threads=2).intersect(o, d)
     np.testing.assert_array_equal(a.prim, b.prim)
     np.testing.assert_array_equal(a.t, b.t)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_prepared_float32_queries_match_the_float64_ones(threads):
+    """intersect_prepared / occluded_prepared (the fast path's float32 entry points) answer
+    exactly as intersect / occluded do on the same rays, across embree chunks."""
+    rng = np.random.default_rng(3)
+    tris = np.concatenate([_quad([x, y, -z], size=0.4) for x, y, z in rng.uniform(-3, 3, (40, 3))])
+    acc = Accel(tris, threads=threads)
+    n = 70000  # more than two chunks
+    o = rng.uniform(-1, 1, (n, 3)) + [0, 0, 5.0]
+    d = rng.normal(size=(n, 3)) + [0, 0, -3.0]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    tmax = rng.uniform(1.0, 12.0, n)
+    h = acc.intersect(o, d, tmax)
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    t32 = tmax.astype(np.float32)
+    prim, u, v = acc.intersect_prepared(o32, d32, t32)
+    assert prim.dtype == np.int32 and (prim >= 0).sum() > n // 10
+    np.testing.assert_array_equal(prim, h.prim)
+    hit = prim >= 0
+    np.testing.assert_array_equal(t32[hit].astype(np.float64), h.t[hit])
+    np.testing.assert_array_equal(u[hit].astype(np.float64), h.b1[hit])
+    np.testing.assert_array_equal(v[hit].astype(np.float64), h.b2[hit])
+    blocked = acc.occluded_prepared(o32, d32, tmax.astype(np.float32))
+    np.testing.assert_array_equal(blocked, acc.occluded(o, d, tmax))
+    assert blocked.any() and not blocked.all()
