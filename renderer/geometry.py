@@ -208,46 +208,55 @@ def offset_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, eps: np.ndarray 
 # Surface interaction from a hit (prim, barycentrics)
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
-def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d, p, ng, ns, st):
-    """One pass per hit: float64 point, normals facing wo = -d, interpolated st.
+def _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz):
+    """The hit of direction d = (dx, dy, dz) on triangle k at barycentrics (w1, w2): point p,
+    geometric normal ng and shading normal ns as 3-tuples, both normals facing wo = -d.
 
     The shading normal is interpolated and normalised, flipped to the geometric normal's side,
     and replaced by the geometric normal where it faces away from wo (it would give a black or
-    negative cosine). Same formulas as ``surface_interaction``'s numpy path.
+    negative cosine). Same formulas as ``surface_interaction``'s numpy path. (Also inlined by
+    the fast path's vertex kernel, renderer/integrators/_vertex_kernels.py.)
     """
+    w0 = 1.0 - w1 - w2
+    px = vertices[k, 0, 0] * w0 + vertices[k, 1, 0] * w1 + vertices[k, 2, 0] * w2
+    py = vertices[k, 0, 1] * w0 + vertices[k, 1, 1] * w1 + vertices[k, 2, 1] * w2
+    pz = vertices[k, 0, 2] * w0 + vertices[k, 1, 2] * w1 + vertices[k, 2, 2] * w2
+    sx = normals[k, 0, 0] * w0 + normals[k, 1, 0] * w1 + normals[k, 2, 0] * w2
+    sy = normals[k, 0, 1] * w0 + normals[k, 1, 1] * w1 + normals[k, 2, 1] * w2
+    sz = normals[k, 0, 2] * w0 + normals[k, 1, 2] * w1 + normals[k, 2, 2] * w2
+    length = np.sqrt(sx * sx + sy * sy + sz * sz)
+    s = length if length > 0.0 else 1.0
+    sx /= s
+    sy /= s
+    sz /= s
+    gx = face_normal[k, 0]
+    gy = face_normal[k, 1]
+    gz = face_normal[k, 2]
+    # Two-sided shading: both normals face the viewer (wo = -d).
+    if -(gx * dx + gy * dy + gz * dz) < 0.0:
+        gx, gy, gz = -gx, -gy, -gz
+    if sx * gx + sy * gy + sz * gz < 0.0:
+        sx, sy, sz = -sx, -sy, -sz
+    if -(sx * dx + sy * dy + sz * dz) <= 0.0:
+        sx, sy, sz = gx, gy, gz
+    return (px, py, pz), (gx, gy, gz), (sx, sy, sz)
+
+
+@njit(cache=True, nogil=True)
+def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d, p, ng, ns, st):
+    """One pass per hit: float64 point, normals facing wo = -d (_interaction_row), interpolated st."""
     for i in range(prim.shape[0]):
         k = prim[i]
         w1 = b1[i]
         w2 = b2[i]
         w0 = 1.0 - w1 - w2
+        pp, gg, ss = _interaction_row(vertices, face_normal, normals, k, w1, w2, d[i, 0], d[i, 1], d[i, 2])
         for c in range(3):
-            p[i, c] = vertices[k, 0, c] * w0 + vertices[k, 1, c] * w1 + vertices[k, 2, c] * w2
-        sx = normals[k, 0, 0] * w0 + normals[k, 1, 0] * w1 + normals[k, 2, 0] * w2
-        sy = normals[k, 0, 1] * w0 + normals[k, 1, 1] * w1 + normals[k, 2, 1] * w2
-        sz = normals[k, 0, 2] * w0 + normals[k, 1, 2] * w1 + normals[k, 2, 2] * w2
-        length = np.sqrt(sx * sx + sy * sy + sz * sz)
-        s = length if length > 0.0 else 1.0
-        sx /= s
-        sy /= s
-        sz /= s
+            p[i, c] = pp[c]
+            ng[i, c] = gg[c]
+            ns[i, c] = ss[c]
         for c in range(2):
             st[i, c] = st_tab[k, 0, c] * w0 + st_tab[k, 1, c] * w1 + st_tab[k, 2, c] * w2
-        gx = face_normal[k, 0]
-        gy = face_normal[k, 1]
-        gz = face_normal[k, 2]
-        # Two-sided shading: both normals face the viewer (wo = -d).
-        if -(gx * d[i, 0] + gy * d[i, 1] + gz * d[i, 2]) < 0.0:
-            gx, gy, gz = -gx, -gy, -gz
-        if sx * gx + sy * gy + sz * gz < 0.0:
-            sx, sy, sz = -sx, -sy, -sz
-        if -(sx * d[i, 0] + sy * d[i, 1] + sz * d[i, 2]) <= 0.0:
-            sx, sy, sz = gx, gy, gz
-        ng[i, 0] = gx
-        ng[i, 1] = gy
-        ng[i, 2] = gz
-        ns[i, 0] = sx
-        ns[i, 1] = sy
-        ns[i, 2] = sz
 
 
 def surface_interaction(vertices, face_normal, normals, st_tab, prim, b1, b2, d):

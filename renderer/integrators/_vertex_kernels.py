@@ -8,9 +8,9 @@ for every light (spherical-rectangle sampling), and the BSDF sample with the thr
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
-The maths is not restated here: it calls the per-row helpers of the rect light
-(renderer/kernels/lights.py) and of the BSDF (renderer/bsdfs/_preview_kernels.py), the same
-functions the general path's kernels use. numba's on-disk cache is keyed on this file only, so
+The maths is not restated here: it calls the per-row helpers of the surface interaction
+(renderer/geometry.py), the rect light (renderer/kernels/lights.py) and the BSDF
+(renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels use. numba's on-disk cache is keyed on this file only, so
 ``guard_cache`` (renderer/kernels/__init__.py) flushes this file's cache whenever any of the
 files it inlines from changes.
 
@@ -29,6 +29,7 @@ from renderer.bsdfs._preview_kernels import (
     ALPHA, F0, F90, FY, J0, KD, RHO,
     _lookup, _mis_weight, _p_diffuse, _sample_dir, _specular,
 )
+from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import _rect_hit, _rect_pdf_row, _rect_sample_row, _row
 
@@ -108,30 +109,11 @@ def vertex_kernel(
         if k < 0 or depth[r] >= max_depth:
             continue
         n_vertices += 1
-        # ---- surface interaction (geometry._interaction_kernel's formulas) ----------------
-        w1 = hit_b1[r]
-        w2 = hit_b2[r]
-        w0 = 1.0 - w1 - w2
-        px = vertices[k, 0, 0] * w0 + vertices[k, 1, 0] * w1 + vertices[k, 2, 0] * w2
-        py = vertices[k, 0, 1] * w0 + vertices[k, 1, 1] * w1 + vertices[k, 2, 1] * w2
-        pz = vertices[k, 0, 2] * w0 + vertices[k, 1, 2] * w1 + vertices[k, 2, 2] * w2
-        sx = normals[k, 0, 0] * w0 + normals[k, 1, 0] * w1 + normals[k, 2, 0] * w2
-        sy = normals[k, 0, 1] * w0 + normals[k, 1, 1] * w1 + normals[k, 2, 1] * w2
-        sz = normals[k, 0, 2] * w0 + normals[k, 1, 2] * w1 + normals[k, 2, 2] * w2
-        ln = math.sqrt(sx * sx + sy * sy + sz * sz)
-        ln = ln if ln > 0.0 else 1.0
-        sx /= ln
-        sy /= ln
-        sz /= ln
-        gx = face_normal[k, 0]
-        gy = face_normal[k, 1]
-        gz = face_normal[k, 2]
-        if -(gx * d[0] + gy * d[1] + gz * d[2]) < 0.0:
-            gx, gy, gz = -gx, -gy, -gz
-        if sx * gx + sy * gy + sz * gz < 0.0:
-            sx, sy, sz = -sx, -sy, -sz
-        if -(sx * d[0] + sy * d[1] + sz * d[2]) <= 0.0:
-            sx, sy, sz = gx, gy, gz
+        # ---- surface interaction -----------------------------------------------------------
+        pp, gg, ss = _interaction_row(vertices, face_normal, normals, k, hit_b1[r], hit_b2[r], d[0], d[1], d[2])
+        px, py, pz = pp
+        gx, gy, gz = gg
+        sx, sy, sz = ss
         # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
         sign = 1.0 if sz >= 0.0 else -1.0
         fa = -1.0 / (sign + sz)
@@ -272,4 +254,5 @@ def add_unblocked_kernel(L, sh_path, sh_c, blocked):
 
 
 guard_cache(__name__, [vertex_kernel, _f_channel, add_unblocked_kernel],
-            ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py"])
+            ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py",
+             "renderer/geometry.py"])
