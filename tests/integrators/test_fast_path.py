@@ -23,6 +23,16 @@ Z_MAX = 4.0
 Z_BLOCK = 4.5  # 16 blocks: a Bonferroni margin
 
 
+def _rect(stage, name, width, height, intensity, normalize=False, color=(1.0, 1.0, 1.0)):
+    light = UsdLux.RectLight.Define(stage, f"/World/{name}")
+    light.CreateWidthAttr(width)
+    light.CreateHeightAttr(height)
+    light.CreateIntensityAttr(intensity)
+    light.CreateNormalizeAttr(normalize)
+    light.CreateColorAttr(Gf.Vec3f(*color))
+    return UsdGeom.Xformable(light)
+
+
 def _room(path, sphere_light: bool = False, textured: bool = False):
     stage = new_stage(path)
     add_camera(stage, pos=(0, 1.4, 5.5))
@@ -54,19 +64,10 @@ def _room(path, sphere_light: bool = False, textured: bool = False):
         shader.GetInput("roughness").ConnectToSource(tex.ConnectableAPI(), "r")
     # A large tilted light the continuation rays often reach, a sheared one (area sampling) and
     # one facing partly away, behind the ball.
-    big = UsdLux.RectLight.Define(stage, "/World/Big")
-    big.CreateWidthAttr(2.5)
-    big.CreateHeightAttr(1.5)
-    big.CreateIntensityAttr(3.0)
-    xf = UsdGeom.Xformable(big)
+    xf = _rect(stage, "Big", 2.5, 1.5, 3.0)
     xf.AddTranslateOp().Set(Gf.Vec3d(0.0, 3.0, 0.5))
     xf.AddRotateXOp().Set(-75.0)
-    shear = UsdLux.RectLight.Define(stage, "/World/Sheared")
-    shear.CreateWidthAttr(0.8)
-    shear.CreateHeightAttr(0.8)
-    shear.CreateIntensityAttr(12.0)
-    shear.CreateNormalizeAttr(True)
-    xf = UsdGeom.Xformable(shear)
+    xf = _rect(stage, "Sheared", 0.8, 0.8, 12.0, normalize=True)
     xf.AddTranslateOp().Set(Gf.Vec3d(-2.0, 2.0, 1.0))
     xf.AddScaleOp().Set(Gf.Vec3f(1.0, 2.5, 1.0))
     xf.AddRotateZOp().Set(35.0)
@@ -74,12 +75,7 @@ def _room(path, sphere_light: bool = False, textured: bool = False):
     if sphere_light:
         UsdLux.SphereLight.Define(stage, "/World/Bulb").CreateIntensityAttr(5.0)
     else:
-        back = UsdLux.RectLight.Define(stage, "/World/Back")
-        back.CreateWidthAttr(1.0)
-        back.CreateHeightAttr(0.6)
-        back.CreateIntensityAttr(8.0)
-        back.CreateColorAttr(Gf.Vec3f(0.4, 0.7, 1.0))
-        xf = UsdGeom.Xformable(back)
+        xf = _rect(stage, "Back", 1.0, 0.6, 8.0, color=(0.4, 0.7, 1.0))
         xf.AddTranslateOp().Set(Gf.Vec3d(1.2, 0.9, -1.2))
         xf.AddRotateYOp().Set(150.0)
     stage.GetRootLayer().Save()
