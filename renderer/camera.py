@@ -8,9 +8,11 @@ this against pxr). Pixel (x, y) has its top-left corner at raster (x, y), raster
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .description import CameraDesc
 from .errors import SettingsError
@@ -61,12 +63,143 @@ class GaussianFilter:
         return lo + (f - i) * (self._inv[i + 1] - lo)
 
 
+def _raster_index(p) -> np.ndarray:
+    """Pixel coordinates (n,) as the kernel takes them: int64, or float64 if given as floats."""
+    p = np.asarray(p)
+    if p.dtype.kind in "iub":
+        return np.ascontiguousarray(p, dtype=np.int64)
+    return np.ascontiguousarray(p, dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class CameraRays:
     o: np.ndarray  # (n, 3)
     d: np.ndarray  # (n, 3) unit
     tmax: np.ndarray  # (n,) far clip distance along d
     tmin: np.ndarray  # (n,) near clip distance along d
+
+
+# --------------------------------------------------------------------------------------
+# Kernel (conventions: renderer/kernels/__init__.py). Camera._generate_numpy is the same
+# computation in numpy, kept as the reference the kernel is tested against; every formula
+# below is written in the same operation order so the two agree to rounding.
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _filter_offset(inv, u):
+    """GaussianFilter.sample for one coordinate: lerp in the tabulated inverse CDF inv."""
+    k = inv.shape[0] - 1
+    # Clamped to [0, 1] like np.clip; NaN goes to 0 rather than to an out-of-bounds index.
+    if not u >= 0.0:
+        u = 0.0
+    elif u > 1.0:
+        u = 1.0
+    f = u * k
+    i = int(f)
+    if i > k - 1:
+        i = k - 1
+    lo = inv[i]
+    return lo + (f - i) * (inv[i + 1] - lo)
+
+
+@njit(cache=True, nogil=True)
+def _generate_kernel(px, py, u_filter, u_lens, inv, window, width, height, orthographic, lens_radius,
+                     focus_distance, near, far, planes, M, o, d, tmin, tmax):
+    """Camera.generate for rows of (px, py) (n,), u_filter, u_lens (n, 2): writes o, d (n, 3),
+    tmin, tmax (n,). window (4,) = (wx0, wx1, wy0, wy1); planes (K, 4) camera-space clipping
+    planes (K may be 0); M (4, 4) camera_to_world."""
+    wx0 = window[0]
+    wx1 = window[1]
+    wy0 = window[2]
+    wy1 = window[3]
+    for i in range(px.shape[0]):
+        rx = px[i] + 0.5 + _filter_offset(inv, u_filter[i, 0])
+        ry = py[i] + 0.5 + _filter_offset(inv, u_filter[i, 1])
+        sx = wx0 + (rx / width) * (wx1 - wx0)
+        sy = wy1 - (ry / height) * (wy1 - wy0)
+        if orthographic:
+            ox = sx
+            oy = sy
+            oz = 0.0
+            dx = 0.0
+            dy = 0.0
+            dz = -1.0
+            t0 = near
+            t1 = far
+        else:
+            # Pinhole direction: the window point (sx, sy, -1) normalised.
+            length = math.sqrt(sx * sx + sy * sy + 1.0)
+            s = length if length > 0.0 else 1.0
+            dx = sx / s
+            dy = sy / s
+            dz = -1.0 / s
+            ox = 0.0
+            oy = 0.0
+            oz = 0.0
+            if lens_radius > 0.0:
+                # Thin lens: a concentric-disk point on the lens (sampling.sample_uniform_disk_concentric),
+                # aimed at where the pinhole ray meets the focus plane.
+                a = 2.0 * u_lens[i, 0] - 1.0
+                b = 2.0 * u_lens[i, 1] - 1.0
+                if abs(a) > abs(b):
+                    r = a
+                    theta = (math.pi / 4.0) * (b / a if a != 0.0 else 0.0)
+                else:
+                    r = b
+                    theta = (math.pi / 2.0) - (math.pi / 4.0) * (a / b if b != 0.0 else 0.0)
+                ox = lens_radius * (r * math.cos(theta))
+                oy = lens_radius * (r * math.sin(theta))
+                ft = focus_distance / -dz
+                qx = dx * ft - ox
+                qy = dy * ft - oy
+                qz = dz * ft
+                length = math.sqrt(qx * qx + qy * qy + qz * qz)
+                s = length if length > 0.0 else 1.0
+                dx = qx / s
+                dy = qy / s
+                dz = qz / s
+            # Clipping planes are perpendicular to the view axis: convert to distances along d.
+            c = -dz
+            if c < 1e-12:
+                c = 1e-12
+            inv_cos = 1.0 / c
+            t0 = near * inv_cos
+            t1 = far * inv_cos
+        # clippingPlanes (Camera._clip): each plane keeps a half-line of t.
+        lo = -np.inf
+        hi = np.inf
+        for j in range(planes.shape[0]):
+            n_dot_d = dx * planes[j, 0] + dy * planes[j, 1] + dz * planes[j, 2]
+            f0 = ox * planes[j, 0] + oy * planes[j, 1] + oz * planes[j, 2] + planes[j, 3]
+            if n_dot_d > 0.0:
+                t_cross = -f0 / n_dot_d
+                if t_cross > lo:
+                    lo = t_cross
+            elif n_dot_d < 0.0:
+                t_cross = -f0 / n_dot_d
+                if t_cross < hi:
+                    hi = t_cross
+            elif n_dot_d == 0.0 and f0 < 0.0:
+                hi = -np.inf  # parallel and outside
+        if planes.shape[0] > 0:
+            if lo > t0:
+                t0 = lo
+            if hi < t1:
+                t1 = hi
+            if t0 > t1:
+                t1 = t0
+        # camera_to_world; world scale in the matrix rescales the clip distances.
+        dwx = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+        dwy = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+        dwz = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+        o[i, 0] = ox * M[0, 0] + oy * M[0, 1] + oz * M[0, 2] + M[0, 3]
+        o[i, 1] = ox * M[1, 0] + oy * M[1, 1] + oz * M[1, 2] + M[1, 3]
+        o[i, 2] = ox * M[2, 0] + oy * M[2, 1] + oz * M[2, 2] + M[2, 3]
+        scale = math.sqrt(dwx * dwx + dwy * dwy + dwz * dwz)
+        d[i, 0] = dwx / scale
+        d[i, 1] = dwy / scale
+        d[i, 2] = dwz / scale
+        tmin[i] = t0 * scale
+        tmax[i] = t1 * scale
 
 
 class Camera:
@@ -129,7 +262,26 @@ class Camera:
         return np.stack([sx, sy, -np.ones_like(sx)], axis=1)
 
     def generate(self, px: np.ndarray, py: np.ndarray, u_filter: np.ndarray, u_lens: np.ndarray) -> CameraRays:
-        """Rays for pixels (px, py) (n,) int with filter and lens random numbers (n, 2) each."""
+        """Rays for pixels (px, py) (n,) int with filter and lens random numbers (n, 2) each.
+
+        One compiled pass (_generate_kernel), clipping planes included; _generate_numpy is the
+        same computation in numpy, the reference the kernel is tested against."""
+        px, py = _raster_index(px), _raster_index(py)
+        n = px.shape[0]
+        o = np.empty((n, 3))
+        d = np.empty((n, 3))
+        tmin = np.empty(n)
+        tmax = np.empty(n)
+        _generate_kernel(px, py, np.ascontiguousarray(u_filter, dtype=np.float64),
+                         np.ascontiguousarray(u_lens, dtype=np.float64), self.filter._inv,
+                         np.array(self.window, dtype=np.float64), float(self.width), float(self.height),
+                         bool(self.orthographic), float(self.lens_radius), float(self.focus_distance),
+                         float(self.near), float(self.far), np.ascontiguousarray(self.clip_planes, dtype=np.float64),
+                         np.ascontiguousarray(self.camera_to_world, dtype=np.float64), o, d, tmin, tmax)
+        return CameraRays(o=o, d=d, tmax=tmax, tmin=tmin)
+
+    def _generate_numpy(self, px: np.ndarray, py: np.ndarray, u_filter: np.ndarray, u_lens: np.ndarray) -> CameraRays:
+        """generate in numpy: the reference for _generate_kernel (tests only)."""
         off = self.filter.sample(u_filter)
         rx = px + 0.5 + off[:, 0]
         ry = py + 0.5 + off[:, 1]

@@ -19,9 +19,45 @@ import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 
 _F32_MAX = float(np.finfo(np.float32).max)
+
+
+@njit(cache=True, nogil=True)
+def _add_kernel(rows, L, flat_sum, flat_sq, flat_n):
+    """Film.add in one pass (conventions: renderer/kernels/__init__.py): rows (n,) flat pixel
+    indices (negative ones count from the end, as in numpy), L (n, 3); adds each finite row of L
+    to flat_sum (m, 3), its square to flat_sq and 1 to flat_n (m,), one row after another, so
+    repeated rows accumulate (np.add.at semantics). Returns (nonfinite rows dropped, negative
+    rows kept), or (-1, -1) with nothing added when an index is out of range."""
+    m = flat_n.shape[0]
+    for i in range(rows.shape[0]):  # validate first: an IndexError must leave the film untouched
+        if rows[i] < -m or rows[i] >= m:
+            return -1, -1
+    dropped = 0
+    negative = 0
+    for i in range(rows.shape[0]):
+        r = L[i, 0]
+        g = L[i, 1]
+        b = L[i, 2]
+        if not (np.isfinite(r) and np.isfinite(g) and np.isfinite(b)):
+            dropped += 1
+            continue
+        if r < 0.0 or g < 0.0 or b < 0.0:
+            negative += 1
+        k = rows[i]
+        if k < 0:
+            k += m
+        flat_sum[k, 0] += r
+        flat_sum[k, 1] += g
+        flat_sum[k, 2] += b
+        flat_sq[k, 0] += r * r
+        flat_sq[k, 1] += g * g
+        flat_sq[k, 2] += b * b
+        flat_n[k] += 1
+    return dropped, negative
 
 
 @dataclass
@@ -63,9 +99,30 @@ class Film:
     def add(self, rows: np.ndarray, L: np.ndarray, unique: bool = True) -> None:
         """Add one sample per entry: rows (n,) flat data-window pixel indices, L (n, 3) radiance.
 
-        unique: rows hold no repeats (one sample per pixel, the progressive case), which allows
-        plain fancy-index adds instead of the slower unbuffered np.add.at.
+        unique: rows hold no repeats (one sample per pixel, the progressive case). The compiled
+        pass (_add_kernel) adds rows one after another, so repeats accumulate either way (the
+        np.add.at semantics unique=False asks for); the flag is kept for callers' intent.
         """
+        rows = np.asarray(rows)
+        L = np.asarray(L)
+        # float64 L only: float32 would square in float32 in numpy; other inputs take the numpy path.
+        if rows.ndim == 1 and rows.dtype.kind == "i" and L.dtype == np.float64 and L.shape == (rows.shape[0], 3):
+            flat_sum = self.sum.reshape(-1, 3)
+            flat_sq = self.sum_sq.reshape(-1, 3)
+            flat_n = self.count.reshape(-1)
+            if (flat_sum.flags.c_contiguous and flat_sq.flags.c_contiguous and flat_n.flags.c_contiguous
+                    and flat_sum.dtype == np.float64 and flat_sq.dtype == np.float64 and flat_n.dtype == np.int64):
+                dropped, negative = _add_kernel(np.ascontiguousarray(rows, dtype=np.int64),
+                                                np.ascontiguousarray(L), flat_sum, flat_sq, flat_n)
+                if dropped < 0:
+                    raise IndexError(f"film rows out of range [0, {flat_n.shape[0]})")
+                self.nonfinite_dropped += int(dropped)
+                self.negative_samples += int(negative)
+                return
+        self._add_numpy(rows, L, unique)
+
+    def _add_numpy(self, rows: np.ndarray, L: np.ndarray, unique: bool = True) -> None:
+        """add in numpy, for inputs the kernel does not take (and the reference it is tested against)."""
         ok = np.all(np.isfinite(L), axis=1)
         bad = int((~ok).sum())
         if bad:

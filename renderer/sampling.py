@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 INV_PI = 1.0 / np.pi
 INV_2PI = 0.5 / np.pi
@@ -283,9 +284,20 @@ def _sobol2(k: int) -> tuple[int, int]:
     return x, y
 
 
+def _seed_key(seed: int) -> np.uint64:
+    """The seed's term of pixel_sequence's hash keys, wrapped to 64 bits in Python ints (a numpy
+    uint64 scalar product would warn when it wraps, an error under the tests' filterwarnings)."""
+    return np.uint64(((seed & 0xFFFFFFFF) * 0x100000001B3) & 0xFFFFFFFFFFFFFFFF)
+
+
+def _hash_increment(stream: int) -> np.uint64:
+    """The splitmix64 key offset of random stream ``stream`` (a multiple of the golden ratio)."""
+    return np.uint64((0x9E3779B97F4A7C15 * (stream + 1)) & 0xFFFFFFFFFFFFFFFF)
+
+
 def _hash_bits(keys: np.ndarray, stream: int) -> np.ndarray:
     """Deterministic 64 random bits per uint64 key (splitmix64 finaliser)."""
-    z = keys.astype(np.uint64) + np.uint64((0x9E3779B97F4A7C15 * (stream + 1)) & 0xFFFFFFFFFFFFFFFF)
+    z = keys.astype(np.uint64) + _hash_increment(stream)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
     return z ^ (z >> np.uint64(31))
@@ -301,7 +313,45 @@ def pixel_sequence(seed: int, pixel: np.ndarray, index: int) -> np.ndarray:
     emitter (a firefly of hundreds of nits) covers part of a pixel. Only the filter uses it: a
     second sequence for the lens, indexed alike, would be correlated with the first.
     """
-    keys = np.asarray(pixel, dtype=np.uint64) * np.uint64(4) + np.uint64(seed & 0xFFFFFFFF) * np.uint64(0x100000001B3)
+    p = np.asarray(pixel)
     x, y = _sobol2(int(index))
+    if p.ndim != 1 or p.dtype.kind not in "iu":
+        return _pixel_sequence_numpy(seed, p, x, y)
+    p = np.ascontiguousarray(p.astype(np.uint64, copy=False)).view(np.int64)  # two's complement bits
+    out = np.empty((p.shape[0], 2))
+    _pixel_sequence_kernel(p, _seed_key(seed),
+                           _hash_increment(0), _hash_increment(1), np.uint64(x), np.uint64(y), out)
+    return out
+
+
+def _pixel_sequence_numpy(seed: int, pixel: np.ndarray, x: int, y: int) -> np.ndarray:
+    """pixel_sequence in numpy for pixels of any shape (...,) -> (..., 2), given the Sobol' point (x, y)."""
+    keys = np.asarray(pixel, dtype=np.uint64) * np.uint64(4) + _seed_key(seed)
     scrambled = [(_hash_bits(keys, axis) >> np.uint64(32)) ^ np.uint64(bits) for axis, bits in enumerate((x, y))]
-    return np.stack(scrambled, axis=1).astype(np.float64) * (1.0 / 4294967296.0)
+    return np.stack(scrambled, axis=-1).astype(np.float64) * (1.0 / 4294967296.0)
+
+
+@njit(cache=True, nogil=True)
+def _pixel_sequence_kernel(pixel, seed_key, inc0, inc1, x, y, out):
+    """pixel_sequence in one pass (conventions: renderer/kernels/__init__.py): pixel (n,) int64
+    bits of the uint64 keys, seed_key the seed's key term, inc0/inc1 _hash_bits' increments for
+    streams 0 and 1, (x, y) the Sobol' point; writes out (n, 2). All integer maths in uint64
+    (mixed with int64, numba would promote to float64)."""
+    m1 = np.uint64(0xBF58476D1CE4E5B9)
+    m2 = np.uint64(0x94D049BB133111EB)
+    s27 = np.uint64(27)
+    s30 = np.uint64(30)
+    s31 = np.uint64(31)
+    s32 = np.uint64(32)
+    for i in range(pixel.shape[0]):
+        key = np.uint64(pixel[i]) * np.uint64(4) + seed_key
+        z = key + inc0
+        z = (z ^ (z >> s30)) * m1
+        z = (z ^ (z >> s27)) * m2
+        z = z ^ (z >> s31)
+        out[i, 0] = np.float64((z >> s32) ^ x) * (1.0 / 4294967296.0)
+        z = key + inc1
+        z = (z ^ (z >> s30)) * m1
+        z = (z ^ (z >> s27)) * m2
+        z = z ^ (z >> s31)
+        out[i, 1] = np.float64((z >> s32) ^ y) * (1.0 / 4294967296.0)
