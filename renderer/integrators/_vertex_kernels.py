@@ -31,7 +31,9 @@ from renderer.bsdfs._preview_kernels import (
 )
 from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
-from renderer.kernels.lights import _rect_hit, _rect_pdf_row, _rect_sample_row, _row
+from renderer.kernels.lights import (
+    _rect_hit, _rect_pdf_row, _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row,
+)
 
 _INV_PI = 1.0 / math.pi
 
@@ -56,8 +58,8 @@ U_LIGHT = 4
 def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U,
     vertices, face_normal, normals, tri_mat, Pm, ta, tb,
-    center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, power,
-    min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
+    center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
+    s_center, s_radius, s_radiance, s_delta, sphere_light, power, min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
     """One bounce for n live rays (see the module docstring).
@@ -66,14 +68,16 @@ def vertex_kernel(
     bool (camera rays: emission counts fully; all others carry continuation MIS for every
     light); hit_*: embree's closest hits as Accel.intersect_prepared gives them (float32 t, u,
     v; int32 prim, -1 on a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows;
-    light tables: the RectLight arrays (all lights untextured, global = local index); power:
-    (lights,) bool heuristic. L (m, 3) receives emission in place. Next rays go to n_path,
+    light tables: the RectLight arrays (all untextured) and the SphereLight arrays (s_*), with
+    rect_light / sphere_light (count,) the global light index of each (which picks the light's
+    uniforms in U and its power flag); power: (lights,) bool heuristic. L (m, 3) receives emission in place. Next rays go to n_path,
     n_depth, n_S and, in embree's float32 format, n_o32, n_d32, n_t32 (capacity n); shadow rays
     to sh_o, sh_d, sh_t (float32), sh_path, sh_c (capacity n * lights), sh_c (k, 3) being the
     radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]: how
     many vertices scattered (took the light half).
     """
-    nl = center.shape[0]
+    n_rect = center.shape[0]
+    nl = n_rect + s_center.shape[0]
     k_next = 0
     k_sh = 0
     n_vertices = 0
@@ -88,24 +92,40 @@ def vertex_kernel(
         t_hit = float(hit_t[r]) if k >= 0 else math.inf
         t_geo = min(t_hit, S[r, TMAX])
         # ---- emission of the lights crossed before the surface (lights are transparent) ----
-        for j in range(nl):
-            tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
-            if not (hit and tl < t_geo):
+        for g in range(nl):
+            if g < n_rect:
+                j = g
+                tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
+                # The back of a one-sided light emits nothing.
+                front = -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) > 0.0
+                gl = rect_light[j]
+                Le = _row(radiance, j)
+            else:
+                j = g - n_rect
+                tl = _sphere_hit_row(o, d, _row(s_center, j), s_radius[j], s_delta[j])
+                hit = tl < math.inf
+                # Outward emission only: a ray leaving the sphere's inside sees nothing.
+                front = -((o[0] + tl * d[0] - s_center[j, 0]) * d[0] + (o[1] + tl * d[1] - s_center[j, 1]) * d[1]
+                          + (o[2] + tl * d[2] - s_center[j, 2]) * d[2]) > 0.0 if hit else False
+                gl = sphere_light[j]
+                Le = _row(s_radiance, j)
+            if not (hit and tl < t_geo and front):
                 continue
-            if -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) <= 0.0:
-                continue  # the back of a one-sided light
             if unsampled[r]:
                 w = 1.0
             else:
                 # h(p_b, p_l): p_l from the vertex the ray left, as the light half there used.
                 pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
-                p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
-                                    _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
-                                    edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
-                w = _mis_weight(S[r, PB], p_l, power[j])
-            L[pr_path, 0] += b0 * radiance[j, 0] * w
-            L[pr_path, 1] += b1 * radiance[j, 1] * w
-            L[pr_path, 2] += b2 * radiance[j, 2] * w
+                if g < n_rect:
+                    p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
+                                        _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
+                                        edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
+                else:
+                    p_l = _sphere_pdf_row(pv, d, _row(s_center, j), s_radius[j], s_delta[j])
+                w = _mis_weight(S[r, PB], p_l, power[gl])
+            L[pr_path, 0] += b0 * Le[0] * w
+            L[pr_path, 1] += b1 * Le[1] * w
+            L[pr_path, 2] += b2 * Le[2] * w
         if k < 0 or depth[r] >= max_depth:
             continue
         n_vertices += 1
@@ -134,11 +154,24 @@ def vertex_kernel(
         mag = max(max(abs(px), abs(py)), abs(pz))
         eps = eps_rel * max(mag, eps_floor) + eps_add
         # ---- the light half of continuation MIS, every light (the exhaustive sampler) ------
-        for j in range(nl):
-            wi, dist, pdf_l, _pl, ok = _rect_sample_row(
-                (px, py, pz), U[r, U_LIGHT + 2 * j], U[r, U_LIGHT + 2 * j + 1], _row(center, j), _row(ex, j),
-                _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0], edge_len[j, 1], _row(nrm, j),
-                area[j], False, is_rect[j], 0.0, 0.0, 0.0, min_sa, graz)
+        for g in range(nl):
+            if g < n_rect:
+                j = g
+                gl = rect_light[j]
+                wi, dist, pdf_l, _pl, ok = _rect_sample_row(
+                    (px, py, pz), U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], _row(center, j),
+                    _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0], edge_len[j, 1],
+                    _row(nrm, j), area[j], False, is_rect[j], 0.0, 0.0, 0.0, min_sa, graz)
+                Le = _row(radiance, j)
+                delta = False
+            else:
+                j = g - n_rect
+                gl = sphere_light[j]
+                wi, dist, pdf_l, _pl, ok, l_scale = _sphere_sample_row(
+                    (px, py, pz), U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], _row(s_center, j),
+                    s_radius[j], s_delta[j])
+                Le = (s_radiance[j, 0] * l_scale, s_radiance[j, 1] * l_scale, s_radiance[j, 2] * l_scale)
+                delta = s_delta[j]
             if not ok or not math.isfinite(pdf_l):
                 continue
             wx = wi[0] * s[0] + wi[1] * s[1] + wi[2] * s[2]
@@ -152,10 +185,11 @@ def vertex_kernel(
                 continue
             ai, bi = _lookup(wz, j0, fy, ta, tb)
             p_b = p_d * wz * _INV_PI + (1.0 - p_d) * pdf_s
-            kk = wz * _mis_weight(pdf_l, p_b, power[j]) / pdf_l
-            c0 = b0 * _f_channel(Pm, m, 0, ao, bo, ai, bi, fw, dv) * radiance[j, 0] * kk
-            c1 = b1 * _f_channel(Pm, m, 1, ao, bo, ai, bi, fw, dv) * radiance[j, 1] * kk
-            c2 = b2 * _f_channel(Pm, m, 2, ao, bo, ai, bi, fw, dv) * radiance[j, 2] * kk
+            # A delta light (treatAsPoint) takes the whole weight, and its p_l counts as 1.
+            kk = wz if delta else wz * _mis_weight(pdf_l, p_b, power[gl]) / pdf_l
+            c0 = b0 * _f_channel(Pm, m, 0, ao, bo, ai, bi, fw, dv) * Le[0] * kk
+            c1 = b1 * _f_channel(Pm, m, 1, ao, bo, ai, bi, fw, dv) * Le[1] * kk
+            c2 = b2 * _f_channel(Pm, m, 2, ao, bo, ai, bi, fw, dv) * Le[2] * kk
             if not (c0 > 0.0 or c1 > 0.0 or c2 > 0.0):
                 continue
             side = eps if cos_g >= 0.0 else -eps

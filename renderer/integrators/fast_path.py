@@ -7,9 +7,9 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 z-test the two against each other and render with each on the same stages.
 
 A scene qualifies when it has
-* only RectLights, untextured, without ShapingAPI, ShadowAPI or light linking, with unit
-  diffuse/specular multipliers, few enough for the exhaustive light sampler (every light at
-  every vertex, pmf 1);
+* only RectLights (untextured) and SphereLights (treatAsPoint included), without ShapingAPI,
+  ShadowAPI or light linking, with unit diffuse/specular multipliers, few enough for the
+  exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
 * UsdPreviewSurface materials without textures, cutouts or emission (one packed BSDF row per
@@ -42,8 +42,8 @@ def fast_path_reason(integ) -> str:
     if not integ.has_lights:
         return "no lights"
     rect = KIND_NAMES.index("rect")
-    if not np.all(lights.kind_of == rect):
-        return "a light other than a RectLight"
+    if not np.all((lights.kind_of == rect) | (lights.kind_of == KIND_NAMES.index("sphere"))):
+        return "a light other than a RectLight or SphereLight"
     rl = lights.kinds[rect]
     if np.any(rl.tex >= 0):
         return "a textured RectLight"
@@ -75,6 +75,10 @@ class FastPath:
         scene = integ.scene
         lights = integ.lights
         self.rect = lights.kinds[KIND_NAMES.index("rect")]
+        self.sphere = lights.kinds[KIND_NAMES.index("sphere")]
+        # The global index of each rect and sphere light (their uniforms and power flags).
+        self.rect_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("rect"))[0], np.int64)
+        self.sphere_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("sphere"))[0], np.int64)
         self.Pm, self.ta, self.tb = scene.materials.packed_bsdf()
         g = scene.geometry
         self.geo = (np.ascontiguousarray(g.vertices, dtype=np.float64), np.ascontiguousarray(g.face_normal, dtype=np.float64),
@@ -90,8 +94,8 @@ class FastPath:
         qualifying scene, with emit0 = 1."""
         integ = self.integ
         accel = integ.scene.accel
-        rl = self.rect
-        nl = rl.count
+        rl, sl = self.rect, self.sphere
+        nl = rl.count + sl.count
         m = o.shape[0]
         L = np.zeros((m, 3))
         path = np.arange(m, dtype=np.int64)
@@ -130,7 +134,8 @@ class FastPath:
             vk.vertex_kernel(
                 path, depth, unsampled, S, t32, prim, b1, b2, U, *self.geo, self.Pm, self.ta, self.tb,
                 rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
-                rl.ex_dual, rl.ey_dual, self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
+                rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
+                self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
                 eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t,
                 sh_path, sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])

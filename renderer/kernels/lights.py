@@ -566,95 +566,103 @@ def _sphere_cone(p, c, r, delta):
 
 
 @njit(cache=True, nogil=True)
+def _sphere_sample_row(pr, u0, u1, c, r, delta_i):
+    """One row of SphereLight.sample_li from pr: (wi, dist, pdf, pl, ok, l_scale), the radiance
+    being l_scale times the light's. Uniform cone sampling mapped to the visible sphere point;
+    a delta (treatAsPoint) light returns its centre with pdf 1 and l_scale pi r^2 / d^2."""
+    w_c, dc, sin2_max, omc, cos_max, ok = _sphere_cone(pr, c, r, delta_i)
+    if delta_i:
+        good = dc > 0.0
+        inv_d2 = 1.0 / (dc * dc) if good else 0.0
+        return w_c, dc, (1.0 if good else 0.0), c, good, _PI * r * r * inv_d2
+    x = u0 * omc
+    cos_t = 1.0 - x
+    # sin^2 theta = x (2 - x) and x = u0 sin^2 theta_max / (1 + cos theta_max), so
+    # ratio2 = sin^2 theta / sin^2 theta_max = u0 (2 - x) / (1 + cos theta_max) without a
+    # division by sin^2 theta_max (one division fewer on the critical path), and
+    # ratio = sin^2 theta / sin theta_max = ratio2 sin theta_max.
+    ratio2 = u0 * (2.0 - x) / (1.0 + cos_max)
+    ratio = ratio2 * math.sqrt(sin2_max)
+    cos_a = _clip(ratio + cos_t * math.sqrt(max(0.0, 1.0 - ratio2)), -1.0, 1.0)
+    sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
+    phi = 2.0 * _PI * u1
+    # geometry.coordinate_frame(w_c) (Duff et al. 2017).
+    sign = 1.0 if w_c[2] >= 0.0 else -1.0
+    fa = -1.0 / (sign + w_c[2])
+    fb = w_c[0] * w_c[1] * fa
+    s = (1.0 + sign * w_c[0] * w_c[0] * fa, sign * fb, -sign * w_c[0])
+    t = (fb, sign + w_c[1] * w_c[1] * fa, -w_c[1])
+    ks = sin_a * math.cos(phi)
+    kt = sin_a * math.sin(phi)
+    n_s = _add(_add(_scale(-cos_a, w_c), _scale(ks, s)), _scale(kt, t))
+    pl = _add(c, _scale(r, n_s))
+    wi, dist = _dir_dist(pr, pl)
+    den = _TWO_PI * omc
+    pdf = 1.0 / den if (ok and omc > 0.0) else 0.0
+    ok = ok and pdf > 0.0 and dist > 0.0
+    return wi, dist, (pdf if ok else 0.0), pl, ok, 1.0
+
+
+@njit(cache=True, nogil=True)
 def sphere_sample_kernel(
     idx, p, u, center, radius, radiance, delta, out_L, out_wi, out_pdf, out_dist, out_pl,
 ):
-    """SphereLight.sample_li: uniform cone sampling mapped to the visible sphere point; delta
-    (treatAsPoint) rows return the centre with pdf 1 and L pi r^2 / d^2."""
+    """SphereLight.sample_li (_sphere_sample_row per row)."""
     for row in range(idx.shape[0]):
         i = idx[row]
-        pr = _row(p, row)
-        c = _row(center, i)
-        r = radius[i]
-        w_c, dc, sin2_max, omc, cos_max, ok = _sphere_cone(pr, c, r, delta[i])
-        if delta[i]:
-            good = dc > 0.0
-            inv_d2 = 1.0 / (dc * dc) if good else 0.0
-            k = _PI * r * r * inv_d2
-            for j in range(3):
-                out_L[row, j] = radiance[i, j] * k if good else 0.0
-            _put(out_wi, row, w_c)
-            out_dist[row] = dc
-            _put(out_pl, row, c)
-            out_pdf[row] = 1.0 if good else 0.0
-            continue
-        x = u[row, 0] * omc
-        cos_t = 1.0 - x
-        # sin^2 theta = x (2 - x) and x = u0 sin^2 theta_max / (1 + cos theta_max), so
-        # ratio2 = sin^2 theta / sin^2 theta_max = u0 (2 - x) / (1 + cos theta_max) without a
-        # division by sin^2 theta_max (one division fewer on the critical path), and
-        # ratio = sin^2 theta / sin theta_max = ratio2 sin theta_max.
-        ratio2 = u[row, 0] * (2.0 - x) / (1.0 + cos_max)
-        ratio = ratio2 * math.sqrt(sin2_max)
-        cos_a = _clip(ratio + cos_t * math.sqrt(max(0.0, 1.0 - ratio2)), -1.0, 1.0)
-        sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
-        phi = 2.0 * _PI * u[row, 1]
-        # geometry.coordinate_frame(w_c) (Duff et al. 2017).
-        sign = 1.0 if w_c[2] >= 0.0 else -1.0
-        fa = -1.0 / (sign + w_c[2])
-        fb = w_c[0] * w_c[1] * fa
-        s = (1.0 + sign * w_c[0] * w_c[0] * fa, sign * fb, -sign * w_c[0])
-        t = (fb, sign + w_c[1] * w_c[1] * fa, -w_c[1])
-        ks = sin_a * math.cos(phi)
-        kt = sin_a * math.sin(phi)
-        n_s = _add(_add(_scale(-cos_a, w_c), _scale(ks, s)), _scale(kt, t))
-        pl = _add(c, _scale(r, n_s))
-        wi, dist = _dir_dist(pr, pl)
-        den = _TWO_PI * omc
-        pdf = 1.0 / den if (ok and omc > 0.0) else 0.0
-        ok = ok and pdf > 0.0 and dist > 0.0
-        out_pdf[row] = pdf if ok else 0.0
+        wi, dist, pdf, pl, ok, l_scale = _sphere_sample_row(_row(p, row), u[row, 0], u[row, 1], _row(center, i),
+                                                            radius[i], delta[i])
         for j in range(3):
-            out_L[row, j] = radiance[i, j] if ok else 0.0
+            out_L[row, j] = radiance[i, j] * l_scale if ok else 0.0
         _put(out_wi, row, wi)
         out_dist[row] = dist
         _put(out_pl, row, pl)
+        out_pdf[row] = pdf
+
+
+@njit(cache=True, nogil=True)
+def _sphere_pdf_row(pr, w, c, r, delta_i):
+    """One row of SphereLight.pdf_li: 1 / (2 pi (1 - cos theta_max)) inside the cone, else 0."""
+    w_c, dc, sin2_max, omc, _, ok = _sphere_cone(pr, c, r, delta_i)
+    # sin^2 of the angle between wi and w_c, accurate for tiny cones (no 1 - cos).
+    cr = _cross(w, w_c)
+    sin2 = _dot(cr, cr)
+    ok = ok and _dot(w, w_c) > 0.0 and sin2 <= sin2_max * (1.0 + 1e-9)
+    return 1.0 / (_TWO_PI * omc) if (ok and omc > 0.0) else 0.0
 
 
 @njit(cache=True, nogil=True)
 def sphere_pdf_kernel(idx, p, wi, center, radius, delta, out_pdf):
-    """SphereLight.pdf_li: 1 / (2 pi (1 - cos theta_max)) inside the cone, else 0."""
+    """SphereLight.pdf_li (_sphere_pdf_row per row)."""
     for row in range(idx.shape[0]):
         i = idx[row]
-        w = _row(wi, row)
-        w_c, dc, sin2_max, omc, _, ok = _sphere_cone(_row(p, row), _row(center, i), radius[i], delta[i])
-        # sin^2 of the angle between wi and w_c, accurate for tiny cones (no 1 - cos).
-        cr = _cross(w, w_c)
-        sin2 = _dot(cr, cr)
-        ok = ok and _dot(w, w_c) > 0.0 and sin2 <= sin2_max * (1.0 + 1e-9)
-        out_pdf[row] = 1.0 / (_TWO_PI * omc) if (ok and omc > 0.0) else 0.0
+        out_pdf[row] = _sphere_pdf_row(_row(p, row), _row(wi, row), _row(center, i), radius[i], delta[i])
+
+
+@njit(cache=True, nogil=True)
+def _sphere_hit_row(o, dr, c, r, delta_i):
+    """One row of SphereLight.intersect: first t > 0 (inner hits included), inf on a miss or
+    for points."""
+    oc = _sub(o, c)
+    b = _dot(oc, dr)
+    # Discriminant from the perpendicular offset (better conditioned than b^2 - c).
+    perp = _sub(oc, _scale(b, dr))
+    disc = r * r - _dot(perp, perp)
+    if not (disc >= 0.0 and not delta_i and r > 0.0):
+        return math.inf
+    sq = math.sqrt(max(disc, 0.0))
+    cc = _dot(oc, oc) - r * r
+    q = -b - math.copysign(sq, b)
+    t0 = cc / q if q != 0.0 else math.inf
+    t1 = q
+    tn = min(t0, t1)
+    tf = max(t0, t1)
+    return tn if tn > 0.0 else (tf if tf > 0.0 else math.inf)
 
 
 @njit(cache=True, nogil=True)
 def sphere_hit_kernel(idx, o, d, center, radius, delta, out_t):
-    """SphereLight.intersect: first t > 0 (inner hits included), inf on a miss or for points."""
+    """SphereLight.intersect (_sphere_hit_row per row)."""
     for row in range(idx.shape[0]):
         i = idx[row]
-        dr = _row(d, row)
-        oc = _sub(_row(o, row), _row(center, i))
-        r = radius[i]
-        b = _dot(oc, dr)
-        # Discriminant from the perpendicular offset (better conditioned than b^2 - c).
-        perp = _sub(oc, _scale(b, dr))
-        disc = r * r - _dot(perp, perp)
-        if not (disc >= 0.0 and not delta[i] and r > 0.0):
-            out_t[row] = math.inf
-            continue
-        sq = math.sqrt(max(disc, 0.0))
-        cc = _dot(oc, oc) - r * r
-        q = -b - math.copysign(sq, b)
-        t0 = cc / q if q != 0.0 else math.inf
-        t1 = q
-        tn = min(t0, t1)
-        tf = max(t0, t1)
-        out_t[row] = tn if tn > 0.0 else (tf if tf > 0.0 else math.inf)
+        out_t[row] = _sphere_hit_row(_row(o, row), _row(d, row), _row(center, i), radius[i], delta[i])

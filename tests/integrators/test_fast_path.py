@@ -2,7 +2,7 @@
 integrator estimates.
 
 A rect-lit room (a tilted, a sheared and a partly hidden light; diffuse, glossy and metallic
-materials) is rendered with the fast path and with ``fast_path=False``, and the image means are
+materials), with and without a sphere light and a point light (treatAsPoint), is rendered with the fast path and with ``fast_path=False``, and the image means are
 compared: over the whole image and in 16 blocks, z-tested with each film's own per-pixel
 variance of the mean. Depth 2 checks the one place the two differ in the order of work (the
 last vertex), depth 5 with roulette from depth 1 the rest. A 5 % error in the fast path must
@@ -33,7 +33,7 @@ def _rect(stage, name, width, height, intensity, normalize=False, color=(1.0, 1.
     return UsdGeom.Xformable(light)
 
 
-def _room(path, sphere_light: bool = False, textured: bool = False):
+def _room(path, spheres: bool = False, dome: bool = False, textured: bool = False):
     stage = new_stage(path)
     add_camera(stage, pos=(0, 1.4, 5.5))
     add_settings(stage, (48, 36))
@@ -72,12 +72,23 @@ def _room(path, sphere_light: bool = False, textured: bool = False):
     xf.AddScaleOp().Set(Gf.Vec3f(1.0, 2.5, 1.0))
     xf.AddRotateZOp().Set(35.0)
     xf.AddRotateXOp().Set(-60.0)
-    if sphere_light:
-        UsdLux.SphereLight.Define(stage, "/World/Bulb").CreateIntensityAttr(5.0)
-    else:
-        xf = _rect(stage, "Back", 1.0, 0.6, 8.0, color=(0.4, 0.7, 1.0))
-        xf.AddTranslateOp().Set(Gf.Vec3d(1.2, 0.9, -1.2))
-        xf.AddRotateYOp().Set(150.0)
+    xf = _rect(stage, "Back", 1.0, 0.6, 8.0, color=(0.4, 0.7, 1.0))
+    xf.AddTranslateOp().Set(Gf.Vec3d(1.2, 0.9, -1.2))
+    xf.AddRotateYOp().Set(150.0)
+    if spheres:
+        # A sphere the camera and the continuation rays see, and a point light (treatAsPoint).
+        bulb = UsdLux.SphereLight.Define(stage, "/World/Bulb")
+        bulb.CreateRadiusAttr(0.35)
+        bulb.CreateIntensityAttr(6.0)
+        bulb.CreateColorAttr(Gf.Vec3f(1.0, 0.8, 0.5))
+        UsdGeom.Xformable(bulb).AddTranslateOp().Set(Gf.Vec3d(-0.4, 1.9, 0.2))
+        point = UsdLux.SphereLight.Define(stage, "/World/Point")
+        point.CreateRadiusAttr(0.05)
+        point.CreateTreatAsPointAttr(True)
+        point.CreateIntensityAttr(400.0)
+        UsdGeom.Xformable(point).AddTranslateOp().Set(Gf.Vec3d(1.8, 2.5, 1.5))
+    if dome:
+        UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.2)
     stage.GetRootLayer().Save()
 
 
@@ -102,10 +113,10 @@ def _pair(stage, max_depth, spp, rr_depth=3):
     return fast, slow
 
 
-@pytest.mark.parametrize("max_depth", [2, 5])
-def test_fast_path_matches_general_path(tmp_path, max_depth):
+@pytest.mark.parametrize("max_depth,spheres", [(2, False), (5, False), (2, True), (5, True)])
+def test_fast_path_matches_general_path(tmp_path, max_depth, spheres):
     stage = tmp_path / "room.usda"
-    _room(stage)
+    _room(stage, spheres=spheres)
     # Roulette from the first bounce, so the fast path's roulette is exercised at depth 5.
     fast, slow = _pair(stage, max_depth, spp=256, rr_depth=1)
     assert fast.stats["fast_path"] == "on"
@@ -134,7 +145,7 @@ def test_fast_path_on_the_cornell_box():
 
 
 @pytest.mark.parametrize("kw,opt,reason", [
-    ({"sphere_light": True}, {}, "a light other than a RectLight"),
+    ({"dome": True}, {}, "a light other than a RectLight or SphereLight"),
     ({"textured": True}, {}, "textured, emissive or cut-out materials"),
     ({}, {"max_depth": 1}, "max depth <= 1"),
     ({}, {"emitter_samples": 2}, "emitter samples > 1"),
