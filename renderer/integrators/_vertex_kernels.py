@@ -9,10 +9,10 @@ and Russian roulette. It writes the shadow rays and the next bounce's rays compa
 only calls embree and adds the unblocked shadow contributions.
 
 The maths is not restated here: it calls the per-row helpers of the surface interaction
-(renderer/geometry.py), the rect light (renderer/kernels/lights.py) and the BSDF
-(renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels use. numba's on-disk cache is keyed on this file only, so
-``guard_cache`` (renderer/kernels/__init__.py) flushes this file's cache whenever any of the
-files it inlines from changes.
+(renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py) and the BSDF
+(renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels use. numba's
+on-disk cache is keyed on this file only, so ``guard_cache`` (renderer/kernels/__init__.py) flushes
+this file's cache whenever any of the files it inlines from changes.
 
 Shapes: n live rays; S (n, 20) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
 ``D`` (unit direction), ``TMAX``, ``PP``/``PNG``/``PNS`` (the previous vertex's point, geometric
@@ -32,7 +32,8 @@ from renderer.bsdfs._preview_kernels import (
 from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
-    _rect_hit, _rect_pdf_row, _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row,
+    _disk_hit, _disk_pdf_row, _disk_sample_row, _rect_hit, _rect_pdf_row, _rect_sample_row, _row, _sphere_hit_row,
+    _sphere_pdf_row, _sphere_sample_row,
 )
 
 _INV_PI = 1.0 / math.pi
@@ -59,25 +60,28 @@ def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U,
     vertices, face_normal, normals, tri_mat, Pm, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
-    s_center, s_radius, s_radiance, s_delta, sphere_light, power, min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
+    s_center, s_radius, s_radiance, s_delta, sphere_light,
+    d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
+    power, min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
     """One bounce for n live rays (see the module docstring).
 
-    path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,)
-    bool (camera rays: emission counts fully; all others carry continuation MIS for every
-    light); hit_*: embree's closest hits as Accel.intersect_prepared gives them (float32 t, u,
-    v; int32 prim, -1 on a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows;
-    light tables: the RectLight arrays (all untextured) and the SphereLight arrays (s_*), with
-    rect_light / sphere_light (count,) the global light index of each (which picks the light's
-    uniforms in U and its power flag); power: (lights,) bool heuristic. L (m, 3) receives emission in place. Next rays go to n_path,
-    n_depth, n_S and, in embree's float32 format, n_o32, n_d32, n_t32 (capacity n); shadow rays
-    to sh_o, sh_d, sh_t (float32), sh_path, sh_c (capacity n * lights), sh_c (k, 3) being the
-    radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]: how
-    many vertices scattered (took the light half).
+    path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
+    (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
+    embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
+    a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows; light tables: the
+    RectLight arrays (all untextured), the SphereLight arrays (s_*) and the DiskLight arrays (d_*),
+    with rect_light / sphere_light / disk_light (count,) the global light index of each (which picks
+    the light's uniforms in U and its power flag); power: (lights,) bool heuristic. L (m, 3)
+    receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
+    format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
+    sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
+    counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
     """
     n_rect = center.shape[0]
-    nl = n_rect + s_center.shape[0]
+    n_rs = n_rect + s_center.shape[0]  # rect lights, then sphere lights, then disk lights
+    nl = n_rs + d_center.shape[0]
     k_next = 0
     k_sh = 0
     n_vertices = 0
@@ -100,6 +104,13 @@ def vertex_kernel(
                 front = -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) > 0.0
                 gl = rect_light[j]
                 Le = _row(radiance, j)
+            elif g >= n_rs:
+                j = g - n_rs
+                tl, hit = _disk_hit(o, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), d_s1[j],
+                                    d_s2[j])
+                front = -(d[0] * d_nrm[j, 0] + d[1] * d_nrm[j, 1] + d[2] * d_nrm[j, 2]) > 0.0
+                gl = disk_light[j]
+                Le = _row(d_radiance, j)
             else:
                 j = g - n_rect
                 tl = _sphere_hit_row(o, d, _row(s_center, j), s_radius[j], s_delta[j])
@@ -120,6 +131,10 @@ def vertex_kernel(
                     p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
                                         _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
                                         edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
+                elif g >= n_rs:
+                    p_l = _disk_pdf_row(pv, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j),
+                                        _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j], d_area[j], close_ratio,
+                                        min_sa, graz)
                 else:
                     p_l = _sphere_pdf_row(pv, d, _row(s_center, j), s_radius[j], s_delta[j])
                 w = _mis_weight(S[r, PB], p_l, power[gl])
@@ -163,6 +178,15 @@ def vertex_kernel(
                     _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0], edge_len[j, 1],
                     _row(nrm, j), area[j], False, is_rect[j], 0.0, 0.0, 0.0, min_sa, graz)
                 Le = _row(radiance, j)
+                delta = False
+            elif g >= n_rs:
+                j = g - n_rs
+                gl = disk_light[j]
+                wi, dist, pdf_l, _pl, ok = _disk_sample_row(
+                    (px, py, pz), U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], _row(d_center, j),
+                    _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j],
+                    d_area[j], close_ratio, min_sa, graz)
+                Le = _row(d_radiance, j)
                 delta = False
             else:
                 j = g - n_rect

@@ -7,9 +7,9 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 z-test the two against each other and render with each on the same stages.
 
 A scene qualifies when it has
-* only RectLights (untextured) and SphereLights (treatAsPoint included), without ShapingAPI,
-  ShadowAPI or light linking, with unit diffuse/specular multipliers, few enough for the
-  exhaustive light sampler (every light at every vertex, pmf 1);
+* only RectLights (untextured), SphereLights (treatAsPoint included) and DiskLights, without
+  ShapingAPI, ShadowAPI or light linking, with unit diffuse/specular multipliers, few enough for
+  the exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
 * UsdPreviewSurface materials without textures, cutouts or emission (one packed BSDF row per
@@ -28,9 +28,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from . import _vertex_kernels as vk
+
+FAST_KINDS = ("rect", "sphere", "disk")  # the light kinds the vertex kernel samples, in its order
 
 
 def fast_path_reason(integ) -> str:
@@ -42,8 +45,8 @@ def fast_path_reason(integ) -> str:
     if not integ.has_lights:
         return "no lights"
     rect = KIND_NAMES.index("rect")
-    if not np.all((lights.kind_of == rect) | (lights.kind_of == KIND_NAMES.index("sphere"))):
-        return "a light other than a RectLight or SphereLight"
+    if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS])):
+        return "a light other than a RectLight, SphereLight or DiskLight"
     rl = lights.kinds[rect]
     if np.any(rl.tex >= 0):
         return "a textured RectLight"
@@ -76,13 +79,16 @@ class FastPath:
         lights = integ.lights
         self.rect = lights.kinds[KIND_NAMES.index("rect")]
         self.sphere = lights.kinds[KIND_NAMES.index("sphere")]
-        # The global index of each rect and sphere light (their uniforms and power flags).
-        self.rect_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("rect"))[0], np.int64)
-        self.sphere_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("sphere"))[0], np.int64)
+        self.disk = lights.kinds[KIND_NAMES.index("disk")]
+        # The global index of each rect, sphere and disk light (their uniforms and power flags).
+        self.rect_light, self.sphere_light, self.disk_light = (
+            np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index(k))[0], dtype=np.int64)
+            for k in FAST_KINDS)
         self.Pm, self.ta, self.tb = scene.materials.packed_bsdf()
         g = scene.geometry
-        self.geo = (np.ascontiguousarray(g.vertices, dtype=np.float64), np.ascontiguousarray(g.face_normal, dtype=np.float64),
-                    np.ascontiguousarray(g.normals, dtype=np.float64), np.ascontiguousarray(g.material, dtype=np.int64))
+        f64 = np.float64
+        self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
+                    np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64))
         from ..estimators import HEURISTICS
 
         self.power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
@@ -94,8 +100,8 @@ class FastPath:
         qualifying scene, with emit0 = 1."""
         integ = self.integ
         accel = integ.scene.accel
-        rl, sl = self.rect, self.sphere
-        nl = rl.count + sl.count
+        rl, sl, dl = self.rect, self.sphere, self.disk
+        nl = rl.count + sl.count + dl.count
         m = o.shape[0]
         L = np.zeros((m, 3))
         path = np.arange(m, dtype=np.int64)
@@ -135,6 +141,8 @@ class FastPath:
                 path, depth, unsampled, S, t32, prim, b1, b2, U, *self.geo, self.Pm, self.ta, self.tb,
                 rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
                 rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
+                dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
+                DISK_CLOSE_RATIO,
                 self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
                 eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t,
                 sh_path, sh_c, counts)

@@ -32,12 +32,12 @@ _TWO_PI = 2.0 * math.pi
 # --------------------------------------------------------------------------------------
 # 3-vector helpers (tuples)
 #
-# Helpers take scalars and tuples; only the branch-free ``_row``/``_put`` touch arrays. LLVM
-# inlines these small njit calls. (In the BSDF kernels, helpers that took arrays and returned from several branches, numba-inlined with ``inline="always"``, made the
-# loop 4x slower; keeping array reads with branches in the kernel bodies avoids that.) LLVM
-# does *not* inline the large spherical-rectangle helpers: called, they passed their tuples
-# through memory, so those two (scalars and tuples only) are numba-inlined, which measured
-# ~10% faster.
+# Helpers take scalars and tuples; only the branch-free ``_row``/``_put`` touch arrays. LLVM inlines
+# these small njit calls. (In the BSDF kernels, helpers that took arrays and returned from several
+# branches, numba-inlined with ``inline="always"``, made the loop 4x slower; keeping array reads
+# with branches in the kernel bodies avoids that.) LLVM does *not* inline the large spherical-
+# rectangle helpers: called, they passed their tuples through memory, so those two (scalars and
+# tuples only) are numba-inlined, which measured ~10% faster.
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
 def _row(a, r):
@@ -441,56 +441,59 @@ def disk_strategy_kernel(idx, p, center, e1, e2, nrm, u1, u2, s1, s2, close_rati
 
 
 @njit(cache=True, nogil=True)
+def _disk_sample_row(pr, u0, u1, c, nl, v1, v2, a1, a2, s1_i, s2_i, area_i, close_ratio, min_sa, graz):
+    """One row of DiskLight.sample_li from pr: (wi, dist, pdf, pl, ok). Concentric area sampling
+    or bounding-rectangle solid-angle sampling (samples outside the ellipse fail). The disk is
+    c + e1 cos + e2 sin, with e_k = a_k = s_k v_k (v_k unit), nl its emitting normal."""
+    close, front = _disk_close(pr, c, nl, v1, v2, s1_i, s2_i, close_ratio)
+    use = False
+    inside = True
+    pdf_sph = 0.0
+    pl = c
+    if close and front:
+        st = _disk_rect(pr, c, a1, a2, min_sa, graz)
+        if st[14]:
+            use = True
+            pdf_sph = 1.0 / st[13]
+            pl = _sr_sample(pr, st, u0, u1)
+            q1, q2 = _disk_q(pl, c, v1, v2, s1_i, s2_i)
+            inside = q1 * q1 + q2 * q2 <= 1.0
+    if not use:
+        # Shirley-Chiu concentric map (sampling.sample_uniform_disk_concentric).
+        sa = 2.0 * u0 - 1.0
+        sb = 2.0 * u1 - 1.0
+        if abs(sa) > abs(sb):
+            rad = sa
+            th = (_PI / 4.0) * (sb / sa)
+        else:
+            rad = sb
+            th = (_PI / 2.0) - (_PI / 4.0) * (sa / sb if sb != 0.0 else 0.0)
+        qa = rad * math.cos(th)
+        qb = rad * math.sin(th)
+        pl = _add(_add(c, _scale(qa, a1)), _scale(qb, a2))
+    wi, dist = _dir_dist(pr, pl)
+    cos_l = -_dot(wi, nl)
+    if use:
+        pdf = pdf_sph
+    else:
+        pdf_area = 1.0 / area_i if area_i > 0.0 else 0.0
+        pdf = _area_to_solid_angle(pdf_area, dist, cos_l)
+    ok = inside and front and cos_l > 0.0 and dist > 0.0 and pdf > 0.0
+    return wi, dist, (pdf if ok else 0.0), pl, ok
+
+
+@njit(cache=True, nogil=True)
 def disk_sample_kernel(
     idx, p, u, center, e1, e2, nrm, u1, u2, s1, s2, area, radiance, close_ratio, min_sa, graz,
     out_L, out_wi, out_pdf, out_dist, out_pl,
 ):
-    """DiskLight.sample_li: concentric area sampling or bounding-rectangle solid-angle sampling
-    (samples outside the ellipse fail)."""
+    """DiskLight.sample_li (_disk_sample_row per row)."""
     for r in range(idx.shape[0]):
         i = idx[r]
-        pr = _row(p, r)
-        c = _row(center, i)
-        nl = _row(nrm, i)
-        v1 = _row(u1, i)
-        v2 = _row(u2, i)
-        a1 = _row(e1, i)
-        a2 = _row(e2, i)
-        close, front = _disk_close(pr, c, nl, v1, v2, s1[i], s2[i], close_ratio)
-        use = False
-        inside = True
-        pdf_sph = 0.0
-        pl = c
-        if close and front:
-            st = _disk_rect(pr, c, a1, a2, min_sa, graz)
-            if st[14]:
-                use = True
-                pdf_sph = 1.0 / st[13]
-                pl = _sr_sample(pr, st, u[r, 0], u[r, 1])
-                q1, q2 = _disk_q(pl, c, v1, v2, s1[i], s2[i])
-                inside = q1 * q1 + q2 * q2 <= 1.0
-        if not use:
-            # Shirley-Chiu concentric map (sampling.sample_uniform_disk_concentric).
-            sa = 2.0 * u[r, 0] - 1.0
-            sb = 2.0 * u[r, 1] - 1.0
-            if abs(sa) > abs(sb):
-                rad = sa
-                th = (_PI / 4.0) * (sb / sa if sa != 0.0 else 0.0)
-            else:
-                rad = sb
-                th = (_PI / 2.0) - (_PI / 4.0) * (sa / sb if sb != 0.0 else 0.0)
-            qa = rad * math.cos(th)
-            qb = rad * math.sin(th)
-            pl = _add(_add(c, _scale(qa, a1)), _scale(qb, a2))
-        wi, dist = _dir_dist(pr, pl)
-        cos_l = -_dot(wi, nl)
-        if use:
-            pdf = pdf_sph
-        else:
-            pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
-            pdf = _area_to_solid_angle(pdf_area, dist, cos_l)
-        ok = inside and front and cos_l > 0.0 and dist > 0.0 and pdf > 0.0
-        out_pdf[r] = pdf if ok else 0.0
+        wi, dist, pdf, pl, ok = _disk_sample_row(
+            _row(p, r), u[r, 0], u[r, 1], _row(center, i), _row(nrm, i), _row(u1, i), _row(u2, i), _row(e1, i),
+            _row(e2, i), s1[i], s2[i], area[i], close_ratio, min_sa, graz)
+        out_pdf[r] = pdf
         for k in range(3):
             out_L[r, k] = radiance[i, k] if ok else 0.0
         _put(out_wi, r, wi)
@@ -509,33 +512,33 @@ def _disk_hit(o, d, c, nl, u1, u2, s1, s2):
 
 
 @njit(cache=True, nogil=True)
+def _disk_pdf_row(pr, w, c, nl, v1, v2, a1, a2, s1_i, s2_i, area_i, close_ratio, min_sa, graz):
+    """One row of DiskLight.pdf_li: the solid-angle pdf of sampling direction w from pr (0 where
+    w misses the front of the disk). Arguments as _disk_sample_row."""
+    t, hit = _disk_hit(pr, w, c, nl, v1, v2, s1_i, s2_i)
+    cos_l = -_dot(w, nl)
+    if not (hit and _dot(_sub(pr, c), nl) > 0.0 and cos_l > 0.0):
+        return 0.0
+    pdf_area = 1.0 / area_i if area_i > 0.0 else 0.0
+    pdf = _area_to_solid_angle(pdf_area, t, cos_l)
+    # hit implies p in front, the other half of the strategy rule.
+    close, _ = _disk_close(pr, c, nl, v1, v2, s1_i, s2_i, close_ratio)
+    if close:
+        st = _disk_rect(pr, c, a1, a2, min_sa, graz)
+        if st[14]:
+            pdf = 1.0 / st[13]
+    return pdf
+
+
+@njit(cache=True, nogil=True)
 def disk_pdf_kernel(
     idx, p, wi, center, e1, e2, nrm, u1, u2, s1, s2, area, close_ratio, min_sa, graz, out_pdf,
 ):
-    """DiskLight.pdf_li."""
+    """DiskLight.pdf_li (_disk_pdf_row per row)."""
     for r in range(idx.shape[0]):
         i = idx[r]
-        pr = _row(p, r)
-        w = _row(wi, r)
-        c = _row(center, i)
-        nl = _row(nrm, i)
-        v1 = _row(u1, i)
-        v2 = _row(u2, i)
-        t, hit = _disk_hit(pr, w, c, nl, v1, v2, s1[i], s2[i])
-        cos_l = -_dot(w, nl)
-        hit = hit and _dot(_sub(pr, c), nl) > 0.0 and cos_l > 0.0
-        if not hit:
-            out_pdf[r] = 0.0
-            continue
-        pdf_area = 1.0 / area[i] if area[i] > 0.0 else 0.0
-        pdf = _area_to_solid_angle(pdf_area, t, cos_l)
-        # hit implies p in front, the other half of the strategy rule.
-        close, _ = _disk_close(pr, c, nl, v1, v2, s1[i], s2[i], close_ratio)
-        if close:
-            st = _disk_rect(pr, c, _row(e1, i), _row(e2, i), min_sa, graz)
-            if st[14]:
-                pdf = 1.0 / st[13]
-        out_pdf[r] = pdf
+        out_pdf[r] = _disk_pdf_row(_row(p, r), _row(wi, r), _row(center, i), _row(nrm, i), _row(u1, i), _row(u2, i),
+                                   _row(e1, i), _row(e2, i), s1[i], s2[i], area[i], close_ratio, min_sa, graz)
 
 
 @njit(cache=True, nogil=True)

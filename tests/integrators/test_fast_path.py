@@ -2,11 +2,12 @@
 integrator estimates.
 
 A rect-lit room (a tilted, a sheared and a partly hidden light; diffuse, glossy and metallic
-materials), with and without a sphere light and a point light (treatAsPoint), is rendered with the fast path and with ``fast_path=False``, and the image means are
-compared: over the whole image and in 16 blocks, z-tested with each film's own per-pixel
-variance of the mean. Depth 2 checks the one place the two differ in the order of work (the
-last vertex), depth 5 with roulette from depth 1 the rest. A 5 % error in the fast path must
-fail the same test, and scenes the fast path cannot serve must say why.
+materials), with and without a sphere light, a point light (treatAsPoint) and a disk light, is
+rendered with the fast path and with ``fast_path=False``, and the image means are compared: over
+the whole image and in 16 blocks, z-tested with each film's own per-pixel variance of the mean.
+Depth 2 checks the one place the two differ in the order of work (the last vertex), depth 5 with
+roulette from depth 1 the rest. A 5 % error in the fast path must fail the same test, and scenes
+the fast path cannot serve must say why.
 """
 
 import os
@@ -33,7 +34,7 @@ def _rect(stage, name, width, height, intensity, normalize=False, color=(1.0, 1.
     return UsdGeom.Xformable(light)
 
 
-def _room(path, spheres: bool = False, dome: bool = False, textured: bool = False):
+def _room(path, more_kinds: bool = False, dome: bool = False, textured: bool = False):
     stage = new_stage(path)
     add_camera(stage, pos=(0, 1.4, 5.5))
     add_settings(stage, (48, 36))
@@ -75,8 +76,9 @@ def _room(path, spheres: bool = False, dome: bool = False, textured: bool = Fals
     xf = _rect(stage, "Back", 1.0, 0.6, 8.0, color=(0.4, 0.7, 1.0))
     xf.AddTranslateOp().Set(Gf.Vec3d(1.2, 0.9, -1.2))
     xf.AddRotateYOp().Set(150.0)
-    if spheres:
-        # A sphere the camera and the continuation rays see, and a point light (treatAsPoint).
+    if more_kinds:
+        # A sphere the camera and the continuation rays see, a point light (treatAsPoint) and a
+        # tilted, non-uniformly scaled disk (an ellipse).
         bulb = UsdLux.SphereLight.Define(stage, "/World/Bulb")
         bulb.CreateRadiusAttr(0.35)
         bulb.CreateIntensityAttr(6.0)
@@ -87,6 +89,14 @@ def _room(path, spheres: bool = False, dome: bool = False, textured: bool = Fals
         point.CreateTreatAsPointAttr(True)
         point.CreateIntensityAttr(400.0)
         UsdGeom.Xformable(point).AddTranslateOp().Set(Gf.Vec3d(1.8, 2.5, 1.5))
+        disk = UsdLux.DiskLight.Define(stage, "/World/Disk")
+        disk.CreateRadiusAttr(0.5)
+        disk.CreateIntensityAttr(5.0)
+        disk.CreateColorAttr(Gf.Vec3f(0.6, 1.0, 0.6))
+        xf = UsdGeom.Xformable(disk)
+        xf.AddTranslateOp().Set(Gf.Vec3d(2.2, 1.2, 0.0))
+        xf.AddRotateYOp().Set(-70.0)
+        xf.AddScaleOp().Set(Gf.Vec3f(1.5, 0.7, 1.0))
     if dome:
         UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.2)
     stage.GetRootLayer().Save()
@@ -113,10 +123,10 @@ def _pair(stage, max_depth, spp, rr_depth=3):
     return fast, slow
 
 
-@pytest.mark.parametrize("max_depth,spheres", [(2, False), (5, False), (2, True), (5, True)])
-def test_fast_path_matches_general_path(tmp_path, max_depth, spheres):
+@pytest.mark.parametrize("max_depth,more_kinds", [(2, False), (5, False), (2, True), (5, True)])
+def test_fast_path_matches_general_path(tmp_path, max_depth, more_kinds):
     stage = tmp_path / "room.usda"
-    _room(stage, spheres=spheres)
+    _room(stage, more_kinds=more_kinds)
     # Roulette from the first bounce, so the fast path's roulette is exercised at depth 5.
     fast, slow = _pair(stage, max_depth, spp=256, rr_depth=1)
     assert fast.stats["fast_path"] == "on"
@@ -145,7 +155,7 @@ def test_fast_path_on_the_cornell_box():
 
 
 @pytest.mark.parametrize("kw,opt,reason", [
-    ({"dome": True}, {}, "a light other than a RectLight or SphereLight"),
+    ({"dome": True}, {}, "a light other than a RectLight, SphereLight or DiskLight"),
     ({"textured": True}, {}, "textured, emissive or cut-out materials"),
     ({}, {"max_depth": 1}, "max depth <= 1"),
     ({}, {"emitter_samples": 2}, "emitter samples > 1"),
