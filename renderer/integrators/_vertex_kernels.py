@@ -32,11 +32,12 @@ from renderer.bsdfs._preview_kernels import (
 from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
-    _disk_hit, _disk_pdf_row, _disk_sample_row, _rect_hit, _rect_pdf_row, _rect_sample_row, _row, _sphere_hit_row,
-    _sphere_pdf_row, _sphere_sample_row,
+    _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
+    _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
 )
 
 _INV_PI = 1.0 / math.pi
+_INV_4PI = 0.25 / math.pi
 
 # State columns.
 B = 0
@@ -62,6 +63,7 @@ def vertex_kernel(
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
     d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
+    i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light,
     power, min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
@@ -71,17 +73,20 @@ def vertex_kernel(
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
     a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows; light tables: the
-    RectLight arrays (all untextured), the SphereLight arrays (s_*) and the DiskLight arrays (d_*),
-    with rect_light / sphere_light / disk_light (count,) the global light index of each (which picks
-    the light's uniforms in U and its power flag); power: (lights,) bool heuristic. L (m, 3)
+    RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
+    the infinite lights (i_*: i_dome True for a constant DomeLight, else a DistantLight with
+    i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
+    inf_light (count,) the global light index of each (which picks the light's uniforms in U and
+    its power flag); power: (lights,) bool heuristic. L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
     counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
     """
     n_rect = center.shape[0]
-    n_rs = n_rect + s_center.shape[0]  # rect lights, then sphere lights, then disk lights
-    nl = n_rs + d_center.shape[0]
+    n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
+    n_fin = n_rs + d_center.shape[0]
+    nl = n_fin + i_radiance.shape[0]
     k_next = 0
     k_sh = 0
     n_vertices = 0
@@ -96,7 +101,7 @@ def vertex_kernel(
         t_hit = float(hit_t[r]) if k >= 0 else math.inf
         t_geo = min(t_hit, S[r, TMAX])
         # ---- emission of the lights crossed before the surface (lights are transparent) ----
-        for g in range(nl):
+        for g in range(n_fin):
             if g < n_rect:
                 j = g
                 tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
@@ -141,7 +146,22 @@ def vertex_kernel(
             L[pr_path, 0] += b0 * Le[0] * w
             L[pr_path, 1] += b1 * Le[1] * w
             L[pr_path, 2] += b2 * Le[2] * w
-        if k < 0 or depth[r] >= max_depth:
+        if k < 0:
+            # ---- escaped: the infinite lights (a camera ray sees them whatever its far clip) --
+            for q in range(n_fin, nl):
+                j = q - n_fin
+                if i_dome[j]:
+                    p_l = _INV_4PI
+                else:
+                    p_l = _distant_pdf_row(d, _row(i_axis, j), i_omc[j], i_delta[j])
+                    if p_l <= 0.0:
+                        continue  # outside the cone (a delta light is never seen)
+                w = 1.0 if unsampled[r] else _mis_weight(S[r, PB], p_l, power[inf_light[j]])
+                L[pr_path, 0] += b0 * i_radiance[j, 0] * w
+                L[pr_path, 1] += b1 * i_radiance[j, 1] * w
+                L[pr_path, 2] += b2 * i_radiance[j, 2] * w
+            continue
+        if depth[r] >= max_depth:
             continue
         n_vertices += 1
         # ---- surface interaction -----------------------------------------------------------
@@ -179,6 +199,19 @@ def vertex_kernel(
                     _row(nrm, j), area[j], False, is_rect[j], 0.0, 0.0, 0.0, min_sa, graz)
                 Le = _row(radiance, j)
                 delta = False
+            elif g >= n_fin:
+                j = g - n_fin
+                gl = inf_light[j]
+                if i_dome[j]:
+                    wi = _uniform_sphere_row(U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1])
+                    pdf_l = _INV_4PI
+                else:
+                    wi, pdf_l = _distant_sample_row(U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1],
+                                                    _row(i_axis, j), i_omc[j], i_delta[j])
+                dist = math.inf
+                ok = True
+                Le = _row(i_radiance, j)
+                delta = i_delta[j] and not i_dome[j]
             elif g >= n_rs:
                 j = g - n_rs
                 gl = disk_light[j]
@@ -224,7 +257,8 @@ def vertex_kernel(
             sh_d[k_sh, 1] = wi[1]
             sh_d[k_sh, 2] = wi[2]
             # Stop short of the light by a relative margin and the origin offset (as _visible).
-            sh_t[k_sh] = dist * (1.0 - 1e-5) - eps
+            # Infinite lights: embree's far limit, as Accel gives inf.
+            sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
             sh_path[k_sh] = pr_path
             sh_c[k_sh, 0] = c0
             sh_c[k_sh, 1] = c1

@@ -7,8 +7,8 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 z-test the two against each other and render with each on the same stages.
 
 A scene qualifies when it has
-* only RectLights (untextured), SphereLights (treatAsPoint included) and DiskLights, without
-  ShapingAPI, ShadowAPI or light linking, with unit diffuse/specular multipliers, few enough for
+* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+  and constant DomeLights (no texture, no portals), without ShapingAPI, ShadowAPI or light linking, with unit diffuse/specular multipliers, few enough for
   the exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
@@ -33,7 +33,9 @@ from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from . import _vertex_kernels as vk
 
-FAST_KINDS = ("rect", "sphere", "disk")  # the light kinds the vertex kernel samples, in its order
+# The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
+FAST_KINDS = ("rect", "sphere", "disk")
+FAST_INFINITE = ("dome", "distant")
 
 
 def fast_path_reason(integ) -> str:
@@ -45,11 +47,14 @@ def fast_path_reason(integ) -> str:
     if not integ.has_lights:
         return "no lights"
     rect = KIND_NAMES.index("rect")
-    if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS])):
-        return "a light other than a RectLight, SphereLight or DiskLight"
+    if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
+        return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
     rl = lights.kinds[rect]
     if np.any(rl.tex >= 0):
         return "a textured RectLight"
+    dome = lights.kinds[KIND_NAMES.index("dome")]
+    if np.any(dome.tex >= 0) or np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
+        return "a textured DomeLight or dome portals"
     if not getattr(scene.light_sampler, "exhaustive", False):
         return "a stochastic light sampler"
     if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
@@ -84,6 +89,19 @@ class FastPath:
         self.rect_light, self.sphere_light, self.disk_light = (
             np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index(k))[0], dtype=np.int64)
             for k in FAST_KINDS)
+        # Infinite lights as one table: constant domes (i_dome) then distant lights.
+        dome, dist = (lights.kinds[KIND_NAMES.index(k)] for k in FAST_INFINITE)
+        nd, nt = dome.count, dist.count
+        self.inf_light = np.ascontiguousarray(np.concatenate(
+            [np.nonzero(lights.kind_of == KIND_NAMES.index(k))[0] for k in FAST_INFINITE]), dtype=np.int64)
+        self.inf = (np.concatenate([np.ones(nd, bool), np.zeros(nt, bool)]),
+                    np.ascontiguousarray(np.concatenate([np.zeros((nd, 3)), np.reshape(dist.axis, (nt, 3))]),
+                                         np.float64),
+                    np.ascontiguousarray(np.concatenate([np.zeros(nd), np.reshape(dist.omc, nt)]), np.float64),
+                    np.concatenate([np.zeros(nd, bool), np.reshape(dist.delta, nt).astype(bool)]),
+                    np.ascontiguousarray(np.concatenate([np.reshape(dome.L, (nd, 3)), np.reshape(dist.L, (nt, 3))]),
+                                         np.float64),
+                    self.inf_light)
         self.Pm, self.ta, self.tb = scene.materials.packed_bsdf()
         g = scene.geometry
         f64 = np.float64
@@ -101,7 +119,7 @@ class FastPath:
         integ = self.integ
         accel = integ.scene.accel
         rl, sl, dl = self.rect, self.sphere, self.disk
-        nl = rl.count + sl.count + dl.count
+        nl = integ.lights.count
         m = o.shape[0]
         L = np.zeros((m, 3))
         path = np.arange(m, dtype=np.int64)
@@ -142,7 +160,7 @@ class FastPath:
                 rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
                 rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
                 dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
-                DISK_CLOSE_RATIO,
+                DISK_CLOSE_RATIO, *self.inf,
                 self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
                 eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t,
                 sh_path, sh_c, counts)

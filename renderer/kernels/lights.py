@@ -669,3 +669,48 @@ def sphere_hit_kernel(idx, o, d, center, radius, delta, out_t):
     for row in range(idx.shape[0]):
         i = idx[row]
         out_t[row] = _sphere_hit_row(_row(o, row), _row(d, row), _row(center, i), radius[i], delta[i])
+
+
+# --------------------------------------------------------------------------------------
+# Infinite lights, per row: a DistantLight's cone and a constant (untextured, portal-free)
+# DomeLight's sphere (the formulas of renderer/lights/distant.py and dome.py, for the fast
+# path's vertex kernel; those lights' own methods stay numpy).
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _distant_sample_row(u0, u1, axis, omc, delta_i):
+    """DistantLight.sample_li's direction and pdf: (wi, pdf). Uniform in the cone of half-angle
+    theta_max about axis (omc = 1 - cos theta_max); a delta light gives the axis with pdf 1."""
+    if delta_i:
+        return axis, 1.0
+    x = u0 * omc  # 1 - cos theta, uniform in [0, omc]
+    cos_t = 1.0 - x
+    sin_t = math.sqrt(max(0.0, x * (2.0 - x)))
+    phi = 2.0 * _PI * u1
+    sign = 1.0 if axis[2] >= 0.0 else -1.0
+    fa = -1.0 / (sign + axis[2])
+    fb = axis[0] * axis[1] * fa
+    s = (1.0 + sign * axis[0] * axis[0] * fa, sign * fb, -sign * axis[0])
+    t = (fb, sign + axis[1] * axis[1] * fa, -axis[1])
+    ks = sin_t * math.cos(phi)
+    kt = sin_t * math.sin(phi)
+    wi = _add(_add(_scale(cos_t, axis), _scale(ks, s)), _scale(kt, t))
+    return wi, 1.0 / (_TWO_PI * omc)
+
+
+@njit(cache=True, nogil=True)
+def _distant_pdf_row(w, axis, omc, delta_i):
+    """DistantLight.pdf_li: 1 / (2 pi (1 - cos theta_max)) inside the cone (|w - axis|^2 / 2 =
+    1 - cos, accurate for tiny cones), else 0; always 0 for a delta light. Also the test for
+    le_escaped (the light is seen along w where the pdf is > 0)."""
+    dd = _sub(w, axis)
+    inside = 0.5 * _dot(dd, dd) <= omc * (1.0 + 1e-9) and not delta_i
+    return 1.0 / (_TWO_PI * omc) if inside else 0.0
+
+
+@njit(cache=True, nogil=True)
+def _uniform_sphere_row(u0, u1):
+    """sampling.sample_uniform_sphere for one row (pdf 1 / (4 pi))."""
+    z = 1.0 - 2.0 * u0
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * _PI * u1
+    return (r * math.cos(phi), r * math.sin(phi), z)

@@ -2,12 +2,13 @@
 integrator estimates.
 
 A rect-lit room (a tilted, a sheared and a partly hidden light; diffuse, glossy and metallic
-materials), with and without a sphere light, a point light (treatAsPoint) and a disk light, is
-rendered with the fast path and with ``fast_path=False``, and the image means are compared: over
-the whole image and in 16 blocks, z-tested with each film's own per-pixel variance of the mean.
-Depth 2 checks the one place the two differ in the order of work (the last vertex), depth 5 with
-roulette from depth 1 the rest. A 5 % error in the fast path must fail the same test, and scenes
-the fast path cannot serve must say why.
+materials), with and without a sphere light, a point light (treatAsPoint) and a disk light, and
+with and without a constant sky, a sun (angle 5) and a delta distant light, is rendered with the
+fast path and with ``fast_path=False``, and the image means are compared: over the whole image
+and in 16 blocks, z-tested with each film's own per-pixel variance of the mean. Depth 2 checks
+the one place the two differ in the order of work (the last vertex), depth 5 with roulette from
+depth 1 the rest. A 5 % error in the fast path must fail the same test, and scenes the fast path
+cannot serve must say why.
 """
 
 import os
@@ -34,7 +35,7 @@ def _rect(stage, name, width, height, intensity, normalize=False, color=(1.0, 1.
     return UsdGeom.Xformable(light)
 
 
-def _room(path, more_kinds: bool = False, dome: bool = False, textured: bool = False):
+def _room(path, more_kinds: bool = False, infinite: bool = False, textured: bool = False, portal: bool = False):
     stage = new_stage(path)
     add_camera(stage, pos=(0, 1.4, 5.5))
     add_settings(stage, (48, 36))
@@ -97,8 +98,24 @@ def _room(path, more_kinds: bool = False, dome: bool = False, textured: bool = F
         xf.AddTranslateOp().Set(Gf.Vec3d(2.2, 1.2, 0.0))
         xf.AddRotateYOp().Set(-70.0)
         xf.AddScaleOp().Set(Gf.Vec3f(1.5, 0.7, 1.0))
-    if dome:
-        UsdLux.DomeLight.Define(stage, "/World/Sky").CreateIntensityAttr(0.2)
+    if infinite or portal:
+        # A constant sky, a 5-degree sun and a delta (angle 0) distant light.
+        sky = UsdLux.DomeLight.Define(stage, "/World/Sky")
+        sky.CreateIntensityAttr(0.2)
+        sky.CreateColorAttr(Gf.Vec3f(0.5, 0.7, 1.0))
+        if portal:
+            UsdLux.PortalLight.Define(stage, "/World/Sky/Window").CreateWidthAttr(1.0)
+            sky.GetPrim().CreateRelationship("portals").SetTargets(["/World/Sky/Window"])
+        sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+        sun.CreateAngleAttr(5.0)
+        sun.CreateIntensityAttr(300.0)
+        xf = UsdGeom.Xformable(sun)
+        xf.AddRotateYOp().Set(30.0)
+        xf.AddRotateXOp().Set(-50.0)
+        key = UsdLux.DistantLight.Define(stage, "/World/Key")
+        key.CreateAngleAttr(0.0)
+        key.CreateIntensityAttr(0.8)
+        UsdGeom.Xformable(key).AddRotateXOp().Set(-70.0)
     stage.GetRootLayer().Save()
 
 
@@ -123,10 +140,11 @@ def _pair(stage, max_depth, spp, rr_depth=3):
     return fast, slow
 
 
-@pytest.mark.parametrize("max_depth,more_kinds", [(2, False), (5, False), (2, True), (5, True)])
-def test_fast_path_matches_general_path(tmp_path, max_depth, more_kinds):
+@pytest.mark.parametrize("max_depth,more_kinds,infinite", [(2, False, False), (5, False, False), (2, True, False),
+                                                           (5, True, False), (2, False, True), (5, False, True)])
+def test_fast_path_matches_general_path(tmp_path, max_depth, more_kinds, infinite):
     stage = tmp_path / "room.usda"
-    _room(stage, more_kinds=more_kinds)
+    _room(stage, more_kinds=more_kinds, infinite=infinite)
     # Roulette from the first bounce, so the fast path's roulette is exercised at depth 5.
     fast, slow = _pair(stage, max_depth, spp=256, rr_depth=1)
     assert fast.stats["fast_path"] == "on"
@@ -155,7 +173,7 @@ def test_fast_path_on_the_cornell_box():
 
 
 @pytest.mark.parametrize("kw,opt,reason", [
-    ({"dome": True}, {}, "a light other than a RectLight, SphereLight or DiskLight"),
+    ({"portal": True}, {}, "a textured DomeLight or dome portals"),
     ({"textured": True}, {}, "textured, emissive or cut-out materials"),
     ({}, {"max_depth": 1}, "max depth <= 1"),
     ({}, {"emitter_samples": 2}, "emitter samples > 1"),
