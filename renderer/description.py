@@ -66,6 +66,9 @@ class MaterialDesc:
     """A UsdPreviewSurface (or the displayColor / grey fallback), with Sdr defaults applied.
 
     path: the Material prim path ('' for a fallback material made from displayColor).
+    normal: the tangent-space shading normal in [-1, 1]^3 (UsdPreviewSurface ``normal``; a
+        texture's own scale/bias make the map's [0, 1] texels into that range). (0, 0, 1) leaves
+        the interpolated normal as it is.
     """
 
     path: str
@@ -79,6 +82,7 @@ class MaterialDesc:
     opacity: MaterialInput = MaterialInput(1.0)
     opacity_threshold: float = 0.0
     opacity_mode: str = "transparent"
+    normal: MaterialInput = MaterialInput((0.0, 0.0, 1.0))
 
 
 # --------------------------------------------------------------------------------------

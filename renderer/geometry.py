@@ -275,3 +275,104 @@ def surface_interaction(vertices, face_normal, normals, st_tab, prim, b1, b2, d)
                         np.ascontiguousarray(b1, dtype=np.float64), np.ascontiguousarray(b2, dtype=np.float64),
                         np.ascontiguousarray(d, dtype=np.float64), p, ng, ns, st)
     return p, ng, ns, st
+
+
+# --------------------------------------------------------------------------------------
+# Tangent-space normal maps (UsdPreviewSurface ``normal``)
+# --------------------------------------------------------------------------------------
+def uv_tangents(vertices: np.ndarray, st: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-triangle UV-gradient tangent frames: the direction of dp/du and the UV handedness.
+
+    vertices: (T, 3, 3) float64 corners; st: (T, 3, 2) texture coordinates (zeros where a mesh
+    has none). Returns tangent (T, 3) unit dp/du, and handed (T,) float64: +1 where (dp/du, dp/dv)
+    turn like the triangle's counter-clockwise winding (sign of cross(dp/du, dp/dv) . face
+    normal, which is the sign of the UV determinant), -1 for mirrored UVs, 0 where st is missing
+    or degenerate on the triangle (no frame: its normals stay unperturbed).
+    """
+    e1 = vertices[:, 1] - vertices[:, 0]
+    e2 = vertices[:, 2] - vertices[:, 0]
+    duv1 = st[:, 1] - st[:, 0]
+    duv2 = st[:, 2] - st[:, 0]
+    det = duv1[:, 0] * duv2[:, 1] - duv2[:, 0] * duv1[:, 1]
+    # |det| = |duv1| |duv2| sin(angle): a relative test, so tiny but well-shaped UV triangles
+    # (a 4k texel atlas) keep their frame and collinear UVs lose it.
+    scale = np.sqrt((duv1 * duv1).sum(axis=1) * (duv2 * duv2).sum(axis=1))
+    ok = np.isfinite(det) & (np.abs(det) > 1e-9 * scale) & (scale > 0.0)
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    dpdu = (duv2[:, 1:2] * e1 - duv1[:, 1:2] * e2) * inv[:, None]
+    tangent = normalize(np.ascontiguousarray(dpdu))
+    ok &= np.all(np.isfinite(tangent), axis=1) & (norm(tangent) > 0.0)
+    handed = np.where(ok, np.sign(det), 0.0)
+    return np.where(ok[:, None], tangent, 0.0), handed
+
+
+@njit(cache=True, nogil=True)
+def _perturb_kernel(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal, out):
+    for i in range(ns.shape[0]):
+        nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
+        out[i, 0], out[i, 1], out[i, 2] = nx, ny, nz
+        if not mapped[i]:
+            continue
+        k = prim[i]
+        x, y, z = nmap[i, 0], nmap[i, 1], nmap[i, 2]
+        # No frame (st missing/degenerate), or a map value along +z (or zero): N as it is,
+        # bit for bit, so a flat map renders exactly like no map.
+        if handed[k] == 0.0 or (x == 0.0 and y == 0.0):
+            continue
+        # T: dp/du made orthogonal to N (Gram-Schmidt).
+        d = tangent[k, 0] * nx + tangent[k, 1] * ny + tangent[k, 2] * nz
+        tx = tangent[k, 0] - d * nx
+        ty = tangent[k, 1] - d * ny
+        tz = tangent[k, 2] - d * nz
+        tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if not tl > 1e-12:
+            continue  # dp/du along N: no usable tangent
+        r = 1.0 / tl
+        tx *= r
+        ty *= r
+        tz *= r
+        # B = h N x T with h the UV handedness seen from the side N faces: the interaction
+        # flipped both normals toward wo, and flipping N flips N x T, so h flips with it and
+        # B keeps following +v on either side.
+        h = handed[k]
+        if ng[i, 0] * face_normal[k, 0] + ng[i, 1] * face_normal[k, 1] + ng[i, 2] * face_normal[k, 2] < 0.0:
+            h = -h
+        bx = h * (ny * tz - nz * ty)
+        by = h * (nz * tx - nx * tz)
+        bz = h * (nx * ty - ny * tx)
+        mx = tx * x + bx * y + nx * z
+        my = ty * x + by * y + ny * z
+        mz = tz * x + bz * y + nz * z
+        ml = np.sqrt(mx * mx + my * my + mz * mz)
+        if not ml > 0.0:
+            continue
+        r = 1.0 / ml
+        mx *= r
+        my *= r
+        mz *= r
+        # The interaction's guards (_interaction_row): to the geometric normal's side, and the
+        # geometric normal where the bent one faces away from wo.
+        gx, gy, gz = ng[i, 0], ng[i, 1], ng[i, 2]
+        if mx * gx + my * gy + mz * gz < 0.0:
+            mx, my, mz = -mx, -my, -mz
+        if mx * wo[i, 0] + my * wo[i, 1] + mz * wo[i, 2] <= 0.0:
+            mx, my, mz = gx, gy, gz
+        out[i, 0], out[i, 1], out[i, 2] = mx, my, mz
+
+
+def perturb_normals(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal) -> np.ndarray:
+    """Shading normals bent by tangent-space normal maps.
+
+    ns, ng, wo: (n, 3) unit shading / geometric normals (both facing wo) and directions toward
+    the viewer; nmap: (n, 3) tangent-space normals (x along +u, y along +v, z along ns), as the
+    texture delivers them; mapped: (n,) bool rows whose material is normal-mapped; prim: (n,)
+    triangle ids; tangent, handed, face_normal: the per-triangle tables (``uv_tangents``).
+    Returns (n, 3) n' = normalize(T x + B y + N z) on mapped rows with a UV frame, flipped to
+    ng's side and replaced by ng where it faces away from wo; ns itself elsewhere.
+    """
+    out = np.empty(ns.shape)
+    _perturb_kernel(np.ascontiguousarray(ns, dtype=np.float64), np.ascontiguousarray(ng, dtype=np.float64),
+                    np.ascontiguousarray(wo, dtype=np.float64), np.ascontiguousarray(nmap, dtype=np.float64),
+                    np.ascontiguousarray(mapped, dtype=np.bool_), np.ascontiguousarray(prim, dtype=np.int64),
+                    tangent, handed, face_normal, out)
+    return out

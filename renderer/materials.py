@@ -26,6 +26,14 @@ there at a hit (the integrator continues the ray through the surface with probab
 hdStorm additionally multiplies diffuseColor by opacity ("premultiplied" blending); a ray
 tracer with stochastic presence must not, so we do not.
 
+Normal maps (UsdPreviewSurface ``normal``, tangent space): ``SurfaceParams.normal`` carries the
+tangent-space vector (x along +u, y along +v, z along the shading normal) exactly as the texture
+reader delivers it, so a map's own scale (2, 2, 2, 1) / bias (-1, -1, -1, 0) produce the [-1, 1]
+vector and illum adds no 2x - 1 of its own (the spec: "your texture reader implementation should
+provide data to this node that is properly scaled"). ``normal_mapped`` marks the materials whose
+normal is textured or a constant other than (0, 0, 1); the integrator bends their shading normals
+(renderer/geometry.py ``perturb_normals``).
+
 Textured inputs: a colour input fed by a single-channel output ('r', 'g', 'b', 'a') broadcasts it
 to RGB; a float input fed by 'rgb' takes the red channel. Without texture coordinates (st None)
 textures are looked up at st = (0, 0), the UsdPrimvarReader_float2 fallback.
@@ -52,7 +60,17 @@ _TEXTURABLE = (
     ("roughness", "roughness", 1, "inputs:roughness"),
     ("opacity", "opacity", 1, "inputs:opacity"),
     ("emissive_color", "emission", 3, "inputs:emissiveColor"),
+    ("normal", "normal", 3, "inputs:normal"),
 )
+
+_FLAT = (0.0, 0.0, 1.0)  # the tangent-space normal that leaves the shading normal as it is
+
+
+def normal_mapped(desc: MaterialDesc) -> bool:
+    """Whether a material bends shading normals: a textured ``normal`` or a constant other than
+    (0, 0, 1)."""
+    inp = desc.normal
+    return inp.texture is not None or tuple(np.ravel(np.asarray(inp.value, dtype=np.float64)).tolist()) != _FLAT
 
 
 @dataclass(frozen=True)
@@ -62,6 +80,8 @@ class SurfaceParams:
     diffuse, specular_color, emission: (n, 3) linear RGB (emission is radiance).
     use_specular_workflow: (n,) bool. metallic, roughness, ior, opacity: (n,) float64.
     opacity_threshold: (n,) float64 (> 0 selects cutout presence, see ``presence``).
+    normal: (n, 3) tangent-space normal (module docstring), or None when no material of the
+    table is normal-mapped.
     """
 
     diffuse: np.ndarray
@@ -73,13 +93,15 @@ class SurfaceParams:
     opacity: np.ndarray
     emission: np.ndarray
     opacity_threshold: np.ndarray
+    normal: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return self.metallic.shape[0]
 
     def take(self, rows: np.ndarray) -> "SurfaceParams":
         """The parameters of a subset of the hits."""
-        return SurfaceParams(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
+        vals = {f.name: getattr(self, f.name) for f in fields(self)}
+        return SurfaceParams(**{k: (v if v is None else v[rows]) for k, v in vals.items()})
 
 
 def presence(params: SurfaceParams) -> np.ndarray:
@@ -147,7 +169,8 @@ class MaterialTable:
     Constant arrays (m, 3) / (m,) named like the SurfaceParams fields; ``textures`` the distinct
     TextureDescs in use; ``has_emission`` / ``has_cutout`` table-level flags;
     ``emissive_materials`` (m,) bool: the material may emit (constant emission > 0 or an emission
-    texture); ``paths`` the material prim paths.
+    texture); ``normal_mapped`` (m,) bool: the material bends shading normals (module docstring),
+    ``has_normal_map`` any of them; ``paths`` the material prim paths.
     """
 
     def __init__(self) -> None:  # use MaterialTable.build
@@ -162,6 +185,8 @@ class MaterialTable:
         self.has_emission = False
         self.has_cutout = False
         self.emissive_materials = np.zeros(0, dtype=bool)
+        self.normal_mapped = np.zeros(0, dtype=bool)
+        self.has_normal_map = False
         self._bsdf_rows: Optional[np.ndarray] = None  # (m, K) packed BSDF of each material
 
     def __len__(self) -> int:
@@ -190,6 +215,7 @@ class MaterialTable:
             "use_specular_workflow": np.zeros(m, dtype=bool),
             "ior": np.zeros(m),
             "opacity_threshold": np.zeros(m),
+            "normal": np.zeros((m, 3)),
         }
         slot_of: dict[tuple, int] = {}
         slots = {fname: np.full(m, -1, dtype=np.int64) for _, fname, _, _ in _TEXTURABLE}
@@ -240,6 +266,8 @@ class MaterialTable:
         table.emissive_materials = emissive
         table.has_emission = bool(emissive.any())
         table.has_cutout = bool(np.any(const["opacity"] < 1.0) or np.any(slots["opacity"] >= 0))
+        table.normal_mapped = np.any(const["normal"] != np.array(_FLAT), axis=1) | (slots["normal"] >= 0)
+        table.has_normal_map = bool(table.normal_mapped.any())
         return table
 
     # ----------------------------------------------------------------------------------
@@ -249,7 +277,8 @@ class MaterialTable:
         """SurfaceParams at n hits. mat: (n,) int material ids; st: (n, 2) texture coordinates
         (or None: textures are looked up at (0, 0))."""
         mat = np.asarray(mat, dtype=np.int64)
-        out = {name: arr[mat] for name, arr in self.const.items()}
+        # The normal is gathered only where some material bends normals (SurfaceParams.normal).
+        out = {name: arr[mat] for name, arr in self.const.items() if name != "normal" or self.has_normal_map}
         if self.textures:
             self._apply_textures(out, mat, st, None)
         return SurfaceParams(**out)
@@ -261,9 +290,9 @@ class MaterialTable:
 
     @property
     def params_needed(self) -> bool:
-        """Whether a renderer needs ``evaluate`` at hits at all: for emission, cutouts or a
-        textured BSDF input (otherwise ``bsdf(mat)`` alone describes the surface)."""
-        return self.has_emission or self.has_cutout or not self.bsdf_is_constant
+        """Whether a renderer needs ``evaluate`` at hits at all: for emission, cutouts, normal
+        maps or a textured BSDF input (otherwise ``bsdf(mat)`` alone describes the surface)."""
+        return self.has_emission or self.has_cutout or self.has_normal_map or not self.bsdf_is_constant
 
     def packed_bsdf(self):
         """(rows (materials, K), table_a, table_b): every material's packed PreviewSurfaceBSDF

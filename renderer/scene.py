@@ -12,7 +12,7 @@ import numpy as np
 
 from .accel import Accel
 from .description import SceneDescription
-from .geometry import normalize
+from .geometry import normalize, uv_tangents
 
 
 @dataclass
@@ -23,6 +23,9 @@ class GeometryTables:
     (face normals where the mesh had none); st: (T, 3, 2) float64 (zeros where none);
     face_normal: (T, 3) unit geometric normals (front = counter-clockwise winding);
     material: (T,) int32; mesh: (T,) int32 index into ``mesh_paths``.
+    tangent: (T, 3) unit dp/du and handed: (T,) UV handedness (+1, -1; 0 = no frame) for
+    normal maps (geometry.uv_tangents), only on triangles of normal-mapped materials (zeros
+    elsewhere); both None when no material of the scene is normal-mapped.
     """
 
     vertices: np.ndarray
@@ -32,6 +35,8 @@ class GeometryTables:
     material: np.ndarray
     mesh: np.ndarray
     mesh_paths: list[str]
+    tangent: np.ndarray | None = None
+    handed: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -65,15 +70,47 @@ def build_geometry(desc: SceneDescription) -> GeometryTables:
                               np.zeros(0, np.int32), [m.path for m in desc.meshes])
     vertices = np.concatenate(verts)
     face_normal = normalize(np.cross(vertices[:, 1] - vertices[:, 0], vertices[:, 2] - vertices[:, 0]))
+    st = np.concatenate(sts)
+    material = np.concatenate(mats)
+    tangent = handed = None
+    mapped = _normal_mapped_materials(desc)
+    if mapped.any():
+        # Built once, and only for the triangles that need a frame.
+        tangent, handed = np.zeros((vertices.shape[0], 3)), np.zeros(vertices.shape[0])
+        rows = np.nonzero(mapped[material])[0]
+        tangent[rows], handed[rows] = uv_tangents(vertices[rows], st[rows])
     return GeometryTables(
         vertices=vertices,
         normals=np.concatenate(norms),
-        st=np.concatenate(sts),
+        st=st,
         face_normal=face_normal,
-        material=np.concatenate(mats),
+        material=material,
         mesh=np.concatenate(owners),
         mesh_paths=[m.path for m in desc.meshes],
+        tangent=tangent,
+        handed=handed,
     )
+
+
+def _normal_mapped_materials(desc: SceneDescription) -> np.ndarray:
+    """(materials,) bool: the material bends shading normals (materials.normal_mapped)."""
+    from .materials import normal_mapped
+
+    return np.array([normal_mapped(m) for m in desc.materials], dtype=bool)
+
+
+def normal_map_warnings(desc: SceneDescription) -> list[str]:
+    """One warning per mesh whose material has a normal map but which has no texture
+    coordinates: without st there is no tangent frame, so its normals stay unperturbed."""
+    mapped = _normal_mapped_materials(desc)
+    out: list[str] = []
+    for m in desc.meshes:
+        if m.st is None and mapped.size and mapped[m.material] and m.triangles.size:
+            msg = (f"{m.path}: material {desc.materials[m.material].path} has a normal map (inputs:normal) "
+                   f"but the mesh has no st primvar; its normals are not perturbed")
+            if msg not in out:
+                out.append(msg)
+    return out
 
 
 @dataclass
@@ -159,6 +196,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
     lights = LightSet.build(desc.lights, center, radius)
     tri_light, tri_absorb = mesh_light_tables(lights, geo)
     warnings = list(desc.warnings) + list(getattr(lights, "warnings", [])) + list(getattr(textures, "warnings", []))
+    warnings += normal_map_warnings(desc)
     skipped = []
     for path in getattr(lights, "dropped", []):
         skipped.append(f"light {path}: emits nothing or is degenerate; dropped before the lighting services")

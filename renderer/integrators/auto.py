@@ -115,6 +115,8 @@ def pilot_points(integ, rng: np.random.Generator):
         return None
     si = integ._interaction(hits.prim[k], hits.b1[k], hits.b2[k], rays.d[k])
     params = scene.materials.evaluate(si.mat, si.st)
+    if scene.materials.has_normal_map:
+        integ._apply_normal_maps(si, hits.prim[k], params)  # the render's shading normals
     bsdf = scene.materials.bsdf(si.mat, params)
     s, t = coordinate_frame(si.ns)
     wo_l = to_local(si.wo, s, t, si.ns)

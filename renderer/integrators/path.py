@@ -46,7 +46,8 @@ import numpy as np
 
 from ..camera import Camera
 from ..film import Film
-from ..geometry import coordinate_frame, dot, offset_origin, surface_interaction, to_local, to_world
+from ..geometry import (coordinate_frame, dot, offset_origin, perturb_normals, surface_interaction, to_local,
+                        to_world)
 from ..lights.base import ShadingContext
 from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
@@ -380,6 +381,9 @@ class PathIntegrator:
             t_hit = hits.t[keep]
             # Plain materials (no emission, cutout or textured BSDF input) need no per-hit inputs.
             params = scene.materials.evaluate(si.mat, si.st) if self.params_needed else None
+            if scene.materials.has_normal_map:
+                # Normal maps bend ns before anything (frame, light contexts, MIS) reads it.
+                self._apply_normal_maps(si, hits.prim[keep], params)
 
             # Opacity as presence: a ray that passes through keeps its state, depth and MIS
             # bookkeeping, and continues from just past the surface.
@@ -491,6 +495,15 @@ class PathIntegrator:
         g = self.scene.geometry
         p, ng, ns, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, prim, b1, b2, d)
         return Interaction(p=p, ng=ng, ns=ns, wo=-d, st=st, mat=g.material[prim], mesh=g.mesh[prim])
+
+    def _apply_normal_maps(self, si: Interaction, prim: np.ndarray, params) -> None:
+        """Replace si.ns by the normal-mapped shading normals (geometry.perturb_normals) on rows
+        of normal-mapped materials with a UV frame; prim: (n,) the rows' triangles."""
+        g, mats = self.scene.geometry, self.scene.materials
+        if g.tangent is None:  # no triangle of a normal-mapped material
+            return
+        si.ns = perturb_normals(si.ns, si.ng, si.wo, params.normal, mats.normal_mapped[si.mat], prim,
+                                g.tangent, g.handed, g.face_normal)
 
     def _add_light_hits(self, L, em: "_Emission", o, t_limit, seen) -> None:
         """Add emission of every finite light crossed before t_limit by the rows in ``seen``

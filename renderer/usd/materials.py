@@ -27,7 +27,8 @@ _TEXTURE_ID = "UsdUVTexture"
 _WRAP_MODES = ("black", "clamp", "repeat", "mirror")
 _COLOR_SPACES = ("raw", "sRGB", "auto")
 _OUTPUT_CHANNELS = {"rgb": slice(0, 3), "r": 0, "g": 1, "b": 2, "a": 3}
-# MaterialDesc field -> (UsdPreviewSurface input, kind); kind 'color' | 'float'.
+# MaterialDesc field -> (UsdPreviewSurface input, kind); kind 'color' | 'float' | 'vector'
+# ('vector': three components like a colour, e.g. the tangent-space normal3f ``normal``).
 _TEXTURABLE = {
     "diffuse_color": ("diffuseColor", "color"),
     "emissive_color": ("emissiveColor", "color"),
@@ -35,6 +36,7 @@ _TEXTURABLE = {
     "metallic": ("metallic", "float"),
     "roughness": ("roughness", "float"),
     "opacity": ("opacity", "float"),
+    "normal": ("normal", "vector"),
 }
 
 
@@ -151,7 +153,7 @@ class MaterialTable:
         fields["ior"] = float(self._constant_input(shader, "ior"))
         fields["opacity_threshold"] = float(self._constant_input(shader, "opacityThreshold"))
         fields["opacity_mode"] = str(self._constant_input(shader, "opacityMode"))
-        for unsupported in ("normal", "displacement", "clearcoat", "occlusion"):
+        for unsupported in ("displacement", "clearcoat", "occlusion"):
             inp = shader.GetInput(unsupported)
             if inp and (inp.HasConnectedSource() or inp.GetAttr().HasAuthoredValue()):
                 ctx.warn(f"preview-{unsupported}",
@@ -205,7 +207,7 @@ class MaterialTable:
             where, attr_name = attr.GetPrim(), attr.GetName()
         else:
             value = self._surface_defaults.get(name)
-        if kind == "color":
+        if kind != "float":
             return MaterialInput(ctx.finite_tuple(where, attr_name, value))
         return MaterialInput(ctx.finite_float(where, attr_name, value))
 
@@ -215,9 +217,9 @@ class MaterialTable:
         sel = _OUTPUT_CHANNELS.get(output, slice(0, 3))
         if isinstance(sel, slice):
             rgb = tuple(float(x) for x in value4[sel])
-            return rgb if kind == "color" else rgb[0]
+            return rgb if kind != "float" else rgb[0]
         v = float(value4[sel])
-        return (v, v, v) if kind == "color" else v
+        return (v, v, v) if kind != "float" else v
 
     # ---- UsdUVTexture ----------------------------------------------------------------
     def _texture_value(self, tex: UsdShade.Shader, name: str):
