@@ -72,6 +72,11 @@ class Accel:
         self.bounds = (lo, hi)
         self.diagonal = float(np.linalg.norm(hi - lo))
         self.magnitude = float(max(np.abs(lo).max(), np.abs(hi).max()))
+        # Largest |coordinate| of each triangle's vertices (T,): embree's float32 hit distance
+        # errs in proportion to the vertices' magnitude, not only the hit point's (a tilted
+        # plane through the origin with vertices 50 units out self-shadowed a third of its
+        # shadow rays near the origin when the offset scaled with |p| alone).
+        self.tri_mag = np.ascontiguousarray(np.abs(tri).max(axis=(1, 2))) if self.count else np.zeros(0)
         self._scene = None
         if self.count:
             self._scene = rtcs.EmbreeScene()
@@ -85,15 +90,18 @@ class Accel:
             self._pool = None
 
     # ----------------------------------------------------------------------------------
-    def ray_epsilon(self, p: np.ndarray) -> np.ndarray:
-        """(n,) origin offset for points p (n, 3): proportional to their float32 rounding error."""
+    def ray_epsilon(self, p: np.ndarray, prim: np.ndarray | None = None) -> np.ndarray:
+        """(n,) origin offset for points p (n, 3) on triangles prim (n,): proportional to the
+        float32 rounding error of the point and of the triangle's vertices (``tri_mag``)."""
         a = np.abs(p)
         mag = np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])  # cheaper than max(axis=1) on (n, 3)
+        if prim is not None and self.count:
+            mag = np.maximum(mag, self.tri_mag[np.asarray(prim, dtype=np.int64)])
         return _REL_EPS * np.maximum(mag, 1e-3 * self.diagonal) + 1e-9 * self.diagonal + 1e-30
 
     def epsilon_terms(self) -> tuple[float, float, float]:
-        """(rel, floor, add) with ray_epsilon(p) = rel max(max_k |p_k|, floor) + add, for kernels
-        that offset origins themselves."""
+        """(rel, floor, add) with ray_epsilon(p, prim) = rel max(max_k |p_k|, tri_mag[prim], floor)
+        + add, for kernels that offset origins themselves."""
         return _REL_EPS, 1e-3 * self.diagonal, 1e-9 * self.diagonal + 1e-30
 
     def _map(self, fn, n: int):

@@ -453,7 +453,7 @@ def raw_ray_batches(scene, cam, w: int, h: int, seed: int, min_rays: int = 65536
     ng = np.where((np.sum(ng * rays.d[hit], axis=1) > 0.0)[:, None], -ng, ng)
     s_, t_ = coordinate_frame(ng)
     wi = to_world(sample_cosine_hemisphere(rng.random((p.shape[0], 2))), s_, t_, ng)
-    o_b = offset_origin(p, ng, wi, scene.accel.ray_epsilon(p))
+    o_b = offset_origin(p, ng, wi, scene.accel.ray_epsilon(p, hits.prim[hit]))
     return {"camera": (o_cam, rays.d), "bounce": (o_b, wi)}
 
 

@@ -59,7 +59,7 @@ U_LIGHT = 4
 @njit(cache=True, nogil=True)
 def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U,
-    vertices, face_normal, normals, tri_mat, Pm, ta, tb,
+    vertices, face_normal, normals, tri_mat, tri_mag, Pm, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
     d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
@@ -186,7 +186,8 @@ def vertex_kernel(
         ao, bo = _lookup(woz, j0, fy, ta, tb)
         p_d = _p_diffuse(Pm[m, RHO], Pm[m, RHO + 1], Pm[m, RHO + 2], Pm[m, F0], Pm[m, F0 + 1], Pm[m, F0 + 2],
                          Pm[m, F90], Pm[m, F90 + 1], Pm[m, F90 + 2], ao, bo)
-        mag = max(max(abs(px), abs(py)), abs(pz))
+        # Accel.ray_epsilon: the point's and the triangle's vertices' float32 error.
+        mag = max(max(max(abs(px), abs(py)), abs(pz)), tri_mag[k])
         eps = eps_rel * max(mag, eps_floor) + eps_add
         # ---- the light half of continuation MIS, every light (the exhaustive sampler) ------
         for g in range(nl):

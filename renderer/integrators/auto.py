@@ -121,7 +121,7 @@ def pilot_points(integ, rng: np.random.Generator):
     s, t = coordinate_frame(si.ns)
     wo_l = to_local(si.wo, s, t, si.ns)
     bsdf.bind_wo(wo_l)
-    return k, ShadingContext(si.p, si.ng, si.ns), s, t, wo_l, bsdf, scene.accel.ray_epsilon(si.p), si.mesh
+    return k, ShadingContext(si.p, si.ng, si.ns), s, t, wo_l, bsdf, scene.accel.ray_epsilon(si.p, si.prim), si.mesh
 
 
 class _LightPilot:

@@ -106,7 +106,8 @@ class FastPath:
         g = scene.geometry
         f64 = np.float64
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
-                    np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64))
+                    np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64),
+                    scene.accel.tri_mag)
         from ..estimators import HEURISTICS
 
         self.power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))

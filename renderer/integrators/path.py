@@ -176,7 +176,8 @@ class RayCounters:
 @dataclass
 class Interaction:
     """Surface hits of the live rays. p: (n,3); ng, ns: (n,3) unit, flipped to face wo;
-    wo: (n,3) unit toward the previous vertex; st: (n,2); mat, mesh: (n,) int."""
+    wo: (n,3) unit toward the previous vertex; st: (n,2); mat, mesh, prim: (n,) int (prim: the
+    triangle, for the origin offset's scale)."""
 
     p: np.ndarray
     ng: np.ndarray
@@ -185,6 +186,7 @@ class Interaction:
     st: np.ndarray
     mat: np.ndarray
     mesh: np.ndarray
+    prim: np.ndarray
 
 
 class PathIntegrator:
@@ -392,7 +394,7 @@ class PathIntegrator:
                 through = rng.random(path.size) >= scene.materials.presence(params)
             if np.any(through):
                 tr = np.nonzero(through)[0]
-                pass_o = offset_origin(si.p[tr], si.ng[tr], d[tr], scene.accel.ray_epsilon(si.p[tr]))
+                pass_o = offset_origin(si.p[tr], si.ng[tr], d[tr], scene.accel.ray_epsilon(si.p[tr], si.prim[tr]))
                 pass_state = (path[tr], beta[tr], pass_o, d[tr], tmax[tr] - t_hit[tr], depth[tr], unsampled[tr],
                               cont[tr], prev[tr], prev_mesh[tr])
                 solid = np.nonzero(~through)[0]
@@ -427,7 +429,7 @@ class PathIntegrator:
                 # Precompute the BSDF's wo-dependent terms once per vertex (E(wo) albedo lookups).
                 bsdf.bind_wo(wo_l)
                 ctx = ShadingContext(si.p, si.ng, si.ns)
-                eps = scene.accel.ray_epsilon(si.p)
+                eps = scene.accel.ray_epsilon(si.p, si.prim)
                 # The continuation ray can carry MIS halves only where it is traced and its hit
                 # may still add emission: not from the last scattering vertex.
                 continues = depth + 1 < max_depth
@@ -494,7 +496,7 @@ class PathIntegrator:
     def _interaction(self, prim: np.ndarray, b1: np.ndarray, b2: np.ndarray, d: np.ndarray) -> Interaction:
         g = self.scene.geometry
         p, ng, ns, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, prim, b1, b2, d)
-        return Interaction(p=p, ng=ng, ns=ns, wo=-d, st=st, mat=g.material[prim], mesh=g.mesh[prim])
+        return Interaction(p=p, ng=ng, ns=ns, wo=-d, st=st, mat=g.material[prim], mesh=g.mesh[prim], prim=prim)
 
     def _apply_normal_maps(self, si: Interaction, prim: np.ndarray, params) -> None:
         """Replace si.ns by the normal-mapped shading normals (geometry.perturb_normals) on rows

@@ -88,3 +88,30 @@ def test_prepared_float32_queries_match_the_float64_ones(threads):
     blocked = acc.occluded_prepared(o32, d32, tmax.astype(np.float32))
     np.testing.assert_array_equal(blocked, acc.occluded(o, d, tmax))
     assert blocked.any() and not blocked.all()
+
+
+@pytest.mark.parametrize("size", [2.0, 50.0])
+def test_offset_scales_with_the_triangle_not_only_the_point(size):
+    """Points near the origin on a tilted plane whose vertices lie far out: embree's float32 hit
+    distance errs in proportion to the vertices' magnitude, so an offset scaled by |p| alone let
+    9 % (size 2) to 34 % (size 50) of the shadow rays leaving the plane hit the plane itself.
+    With the triangle's magnitude (ray_epsilon(p, prim)) none do."""
+    rng = np.random.default_rng(0)
+    tilt = 0.3
+    R = np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]])
+    v = np.array([[-size, -size, 0], [size, -size, 0], [size, size, 0], [-size, size, 0]], float) @ R.T
+    acc = Accel(np.array([[v[0], v[1], v[2]], [v[0], v[2], v[3]]]), threads=1)
+    n = 100000
+    p = np.c_[rng.uniform(-0.05, 0.05, (n, 2)) * size, np.zeros(n)] @ R.T
+    ng = np.tile(np.array([0, 0, 1.0]) @ R.T, (n, 1))
+    wi = rng.normal(size=(n, 3))
+    wi[:, 2] = np.abs(wi[:, 2]) + 0.05
+    wi = (wi / np.linalg.norm(wi, axis=1, keepdims=True)) @ R.T
+    # The triangle under each point: its hit along the normal from just above.
+    prim = acc.intersect(p + ng * 1e-3 * size, -ng).prim
+    assert np.all(prim >= 0)
+    far = np.full(n, 1e30)
+    old = acc.occluded(offset_origin(p, ng, wi, acc.ray_epsilon(p)), wi, far).mean()
+    new = acc.occluded(offset_origin(p, ng, wi, acc.ray_epsilon(p, prim)), wi, far).mean()
+    assert old > 0.01  # the failure this guards against is real at this setup
+    assert new == 0.0
