@@ -12,7 +12,7 @@ A scene qualifies when it has
   the exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
-* UsdPreviewSurface materials without textures, cutouts or emission (one packed BSDF row per
+* UsdPreviewSurface materials without textures, normal maps, cutouts or emission (one packed BSDF row per
   material), no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
   maximum depth of at least 2.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
@@ -70,6 +70,8 @@ def fast_path_reason(integ) -> str:
         # this one would trace one per pixel for the BSDF half (module docstring).
         return "max depth <= 1"
     mats = scene.materials
+    if getattr(mats, "has_normal_map", False):
+        return "normal-mapped materials"
     if mats.params_needed or mats.packed_bsdf() is None:
         return "textured, emissive or cut-out materials"
     return ""
