@@ -77,6 +77,21 @@ def _put(out, r, v):
     out[r, 2] = v[2]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _around(axis, c, sn, phi):
+    """c axis + sn (cos phi s + sin phi t): the direction at polar cosine c (sine sn) and azimuth
+    phi about the unit axis, in geometry.coordinate_frame(axis)'s frame (Duff et al. 2017).
+    numba-inlined: as a call it passed its tuples through memory (sphere sample 52 -> 83 ns/row)."""
+    sign = 1.0 if axis[2] >= 0.0 else -1.0
+    fa = -1.0 / (sign + axis[2])
+    fb = axis[0] * axis[1] * fa
+    s = (1.0 + sign * axis[0] * axis[0] * fa, sign * fb, -sign * axis[0])
+    t = (fb, sign + axis[1] * axis[1] * fa, -axis[1])
+    ks = sn * math.cos(phi)
+    kt = sn * math.sin(phi)
+    return _add(_add(_scale(c, axis), _scale(ks, s)), _scale(kt, t))
+
+
 @njit(cache=True, nogil=True)
 def _dir_dist(p, q):
     """_common.direction_and_distance for one row: unit p -> q and the distance (zero stays zero)."""
@@ -588,16 +603,7 @@ def _sphere_sample_row(pr, u0, u1, c, r, delta_i):
     ratio = ratio2 * math.sqrt(sin2_max)
     cos_a = _clip(ratio + cos_t * math.sqrt(max(0.0, 1.0 - ratio2)), -1.0, 1.0)
     sin_a = math.sqrt(max(0.0, 1.0 - cos_a * cos_a))
-    phi = 2.0 * _PI * u1
-    # geometry.coordinate_frame(w_c) (Duff et al. 2017).
-    sign = 1.0 if w_c[2] >= 0.0 else -1.0
-    fa = -1.0 / (sign + w_c[2])
-    fb = w_c[0] * w_c[1] * fa
-    s = (1.0 + sign * w_c[0] * w_c[0] * fa, sign * fb, -sign * w_c[0])
-    t = (fb, sign + w_c[1] * w_c[1] * fa, -w_c[1])
-    ks = sin_a * math.cos(phi)
-    kt = sin_a * math.sin(phi)
-    n_s = _add(_add(_scale(-cos_a, w_c), _scale(ks, s)), _scale(kt, t))
+    n_s = _around(w_c, -cos_a, sin_a, 2.0 * _PI * u1)
     pl = _add(c, _scale(r, n_s))
     wi, dist = _dir_dist(pr, pl)
     den = _TWO_PI * omc
@@ -683,17 +689,7 @@ def _distant_sample_row(u0, u1, axis, omc, delta_i):
     if delta_i:
         return axis, 1.0
     x = u0 * omc  # 1 - cos theta, uniform in [0, omc]
-    cos_t = 1.0 - x
-    sin_t = math.sqrt(max(0.0, x * (2.0 - x)))
-    phi = 2.0 * _PI * u1
-    sign = 1.0 if axis[2] >= 0.0 else -1.0
-    fa = -1.0 / (sign + axis[2])
-    fb = axis[0] * axis[1] * fa
-    s = (1.0 + sign * axis[0] * axis[0] * fa, sign * fb, -sign * axis[0])
-    t = (fb, sign + axis[1] * axis[1] * fa, -axis[1])
-    ks = sin_t * math.cos(phi)
-    kt = sin_t * math.sin(phi)
-    wi = _add(_add(_scale(cos_t, axis), _scale(ks, s)), _scale(kt, t))
+    wi = _around(axis, 1.0 - x, math.sqrt(max(0.0, x * (2.0 - x))), 2.0 * _PI * u1)
     return wi, 1.0 / (_TWO_PI * omc)
 
 
