@@ -337,6 +337,8 @@ def lambert_materials():
 
 def illum_render(stage, variant, **kw):
     ctx = lambert_materials() if variant == "lambert" else contextlib.nullcontext()
+    if variant == "lambert":
+        kw["fast_path"] = False  # the fast path reads UsdPreviewSurface rows, not the swapped BSDF
     with ctx:
         t0 = time.process_time()
         res = render(stage, RenderOptions(**kw))

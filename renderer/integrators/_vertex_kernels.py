@@ -59,7 +59,7 @@ U_LIGHT = 4
 @njit(cache=True, nogil=True)
 def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U,
-    vertices, face_normal, normals, tri_mat, tri_mag, Pm, ta, tb,
+    vertices, face_normal, normals, tri_mat, tri_mag, Pm, mat_row, emission, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
     d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
@@ -72,7 +72,10 @@ def vertex_kernel(
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
-    a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows; light tables: the
+    a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows, or with mat_row (n,)
+    non-empty, per-hit rows: ray r's row is mat_row[r], and emission (hits, 3) (if not empty) is
+    the radiance its surface emits (added in full: emitting surfaces are reached by BSDF samples
+    only, as in the general path); light tables: the
     RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
     the infinite lights (i_*: i_dome True for a constant DomeLight, else a DistantLight with
     i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
@@ -161,6 +164,12 @@ def vertex_kernel(
                 L[pr_path, 1] += b1 * i_radiance[j, 1] * w
                 L[pr_path, 2] += b2 * i_radiance[j, 2] * w
             continue
+        per_hit = mat_row.shape[0] > 0
+        m = mat_row[r] if per_hit else tri_mat[k]
+        if emission.shape[0] > 0:
+            L[pr_path, 0] += b0 * emission[m, 0]
+            L[pr_path, 1] += b1 * emission[m, 1]
+            L[pr_path, 2] += b2 * emission[m, 2]
         if depth[r] >= max_depth:
             continue
         n_vertices += 1
@@ -179,7 +188,6 @@ def vertex_kernel(
         woy = -(d[0] * t[0] + d[1] * t[1] + d[2] * t[2])
         woz = -(d[0] * sx + d[1] * sy + d[2] * sz)
         # ---- the material's BSDF and its wo terms -----------------------------------------
-        m = tri_mat[k]
         a = Pm[m, ALPHA]
         j0 = int(Pm[m, J0])
         fy = Pm[m, FY]

@@ -12,8 +12,8 @@ A scene qualifies when it has
   the exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
-* UsdPreviewSurface materials without textures, normal maps, cutouts or emission (one packed BSDF row per
-  material), no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
+* UsdPreviewSurface materials without normal maps or cutouts: one packed BSDF row per material,
+  or, where inputs are textured or surfaces emit, rows evaluated per hit before the kernel runs, no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
   maximum depth of at least 2.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import surface_interaction
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
@@ -72,8 +73,10 @@ def fast_path_reason(integ) -> str:
     mats = scene.materials
     if getattr(mats, "has_normal_map", False):
         return "normal-mapped materials"
-    if mats.params_needed or mats.packed_bsdf() is None:
-        return "textured, emissive or cut-out materials"
+    if mats.has_cutout:
+        return "cut-out materials (opacity)"
+    if not mats.params_needed and mats.packed_bsdf() is None:
+        return "no packed UsdPreviewSurface rows"
     return ""
 
 
@@ -104,7 +107,19 @@ class FastPath:
                     np.ascontiguousarray(np.concatenate([np.reshape(dome.L, (nd, 3)), np.reshape(dist.L, (nt, 3))]),
                                          np.float64),
                     self.inf_light)
-        self.Pm, self.ta, self.tb = scene.materials.packed_bsdf()
+        mats = scene.materials
+        # Textured inputs or emission: the material is evaluated per hit (st needed) and the
+        # kernel reads per-hit rows; otherwise one packed row per material.
+        self.per_hit = bool(mats.params_needed)
+        if self.per_hit:
+            from ..bsdfs.microfacet import albedo_tables
+
+            tables = albedo_tables()
+            self.Pm, self.ta, self.tb = np.zeros((0, 0)), tables.a, tables.b
+        else:
+            self.Pm, self.ta, self.tb = mats.packed_bsdf()
+        self.no_rows = np.zeros(0, dtype=np.int64)
+        self.no_emission = np.zeros((0, 3))
         g = scene.geometry
         f64 = np.float64
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
@@ -146,6 +161,8 @@ class FastPath:
             if not n:
                 break
             prim, b1, b2 = accel.intersect_prepared(o32, d32, t32)
+            Pm, mat_row, emission = self._surfaces(prim, b1, b2, S) if self.per_hit else (
+                self.Pm, self.no_rows, self.no_emission)
             U = rng.random((n, vk.U_LIGHT + 2 * nl))
             n_path = np.empty(n, dtype=np.int64)
             n_depth = np.empty(n, dtype=np.int64)
@@ -159,7 +176,8 @@ class FastPath:
             sh_path = np.empty(n * nl, dtype=np.int64)
             sh_c = np.empty((n * nl, 3))
             vk.vertex_kernel(
-                path, depth, unsampled, S, t32, prim, b1, b2, U, *self.geo, self.Pm, self.ta, self.tb,
+                path, depth, unsampled, S, t32, prim, b1, b2, U, *self.geo, Pm, mat_row, emission, self.ta,
+                self.tb,
                 rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
                 rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
                 dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
@@ -178,3 +196,22 @@ class FastPath:
             unsampled = np.zeros(k_next, dtype=bool)
         integ.rule_counts["continuation_mis"] += pairs
         return L
+
+    def _surfaces(self, prim, b1, b2, S):
+        """Per-hit material rows for textured or emissive materials: (P (h, K) packed
+        UsdPreviewSurface rows of the h hits, row (n,) int64 index into P per ray (-1: missed),
+        emission (h, 3) radiance, or (0, 3) when no material emits)."""
+        scene = self.integ.scene
+        g = scene.geometry
+        row = np.full(prim.shape[0], -1, dtype=np.int64)
+        hit = np.nonzero(prim >= 0)[0]
+        row[hit] = np.arange(hit.size)
+        k = prim[hit].astype(np.int64)
+        _, _, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, k, b1[hit], b2[hit],
+                                          np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
+        mat = g.material[k]
+        params = scene.materials.evaluate(mat, st)
+        P = np.ascontiguousarray(scene.materials.bsdf(mat, params).packed)
+        emission = (np.ascontiguousarray(params.emission, dtype=np.float64) if scene.materials.has_emission
+                    else self.no_emission)
+        return P, row, emission

@@ -15,7 +15,7 @@ import os
 
 import numpy as np
 import pytest
-from pxr import Gf, UsdGeom, UsdLux
+from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from renderer.integrators import fast_path as fp_mod
 from renderer.render import RenderOptions, render
@@ -35,7 +35,8 @@ def _rect(stage, name, width, height, intensity, normalize=False, color=(1.0, 1.
     return UsdGeom.Xformable(light)
 
 
-def _room(path, more_kinds: bool = False, infinite: bool = False, textured: bool = False, portal: bool = False):
+def _room(path, more_kinds: bool = False, infinite: bool = False, textured: bool = False, portal: bool = False,
+          emissive: bool = False, cutout: bool = False):
     stage = new_stage(path)
     add_camera(stage, pos=(0, 1.4, 5.5))
     add_settings(stage, (48, 36))
@@ -56,14 +57,30 @@ def _room(path, more_kinds: bool = False, infinite: bool = False, textured: bool
         ball.AddTranslateOp().Set(Gf.Vec3d(*pos))
         bind(ball.GetPrim(), look)
     if textured:
-        from pxr import Sdf, UsdShade
-
+        # A checker diffuse colour and a striped roughness on the floor, read through its st.
+        floor = UsdGeom.Mesh.Get(stage, "/World/Floor")
+        UsdGeom.PrimvarsAPI(floor).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                 UsdGeom.Tokens.vertex).Set([(0, 0), (3, 0), (3, 3), (0, 3)])
         shader = UsdShade.Shader.Get(stage, "/World/Looks/Matte/PBR")
-        tex = UsdShade.Shader.Define(stage, "/World/Looks/Matte/Tex")
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(os.path.abspath("stages/textures/roughness_stripes.png"))
-        tex.CreateOutput("r", Sdf.ValueTypeNames.Float)
-        shader.GetInput("roughness").ConnectToSource(tex.ConnectableAPI(), "r")
+        reader = UsdShade.Shader.Define(stage, "/World/Looks/Matte/St")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        st_out = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+        for name, file, out, inp, kind in (
+                ("Tex", "roughness_stripes.png", "r", "roughness", Sdf.ValueTypeNames.Float),
+                ("Checker", "checker.png", "rgb", "diffuseColor", Sdf.ValueTypeNames.Float3)):
+            tex = UsdShade.Shader.Define(stage, f"/World/Looks/Matte/{name}")
+            tex.CreateIdAttr("UsdUVTexture")
+            tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(os.path.abspath(f"stages/textures/{file}"))
+            tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st_out)
+            tex.CreateOutput(out, kind)
+            shader.GetInput(inp).ConnectToSource(tex.ConnectableAPI(), out)
+    if emissive or cutout:
+        shader = UsdShade.Shader.Get(stage, "/World/Looks/Gloss/PBR")
+        if emissive:
+            shader.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0.8, 0.3, 0.1))
+        if cutout:
+            shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(0.5)
     # A large tilted light the continuation rays often reach, a sheared one (area sampling) and
     # one facing partly away, behind the ball.
     xf = _rect(stage, "Big", 2.5, 1.5, 3.0)
@@ -140,11 +157,13 @@ def _pair(stage, max_depth, spp, rr_depth=3):
     return fast, slow
 
 
-@pytest.mark.parametrize("max_depth,more_kinds,infinite", [(2, False, False), (5, False, False), (2, True, False),
-                                                           (5, True, False), (2, False, True), (5, False, True)])
-def test_fast_path_matches_general_path(tmp_path, max_depth, more_kinds, infinite):
+@pytest.mark.parametrize("max_depth,kw", [
+    (2, {}), (5, {}), (2, {"more_kinds": True}), (5, {"more_kinds": True}), (2, {"infinite": True}),
+    (5, {"infinite": True}), (2, {"textured": True, "emissive": True}), (5, {"textured": True, "emissive": True}),
+])
+def test_fast_path_matches_general_path(tmp_path, max_depth, kw):
     stage = tmp_path / "room.usda"
-    _room(stage, more_kinds=more_kinds, infinite=infinite)
+    _room(stage, **kw)
     # Roulette from the first bounce, so the fast path's roulette is exercised at depth 5.
     fast, slow = _pair(stage, max_depth, spp=256, rr_depth=1)
     assert fast.stats["fast_path"] == "on"
@@ -174,7 +193,7 @@ def test_fast_path_on_the_cornell_box():
 
 @pytest.mark.parametrize("kw,opt,reason", [
     ({"portal": True}, {}, "a textured DomeLight or dome portals"),
-    ({"textured": True}, {}, "textured, emissive or cut-out materials"),
+    ({"cutout": True}, {}, "cut-out materials (opacity)"),
     ({}, {"max_depth": 1}, "max depth <= 1"),
     ({}, {"emitter_samples": 2}, "emitter samples > 1"),
     ({}, {"light_sampler": "power"}, "a stochastic light sampler"),
