@@ -32,7 +32,7 @@ from renderer.bsdfs._preview_kernels import (
 from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
-    _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
+    _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
 )
 
@@ -63,7 +63,9 @@ def vertex_kernel(
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
     d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
-    i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light,
+    i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
+    im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
+    im_col_cdf_start,
     power, min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
@@ -77,8 +79,9 @@ def vertex_kernel(
     the radiance its surface emits (added in full: emitting surfaces are reached by BSDF samples
     only, as in the general path); light tables: the
     RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
-    the infinite lights (i_*: i_dome True for a constant DomeLight, else a DistantLight with
-    i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
+    the infinite lights (i_*: i_dome True for a DomeLight, with i_tex its image in the ImageSet
+    im_* or -1 for a constant one and i_rot (3, 3) its local -> world rotation; else a
+    DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
     its power flag); power: (lights,) bool heuristic. L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
@@ -154,15 +157,23 @@ def vertex_kernel(
             for q in range(n_fin, nl):
                 j = q - n_fin
                 if i_dome[j]:
-                    p_l = _INV_4PI
+                    if i_tex[j] >= 0:
+                        p_l, kt = _dome_texel_row(d, i_tex[j], i_rot[j], im_height, im_width, im_weight, im_total,
+                                                  im_offset)
+                        Le = (i_radiance[j, 0] * im_texels[kt, 0], i_radiance[j, 1] * im_texels[kt, 1],
+                              i_radiance[j, 2] * im_texels[kt, 2])
+                    else:
+                        p_l = _INV_4PI
+                        Le = _row(i_radiance, j)
                 else:
                     p_l = _distant_pdf_row(d, _row(i_axis, j), i_omc[j], i_delta[j])
                     if p_l <= 0.0:
                         continue  # outside the cone (a delta light is never seen)
+                    Le = _row(i_radiance, j)
                 w = 1.0 if unsampled[r] else _mis_weight(S[r, PB], p_l, power[inf_light[j]])
-                L[pr_path, 0] += b0 * i_radiance[j, 0] * w
-                L[pr_path, 1] += b1 * i_radiance[j, 1] * w
-                L[pr_path, 2] += b2 * i_radiance[j, 2] * w
+                L[pr_path, 0] += b0 * Le[0] * w
+                L[pr_path, 1] += b1 * Le[1] * w
+                L[pr_path, 2] += b2 * Le[2] * w
             continue
         per_hit = mat_row.shape[0] > 0
         m = mat_row[r] if per_hit else tri_mat[k]
@@ -211,15 +222,20 @@ def vertex_kernel(
             elif g >= n_fin:
                 j = g - n_fin
                 gl = inf_light[j]
-                if i_dome[j]:
+                Le = _row(i_radiance, j)
+                if i_dome[j] and i_tex[j] >= 0:
+                    wi, pdf_l, kt = _dome_sample_row(
+                        U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], i_tex[j], i_rot[j], im_height, im_width,
+                        im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
+                    Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
+                elif i_dome[j]:
                     wi = _uniform_sphere_row(U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1])
                     pdf_l = _INV_4PI
                 else:
                     wi, pdf_l = _distant_sample_row(U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1],
                                                     _row(i_axis, j), i_omc[j], i_delta[j])
                 dist = math.inf
-                ok = True
-                Le = _row(i_radiance, j)
+                ok = pdf_l > 0.0
                 delta = i_delta[j] and not i_dome[j]
             elif g >= n_rs:
                 j = g - n_rs

@@ -8,7 +8,8 @@ z-test the two against each other and render with each on the same stages.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
-  and constant DomeLights (no texture, no portals), without ShapingAPI, ShadowAPI or light linking, with unit diffuse/specular multipliers, few enough for
+  and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
+  light linking, with unit diffuse/specular multipliers, few enough for
   the exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
@@ -54,8 +55,8 @@ def fast_path_reason(integ) -> str:
     if np.any(rl.tex >= 0):
         return "a textured RectLight"
     dome = lights.kinds[KIND_NAMES.index("dome")]
-    if np.any(dome.tex >= 0) or np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
-        return "a textured DomeLight or dome portals"
+    if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
+        return "dome portals"
     if not getattr(scene.light_sampler, "exhaustive", False):
         return "a stochastic light sampler"
     if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
@@ -106,7 +107,16 @@ class FastPath:
                     np.concatenate([np.zeros(nd, bool), np.reshape(dist.delta, nt).astype(bool)]),
                     np.ascontiguousarray(np.concatenate([np.reshape(dome.L, (nd, 3)), np.reshape(dist.L, (nt, 3))]),
                                          np.float64),
-                    self.inf_light)
+                    self.inf_light,
+                    np.ascontiguousarray(np.concatenate([np.reshape(dome.tex, nd), np.full(nt, -1)]), np.int64),
+                    np.ascontiguousarray(np.concatenate([np.reshape(dome.rot, (nd, 3, 3)), np.zeros((nt, 3, 3))]),
+                                         np.float64))
+        im = dome.images
+        f64, i64 = np.float64, np.int64
+        self.images = tuple(np.ascontiguousarray(a, dtype=t) for a, t in (
+            (np.reshape(im.texels, (-1, 3)), f64), (im.offset, i64), (im.height, i64), (im.width, i64),
+            (im.weight, f64), (im.total, f64), (im.row_cdf, f64), (im.row_cdf_start, i64), (im.col_cdf, f64),
+            (im.col_cdf_start, i64)))
         mats = scene.materials
         # Textured inputs or emission: the material is evaluated per hit (st needed) and the
         # kernel reads per-hit rows; otherwise one packed row per material.
@@ -181,7 +191,7 @@ class FastPath:
                 rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
                 rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
                 dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
-                DISK_CLOSE_RATIO, *self.inf,
+                DISK_CLOSE_RATIO, *self.inf, *self.images,
                 self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
                 eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t,
                 sh_path, sh_c, counts)

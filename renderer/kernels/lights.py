@@ -710,3 +710,111 @@ def _uniform_sphere_row(u0, u1):
     r = math.sqrt(max(0.0, 1.0 - z * z))
     phi = 2.0 * _PI * u1
     return (r * math.cos(phi), r * math.sin(phi), z)
+
+
+# --------------------------------------------------------------------------------------
+# Textured DomeLight, per row (renderer/lights/dome.py and texture.ImageSet's numpy, for the
+# fast path's vertex kernel): lat-long texel <-> direction and the texel-luminance distribution.
+# --------------------------------------------------------------------------------------
+_BELOW_ONE = 1.0 - 2.0 ** -53  # np.nextafter(1.0, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _cdf_search(cdf, start, ncells, u):
+    """texture._search for one row: the largest k in [0, ncells - 1] with cdf[start + k] <= u."""
+    lo = 0
+    hi = ncells
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if cdf[start + mid] <= u:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _cdf_fraction(lo, hi, u):
+    """texture._fraction for one row: where u falls in [lo, hi), in [0, 1)."""
+    w = hi - lo
+    f = (u - lo) / w if w > 0.0 else 0.0
+    return min(max(f, 0.0), _BELOW_ONE)
+
+
+@njit(cache=True, nogil=True)
+def _image_sample_row(img, u0, u1, height, width, row_cdf, row_cdf_start, col_cdf, col_cdf_start):
+    """ImageSet.sample for one row: (row, col, s, t) -- u1 picks the row, u0 the column."""
+    h = height[img]
+    w = width[img]
+    rs = row_cdf_start[img]
+    row = _cdf_search(row_cdf, rs, h, u1)
+    t = _cdf_fraction(row_cdf[rs + row], row_cdf[rs + row + 1], u1)
+    cs = col_cdf_start[img] + row * (w + 1)
+    col = _cdf_search(col_cdf, cs, w, u0)
+    s = _cdf_fraction(col_cdf[cs + col], col_cdf[cs + col + 1], u0)
+    return row, col, s, t
+
+
+@njit(cache=True, nogil=True)
+def _texel_flat(img, row, col, offset, height, width):
+    """ImageSet.texel_index for one row (clamped to the image)."""
+    r = min(max(row, 0), height[img] - 1)
+    c = min(max(col, 0), width[img] - 1)
+    return offset[img] + r * width[img] + c
+
+
+@njit(cache=True, nogil=True)
+def _latlong_texel(dl, h, w):
+    """dome.direction_to_texel for one local unit direction dl: the nearest (row, col)."""
+    theta = math.atan2(math.hypot(dl[0], dl[2]), dl[1])  # from +Y, [0, pi]
+    lon = math.atan2(dl[0], dl[2])  # (-pi, pi]
+    u = (_PI - lon) / _TWO_PI  # [0, 1]
+    row = min(max(int(math.floor(theta / _PI * h)), 0), h - 1)
+    col = int(math.floor(u * w)) % w
+    return row, col
+
+
+@njit(cache=True, nogil=True)
+def _latlong_band(row, h, w):
+    """(cos theta at the top of texel row ``row``, at its bottom, its solid angle / texel)."""
+    z_top = math.cos(_PI * row / h)
+    z_bot = math.cos(_PI * (row + 1) / h)
+    return z_top, z_bot, (_TWO_PI / w) * (z_top - z_bot)
+
+
+@njit(cache=True, nogil=True)
+def _dome_sample_row(u0, u1, img, rot, height, width, row_cdf, row_cdf_start, col_cdf, col_cdf_start, weight,
+                     total, offset):
+    """DomeLight._sample_dome for one textured row: (wi world, pdf, texel flat index). rot
+    (3, 3) is the dome's local -> world rotation."""
+    h = height[img]
+    w = width[img]
+    row, col, s, t = _image_sample_row(img, u0, u1, height, width, row_cdf, row_cdf_start, col_cdf,
+                                       col_cdf_start)
+    z_top, z_bot, omega = _latlong_band(row, h, w)
+    cos_t = z_top + t * (z_bot - z_top)
+    lon = _PI - _TWO_PI * ((col + s) / w)  # dome.texel_to_direction
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    dl = (math.sin(lon) * sin_t, cos_t, math.cos(lon) * sin_t)
+    wi = (rot[0, 0] * dl[0] + rot[0, 1] * dl[1] + rot[0, 2] * dl[2],
+          rot[1, 0] * dl[0] + rot[1, 1] * dl[1] + rot[1, 2] * dl[2],
+          rot[2, 0] * dl[0] + rot[2, 1] * dl[1] + rot[2, 2] * dl[2])
+    k = _texel_flat(img, row, col, offset, height, width)
+    pmf = weight[k] / total[img]
+    return wi, (pmf / omega if omega > 0.0 else 0.0), k
+
+
+@njit(cache=True, nogil=True)
+def _dome_texel_row(wi, img, rot, height, width, weight, total, offset):
+    """DomeLight._pdf_dome and le_escaped's texel for one textured row: (pdf, texel flat index)
+    of world direction wi."""
+    h = height[img]
+    w = width[img]
+    dl = (rot[0, 0] * wi[0] + rot[1, 0] * wi[1] + rot[2, 0] * wi[2],  # R^T wi
+          rot[0, 1] * wi[0] + rot[1, 1] * wi[1] + rot[2, 1] * wi[2],
+          rot[0, 2] * wi[0] + rot[1, 2] * wi[1] + rot[2, 2] * wi[2])
+    row, col = _latlong_texel(dl, h, w)
+    _, _, omega = _latlong_band(row, h, w)
+    k = _texel_flat(img, row, col, offset, height, width)
+    pmf = weight[k] / total[img]
+    return (pmf / omega if omega > 0.0 else 0.0), k
