@@ -14,7 +14,9 @@ from .conftest import read_exr_bytes, start_server, wait_for, wait_job
 
 # Short passes, enough of them to last seconds with checkpoints in between (100 passes took only
 # ~1.5 s once the renderer got faster, leaving ~0.1 s to catch a checkpoint before the end).
-SLOW_TINY = {"resolution": [16, 16], "spp": 400}
+# A job of several seconds with many passes (checkpoints in between): the Cornell box takes the
+# compiled fast path, ~0.25-0.6 M samples/s per worker here, so 48 x 48 x 2000 spp is ~8-18 s.
+SLOW_TINY = {"resolution": [48, 48], "spp": 2000}
 
 
 def _alive(pid: int) -> bool:
@@ -68,7 +70,7 @@ def test_worker_kill9_resumes_from_checkpoint(one_worker, tmp_path):
         assert resumed >= ckpt >= 10  # the second attempt continued, it did not start over
         assert done["result"]["resumed_from_spp"] == resumed
         img, attrs = read_exr_bytes(c.get(f"/jobs/{job['id']}/image", params={"format": "exr"}).content, tmp_path)
-        assert attrs["illum:spp"] == SLOW_TINY["spp"] and img.shape == (16, 16, 3) and img.mean() > 0.01
+        assert attrs["illum:spp"] == SLOW_TINY["spp"] and img.shape == (48, 48, 3) and img.mean() > 0.01
         assert "killed by SIGKILL" in s.log() or True  # the server logs at warning level
         assert not os.path.exists(os.path.join(s.data, "jobs", job["id"], "checkpoint.npz"))
 
@@ -88,13 +90,13 @@ def test_attempts_exhausted_fails_with_the_reason(one_worker):
 
 
 def test_cancel_beats_a_long_pass(one_worker):
-    """One pass at 1024x1024 takes far longer than the cancel deadline (a million samples at tens
-    of thousands per second): the supervisor kills the busy worker so the cancel still takes
-    effect within 2 s, and starts a replacement."""
+    """One pass at 2048x2048 takes far longer than the cancel deadline (4 M samples at well under
+    a million per second): the supervisor kills the busy worker so the cancel still takes effect
+    within 2 s, and starts a replacement."""
     s = one_worker
     with s.client() as c:
         job = c.post("/jobs", json={"stage": "cornell_box.usda",
-                                    "settings": {"resolution": [1024, 1024], "spp": 50}}).json()
+                                    "settings": {"resolution": [2048, 2048], "spp": 50}}).json()
         wait_for(lambda: "rendering (scene ready" in c.get(f"/jobs/{job['id']}/log").text, 60,
                  what="the first pass to start")
         _, pid = wait_for(lambda: _worker_of(s, job["id"]), 10, what="the worker")

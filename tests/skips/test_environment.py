@@ -54,7 +54,8 @@ def _horizon_stage(path, infinite=None):
 def test_no_environment_work_without_an_infinite_light(tmp_path, max_depth):
     path = _horizon_stage(tmp_path / "s.usda")
     with CallCounter(*WATCHED) as calls:
-        r = render(path, RenderOptions(spp=2, threads=1, max_depth=max_depth))
+        # The general path (the fast path's kernel loops over no infinite lights, unseen here).
+        r = render(path, RenderOptions(spp=2, threads=1, max_depth=max_depth, fast_path=False))
     img = r.film.mean()
     sky = (img == 0.0).all(axis=2)
     assert sky.sum() >= 0.3 * sky.size, "the stage must have escaping camera rays for this proof"
@@ -67,7 +68,7 @@ def test_the_environment_work_happens_with_an_infinite_light(tmp_path, infinite)
     """Control: the counter does see the calls when there is an environment to look up."""
     path = _horizon_stage(tmp_path / "s.usda", infinite)
     with CallCounter(*WATCHED) as calls:
-        r = render(path, RenderOptions(spp=2, threads=1, max_depth=2))
+        r = render(path, RenderOptions(spp=2, threads=1, max_depth=2, fast_path=False))
     assert calls[PathIntegrator._add_escaped] > 0 and calls[LightSet.le_escaped] > 0
     assert SKIP not in r.stats["skipped"]
     if infinite == "dome":
