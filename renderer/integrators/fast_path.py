@@ -95,7 +95,8 @@ class FastPath:
         self.rect_light, self.sphere_light, self.disk_light = (
             np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index(k))[0], dtype=np.int64)
             for k in FAST_KINDS)
-        # Infinite lights as one table: constant domes (i_dome) then distant lights.
+        # Infinite lights as one table: domes (i_dome; lat-long textured or constant) then distant
+        # lights; the domes' images (their texel-luminance distributions) ride along in self.images.
         dome, dist = (lights.kinds[KIND_NAMES.index(k)] for k in FAST_INFINITE)
         nd, nt = dome.count, dist.count
         self.inf_light = np.ascontiguousarray(np.concatenate(
@@ -217,6 +218,8 @@ class FastPath:
         hit = np.nonzero(prim >= 0)[0]
         row[hit] = np.arange(hit.size)
         k = prim[hit].astype(np.int64)
+        # Only st is wanted here; the kernel recomputes p and the normals itself (~18 ns a hit),
+        # which keeps its per-row state small.
         _, _, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, k, b1[hit], b2[hit],
                                           np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
         mat = g.material[k]
