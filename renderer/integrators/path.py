@@ -613,12 +613,13 @@ class PathIntegrator:
             Le = self.lights.le_escaped(light, em.d[rows])
             add_rows(L, em.path[rows], _t(em.beta, rows) * (Le * w[:, None]))
 
-    def _visible(self, p, ng, wi, dist, eps, accel=None, shadow=None) -> np.ndarray:
+    def _visible(self, p, ng, wi, dist, eps, accel=None, shadow=None, rng=None) -> np.ndarray:
         """Shadow rays: (m,) True where nothing blocks p -> p + wi * dist (dist may be inf).
 
         accel: the BVH to test (a light's shadowLink BVH), default the whole scene.
         shadow: the light group's ShadowAPI params (integrators/shadow_api.py), or None for
         plain rays; with them the result is a fractional visibility (m,) float in [0, 1].
+        rng: draws the presence of cut-out surfaces along the ray (scenes with opacity only).
         """
         o = offset_origin(p, ng, wi, eps)
         # Stop short of the light's surface by a relative margin and the origin offset.
@@ -628,11 +629,51 @@ class PathIntegrator:
             self.rays.add(shadow=traced)
             return v
         self.rays.add(shadow=p.shape[0])
+        if self.scene.materials.has_cutout and accel is None:
+            return self._visible_through_cutouts(o, wi, t_max, rng)
         return ~(accel or self.scene.accel).occluded(o, wi, t_max)
 
-    def _tracer_for(self, shadow_group: int):
+    def _visible_through_cutouts(self, o, wi, t_max, rng) -> np.ndarray:
+        """Shadow rays that see cut-out surfaces as camera and BSDF rays do: each surface met is
+        present with its presence probability (materials.presence_at, stochastic for opacity in
+        (0, 1) with opacityThreshold 0), so E[visibility] = prod (1 - presence) along the ray and
+        next-event estimation and the continuation ray (which passes through with the same
+        probability) estimate the same integral. An opaque query would let an opacity-0 card
+        block all light. Closest-hit queries, continuing past each absent surface (at most 64).
+        o, wi: (m, 3); t_max: (m,). Returns (m,) bool."""
+        accel, g, mats = self.scene.accel, self.scene.geometry, self.scene.materials
+        if rng is None:  # a caller without its own stream (fixed, so results stay reproducible)
+            rng = np.random.default_rng(0x5EED)
+        visible = np.ones(o.shape[0], dtype=bool)
+        o = np.array(o, dtype=np.float64)
+        t_left = np.array(t_max, dtype=np.float64)
+        active = np.arange(o.shape[0])
+        for _ in range(64):
+            if not active.size:
+                break
+            h = accel.intersect(o[active], wi[active], t_left[active])
+            hit = np.nonzero(h.prim >= 0)[0]
+            if not hit.size:
+                break
+            rows, prim = active[hit], h.prim[hit]
+            p, ng, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, prim, h.b1[hit],
+                                               h.b2[hit], wi[rows])
+            through = rng.random(rows.size) >= mats.presence_at(g.material[prim], st)
+            visible[rows[~through]] = False
+            k = np.nonzero(through)[0]
+            rows = rows[k]
+            # Continue just past the surface (ng faces the ray, so the offset goes behind it).
+            o_next = offset_origin(p[k], ng[k], wi[rows], accel.ray_epsilon(p[k], prim[k]))
+            t_left[rows] -= dot(o_next - o[rows], wi[rows])
+            o[rows] = o_next
+            active = rows[t_left[rows] > 0.0]
+        return visible
+
+    def _tracer_for(self, shadow_group: int, rng=None):
         if shadow_group < 0:
-            return self._visible
+            if rng is None or not self.scene.materials.has_cutout:
+                return self._visible
+            return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, rng=rng)
         accel = self.scene.shadow_accels[shadow_group]
         params = self.scene.shadow_params[shadow_group] if self.scene.shadow_params else None
         return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel, params)
@@ -685,7 +726,7 @@ class PathIntegrator:
             token = ESTIMATOR_TOKENS[tok[g[0]]]
             est = REGISTRY[token]
             Nk = int(N[g[0]])
-            trace = self._tracer_for(int(group[g[0]]) - 1)
+            trace = self._tracer_for(int(group[g[0]]) - 1, rng)
             fused = half[g[0]] and hasattr(bsdf, "path_light_half")
             if control is None and not fused:
                 control = bsdf.diffuse_constant(wo_l)
