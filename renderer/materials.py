@@ -8,7 +8,8 @@ with one vectorised lookup per texture.
 
 Opacity (UsdPreviewSurface spec) -> ``presence(params)``, the probability that the surface is
 there at a hit (the integrator continues the ray through the surface with probability
-1 - presence, which is unbiased for fractional opacity):
+1 - presence, which is unbiased for fractional opacity; shadow rays do the same through
+``presence_at``, so a cut-out casts the shadow of what is present):
 
 * opacityThreshold > 0: a cutout mask. presence = 1 where opacity >= threshold, else 0 (the spec:
   "opacity values less than the opacityThreshold will not be rendered, and values greater than
