@@ -317,6 +317,9 @@ def build_linking(lights, geo: GeometryTables, threads: int | None, accel: Accel
             else:
                 casts = ~mesh_mask(ex)[geo.mesh]  # per triangle
                 bvh = built[ex] = Accel(geo.vertices[casts], threads=threads)
+                # The scene triangle of each of its triangles (cut-out shadow rays look up the
+                # material at a hit: integrators/path.py _visible_through_cutouts).
+                bvh.tri_index = np.nonzero(casts)[0]
             groups[key] = len(accels)
             accels.append(bvh)
             params.append(sp)

@@ -629,19 +629,22 @@ class PathIntegrator:
             self.rays.add(shadow=traced)
             return v
         self.rays.add(shadow=p.shape[0])
-        if self.scene.materials.has_cutout and accel is None:
-            return self._visible_through_cutouts(o, wi, t_max, rng)
+        if self.scene.materials.has_cutout:
+            return self._visible_through_cutouts(o, wi, t_max, rng, accel)
         return ~(accel or self.scene.accel).occluded(o, wi, t_max)
 
-    def _visible_through_cutouts(self, o, wi, t_max, rng) -> np.ndarray:
+    def _visible_through_cutouts(self, o, wi, t_max, rng, accel=None) -> np.ndarray:
         """Shadow rays that see cut-out surfaces as camera and BSDF rays do: each surface met is
         present with its presence probability (materials.presence_at, stochastic for opacity in
         (0, 1) with opacityThreshold 0), so E[visibility] = prod (1 - presence) along the ray and
         next-event estimation and the continuation ray (which passes through with the same
         probability) estimate the same integral. An opaque query would let an opacity-0 card
         block all light. Closest-hit queries, continuing past each absent surface (at most 64).
-        o, wi: (m, 3); t_max: (m,). Returns (m,) bool."""
-        accel, g, mats = self.scene.accel, self.scene.geometry, self.scene.materials
+        o, wi: (m, 3); t_max: (m,); accel: a shadowLink BVH over a subset of the triangles
+        (its ``tri_index`` maps them to the scene's), default the scene's. Returns (m,) bool."""
+        accel = accel or self.scene.accel
+        g, mats = self.scene.geometry, self.scene.materials
+        tri_index = getattr(accel, "tri_index", None)
         if rng is None:  # a caller without its own stream (fixed, so results stay reproducible)
             rng = np.random.default_rng(0x5EED)
         visible = np.ones(o.shape[0], dtype=bool)
@@ -656,9 +659,10 @@ class PathIntegrator:
             if not hit.size:
                 break
             rows, prim = active[hit], h.prim[hit]
-            p, ng, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, prim, h.b1[hit],
+            tri = prim if tri_index is None else tri_index[prim]
+            p, ng, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, tri, h.b1[hit],
                                                h.b2[hit], wi[rows])
-            through = rng.random(rows.size) >= mats.presence_at(g.material[prim], st)
+            through = rng.random(rows.size) >= mats.presence_at(g.material[tri], st)
             visible[rows[~through]] = False
             k = np.nonzero(through)[0]
             rows = rows[k]
@@ -676,7 +680,7 @@ class PathIntegrator:
             return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, rng=rng)
         accel = self.scene.shadow_accels[shadow_group]
         params = self.scene.shadow_params[shadow_group] if self.scene.shadow_params else None
-        return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel, params)
+        return lambda p, ng, wi, dist, eps: self._visible(p, ng, wi, dist, eps, accel, params, rng)
 
     def _direct(self, L, path, beta, ctx, bsdf, wo_l, s, t, eps, rng, primary, mesh, continues) -> None:
         """Direct lighting at n shading points: lights picked by the lighting service, each
