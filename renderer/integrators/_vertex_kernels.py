@@ -58,18 +58,19 @@ U_LIGHT = 4
 
 @njit(cache=True, nogil=True)
 def vertex_kernel(
-    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U,
-    vertices, face_normal, normals, tri_mat, tri_mag, Pm, mat_row, emission, ta, tb,
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, Pm, mat_row, emission, max_depth,
+    vertices, face_normal, normals, tri_mat, tri_mag, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
     d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, max_depth, rr_depth, eps_rel, eps_floor, eps_add,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
-    """One bounce for n live rays (see the module docstring).
+    """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
+    to ``eps_add`` describe the scene and stay fixed for a render (FastPath.tables).
 
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:

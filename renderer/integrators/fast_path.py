@@ -138,8 +138,16 @@ class FastPath:
                     scene.accel.tri_mag)
         from ..estimators import HEURISTICS
 
-        self.power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
-        self.eps = scene.accel.epsilon_terms()
+        power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
+        rl, sl, dl = self.rect, self.sphere, self.disk
+        # The vertex kernel's scene arguments, in its order (fixed for the render).
+        self.tables = (
+            *self.geo, self.ta, self.tb,
+            rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
+            rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
+            dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
+            DISK_CLOSE_RATIO, *self.inf, *self.images,
+            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms())
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
@@ -147,7 +155,6 @@ class FastPath:
         qualifying scene, with emit0 = 1."""
         integ = self.integ
         accel = integ.scene.accel
-        rl, sl, dl = self.rect, self.sphere, self.disk
         nl = integ.lights.count
         m = o.shape[0]
         L = np.zeros((m, 3))
@@ -160,8 +167,6 @@ class FastPath:
         S[:, vk.D:vk.D + 3] = d
         S[:, vk.TMAX] = tmax
         counts = np.zeros(3, dtype=np.int64)
-        eps_rel, eps_floor, eps_add = self.eps
-        opt = integ.opt
         # The rays in embree's float32 format; the kernel writes the later bounces' directly.
         o32 = np.ascontiguousarray(o, dtype=np.float32)
         d32 = np.ascontiguousarray(d, dtype=np.float32)
@@ -186,16 +191,9 @@ class FastPath:
             sh_t = np.empty(n * nl, dtype=np.float32)
             sh_path = np.empty(n * nl, dtype=np.int64)
             sh_c = np.empty((n * nl, 3))
-            vk.vertex_kernel(
-                path, depth, unsampled, S, t32, prim, b1, b2, U, *self.geo, Pm, mat_row, emission, self.ta,
-                self.tb,
-                rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
-                rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
-                dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
-                DISK_CLOSE_RATIO, *self.inf, *self.images,
-                self.power, MIN_SOLID_ANGLE, GRAZING_NZ2, max_depth, opt.rr_depth,
-                eps_rel, eps_floor, eps_add, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t,
-                sh_path, sh_c, counts)
+            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, U, Pm, mat_row, emission, max_depth,
+                             *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
+                             sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])
             pairs += int(counts[2]) * nl
             if k_sh:
