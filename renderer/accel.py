@@ -57,10 +57,14 @@ class Accel:
 
     triangles: (T, 3, 3) float64 world-space vertices. An empty scene is allowed (every ray misses).
     threads: worker threads for batched queries.
+    tri_index: (T,) int64, for a BVH over a subset of a scene's triangles (a shadowLink BVH):
+    the scene index of each of its triangles, so a hit's material can be looked up; None when
+    the BVH holds the scene's triangles in order.
     """
 
-    def __init__(self, triangles: np.ndarray, threads: int | None = None):
+    def __init__(self, triangles: np.ndarray, threads: int | None = None, tri_index: np.ndarray | None = None):
         tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+        self.tri_index = tri_index
         self.count = tri.shape[0]
         self.threads = max(1, int(threads or default_threads()))
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None

@@ -316,10 +316,9 @@ def build_linking(lights, geo: GeometryTables, threads: int | None, accel: Accel
                 bvh = built[ex]
             else:
                 casts = ~mesh_mask(ex)[geo.mesh]  # per triangle
-                bvh = built[ex] = Accel(geo.vertices[casts], threads=threads)
-                # The scene triangle of each of its triangles (cut-out shadow rays look up the
-                # material at a hit: integrators/path.py _visible_through_cutouts).
-                bvh.tri_index = np.nonzero(casts)[0]
+                # tri_index: cut-out shadow rays look up the material at a hit (integrators/path.py
+                # _visible_through_cutouts).
+                bvh = built[ex] = Accel(geo.vertices[casts], threads=threads, tri_index=np.nonzero(casts)[0])
             groups[key] = len(accels)
             accels.append(bvh)
             params.append(sp)

@@ -644,7 +644,7 @@ class PathIntegrator:
         (its ``tri_index`` maps them to the scene's), default the scene's. Returns (m,) bool."""
         accel = accel or self.scene.accel
         g, mats = self.scene.geometry, self.scene.materials
-        tri_index = getattr(accel, "tri_index", None)
+        tri_index = accel.tri_index
         if rng is None:  # a caller without its own stream (fixed, so results stay reproducible)
             rng = np.random.default_rng(0x5EED)
         visible = np.ones(o.shape[0], dtype=bool)
