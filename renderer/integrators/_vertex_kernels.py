@@ -16,7 +16,9 @@ this file's cache whenever any of the files it inlines from changes.
 
 Shapes: n live rays; S (n, 20) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
 ``D`` (unit direction), ``TMAX``, ``PP``/``PNG``/``PNS`` (the previous vertex's point, geometric
-and shading normal) and ``PB`` (the BSDF pdf of d there); U (n, 4 + 2 lights) uniforms.
+and shading normal) and ``PB`` (the BSDF pdf of d there); U (4 + 2 lights, n) uniforms, batch
+axis last (the rect lights' samples are drawn from it by a vectorised kernel, which needs
+unit stride along the batch); rs (rect lights, 5, n) those samples.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
     _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
-    _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
+    _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
 )
 
 _INV_PI = 1.0 / math.pi
@@ -58,7 +60,7 @@ U_LIGHT = 4
 
 @njit(cache=True, nogil=True)
 def vertex_kernel(
-    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, Pm, mat_row, emission, max_depth,
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, rs, Pm, mat_row, emission, max_depth,
     vertices, face_normal, normals, tri_mat, tri_mag, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
@@ -75,7 +77,8 @@ def vertex_kernel(
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
-    a miss, where t is meaningless); Pm: (materials, K) packed BSDF rows, or with mat_row (n,)
+    a miss, where t is meaningless); rs: each rect light's sample at each hit, drawn before the kernel
+    by kernels.lights.rect_sample_batch_kernel (wi, distance, pdf; pdf 0 where unusable); Pm: (materials, K) packed BSDF rows, or with mat_row (n,)
     non-empty, per-hit rows: ray r's row is mat_row[r], and emission (hits, 3) (if not empty) is
     the radiance its surface emits (added in full: emitting surfaces are reached by BSDF samples
     only, as in the general path); light tables: the
@@ -214,10 +217,11 @@ def vertex_kernel(
             if g < n_rect:
                 j = g
                 gl = rect_light[j]
-                wi, dist, pdf_l, _pl, ok = _rect_sample_row(
-                    (px, py, pz), U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], _row(center, j),
-                    _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0], edge_len[j, 1],
-                    _row(nrm, j), area[j], False, is_rect[j], 0.0, 0.0, 0.0, min_sa, graz)
+                # Sampled before the kernel, vectorised (rs; rect_sample_batch_kernel).
+                wi = (rs[j, 0, r], rs[j, 1, r], rs[j, 2, r])
+                dist = rs[j, 3, r]
+                pdf_l = rs[j, 4, r]
+                ok = pdf_l > 0.0
                 Le = _row(radiance, j)
                 delta = False
             elif g >= n_fin:
@@ -226,14 +230,14 @@ def vertex_kernel(
                 Le = _row(i_radiance, j)
                 if i_dome[j] and i_tex[j] >= 0:
                     wi, pdf_l, kt = _dome_sample_row(
-                        U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], i_tex[j], i_rot[j], im_height, im_width,
+                        U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], i_tex[j], i_rot[j], im_height, im_width,
                         im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
                     Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
                 elif i_dome[j]:
-                    wi = _uniform_sphere_row(U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1])
+                    wi = _uniform_sphere_row(U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r])
                     pdf_l = _INV_4PI
                 else:
-                    wi, pdf_l = _distant_sample_row(U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1],
+                    wi, pdf_l = _distant_sample_row(U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r],
                                                     _row(i_axis, j), i_omc[j], i_delta[j])
                 dist = math.inf
                 ok = pdf_l > 0.0
@@ -242,7 +246,7 @@ def vertex_kernel(
                 j = g - n_rs
                 gl = disk_light[j]
                 wi, dist, pdf_l, _pl, ok = _disk_sample_row(
-                    (px, py, pz), U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], _row(d_center, j),
+                    (px, py, pz), U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], _row(d_center, j),
                     _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j],
                     d_area[j], close_ratio, min_sa, graz)
                 Le = _row(d_radiance, j)
@@ -251,7 +255,7 @@ def vertex_kernel(
                 j = g - n_rect
                 gl = sphere_light[j]
                 wi, dist, pdf_l, _pl, ok, l_scale = _sphere_sample_row(
-                    (px, py, pz), U[r, U_LIGHT + 2 * gl], U[r, U_LIGHT + 2 * gl + 1], _row(s_center, j),
+                    (px, py, pz), U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], _row(s_center, j),
                     s_radius[j], s_delta[j])
                 Le = (s_radiance[j, 0] * l_scale, s_radiance[j, 1] * l_scale, s_radiance[j, 2] * l_scale)
                 delta = s_delta[j]
@@ -291,7 +295,7 @@ def vertex_kernel(
             sh_c[k_sh, 2] = c2
             k_sh += 1
         # ---- BSDF sample, throughput, Russian roulette (_preview_kernels.scatter_kernel) ----
-        wix, wiy, wiz = _sample_dir(wox, woy, woz, a, U[r, U_LOBE] < p_d, U[r, U_DIR], U[r, U_DIR + 1])
+        wix, wiy, wiz = _sample_dir(wox, woy, woz, a, U[U_LOBE, r] < p_d, U[U_DIR, r], U[U_DIR + 1, r])
         wx = wix * s[0] + wiy * t[0] + wiz * sx
         wy = wix * s[1] + wiy * t[1] + wiz * sy
         wz = wix * s[2] + wiy * t[2] + wiz * sz
@@ -309,7 +313,7 @@ def vertex_kernel(
             continue
         if depth[r] + 1 >= rr_depth:
             q = min(max(1.0 - max(nb0, max(nb1, nb2)), 0.0), 0.95)
-            if U[r, U_RR] < q:
+            if U[U_RR, r] < q:
                 continue
             inv = 1.0 / (1.0 - q)
             nb0 *= inv

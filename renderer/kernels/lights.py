@@ -323,6 +323,37 @@ def _rect_sample_row(pr, u0, u1, c, e1, e2, xh, yh, lx, ly, nl, area_i, textured
     return wi, dist, (pdf if ok else 0.0), pl, ok
 
 
+# The same row, numba-inlined into rect_sample_batch_kernel's loop, so the loop body is one
+# function LLVM can vectorise.
+_rect_sample_row_inline = njit(cache=True, nogil=True, inline="always")(_rect_sample_row.py_func)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def rect_sample_batch_kernel(p, u, col, c, e1, e2, xh, yh, lx, ly, nl, area_i, is_rect_i, min_sa, graz, out):
+    """_rect_sample_row for one untextured rect light at many points, in a loop LLVM vectorises
+    (~2x the scalar row on AVX2/AVX-512: LLVM predicates the branches and calls libm's atan,
+    sin and cos lane by lane, while the square roots and divisions run packed).
+
+    p: (3, n) points (world), one row per coordinate; u: (>= col + 2, n) uniforms, rows col and
+    col + 1 used. Batch axis last, unlike the rest of the kernels: the vectoriser needs unit
+    stride along the loop, which numba knows only for the last axis of a C array. The light's c,
+    e1, e2, xh, yh, nl as 3-tuples, lx, ly, area_i floats, is_rect_i bool. out: (5, n) float64
+    receives wi (3 rows, unit, toward the light), the distance and the solid-angle pdf, 0 where
+    the sample is unusable (ok False in _rect_sample_row).
+    error_model="numpy": numba's ZeroDivisionError checks are branches the vectoriser refuses;
+    every division here is guarded or meant to give inf.
+    """
+    for r in range(p.shape[1]):
+        wi, dist, pdf, _pl, ok = _rect_sample_row_inline(
+            (p[0, r], p[1, r], p[2, r]), u[col, r], u[col + 1, r], c, e1, e2, xh, yh, lx, ly, nl, area_i,
+            False, is_rect_i, 0.0, 0.0, 0.0, min_sa, graz)
+        out[0, r] = wi[0]
+        out[1, r] = wi[1]
+        out[2, r] = wi[2]
+        out[3, r] = dist
+        out[4, r] = pdf if ok else 0.0
+
+
 @njit(cache=True, nogil=True)
 def _rect_pdf_row(pr, w, c, nl, exd_i, eyd_i, e1, e2, xh, yh, lx, ly, area_i, textured, is_rect_i, tex_pdf,
                   min_sa, graz):
