@@ -18,7 +18,8 @@ Shapes: n live rays; S (n, 20) float64 per-ray state, columns ``B`` (beta), ``O`
 ``D`` (unit direction), ``TMAX``, ``PP``/``PNG``/``PNS`` (the previous vertex's point, geometric
 and shading normal) and ``PB`` (the BSDF pdf of d there); U (4 + 2 lights, n) uniforms, batch
 axis last (the rect lights' samples are drawn from it by a vectorised kernel, which needs
-unit stride along the batch); rs (rect lights, 5, n) those samples.
+unit stride along the batch); rs (rect lights, 5, n) and sps (sphere lights, 6, n) those
+samples.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from renderer.geometry import _interaction_row
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
     _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
-    _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
+    _row, _sphere_hit_row, _sphere_pdf_row, _uniform_sphere_row,
 )
 
 _INV_PI = 1.0 / math.pi
@@ -60,7 +61,7 @@ U_LIGHT = 4
 
 @njit(cache=True, nogil=True)
 def vertex_kernel(
-    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, rs, Pm, mat_row, emission, max_depth,
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, rs, sps, Pm, mat_row, emission, max_depth,
     vertices, face_normal, normals, tri_mat, tri_mag, ta, tb,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
@@ -78,7 +79,8 @@ def vertex_kernel(
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
     a miss, where t is meaningless); rs: each rect light's sample at each hit, drawn before the kernel
-    by kernels.lights.rect_sample_batch_kernel (wi, distance, pdf; pdf 0 where unusable); Pm: (materials, K) packed BSDF rows, or with mat_row (n,)
+    by kernels.lights.rect_sample_batch_kernel (wi, distance, pdf; pdf 0 where unusable); sps: each
+    sphere light's, by sphere_sample_batch_kernel (the same and the radiance scale); Pm: (materials, K) packed BSDF rows, or with mat_row (n,)
     non-empty, per-hit rows: ray r's row is mat_row[r], and emission (hits, 3) (if not empty) is
     the radiance its surface emits (added in full: emitting surfaces are reached by BSDF samples
     only, as in the general path); light tables: the
@@ -254,9 +256,12 @@ def vertex_kernel(
             else:
                 j = g - n_rect
                 gl = sphere_light[j]
-                wi, dist, pdf_l, _pl, ok, l_scale = _sphere_sample_row(
-                    (px, py, pz), U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], _row(s_center, j),
-                    s_radius[j], s_delta[j])
+                # Sampled before the kernel, vectorised (sps; sphere_sample_batch_kernel).
+                wi = (sps[j, 0, r], sps[j, 1, r], sps[j, 2, r])
+                dist = sps[j, 3, r]
+                pdf_l = sps[j, 4, r]
+                ok = pdf_l > 0.0
+                l_scale = sps[j, 5, r]
                 Le = (s_radiance[j, 0] * l_scale, s_radiance[j, 1] * l_scale, s_radiance[j, 2] * l_scale)
                 delta = s_delta[j]
             if not ok or not math.isfinite(pdf_l):

@@ -620,10 +620,6 @@ def _sphere_sample_row(pr, u0, u1, c, r, delta_i):
     being l_scale times the light's. Uniform cone sampling mapped to the visible sphere point;
     a delta (treatAsPoint) light returns its centre with pdf 1 and l_scale pi r^2 / d^2."""
     w_c, dc, sin2_max, omc, cos_max, ok = _sphere_cone(pr, c, r, delta_i)
-    if delta_i:
-        good = dc > 0.0
-        inv_d2 = 1.0 / (dc * dc) if good else 0.0
-        return w_c, dc, (1.0 if good else 0.0), c, good, _PI * r * r * inv_d2
     x = u0 * omc
     cos_t = 1.0 - x
     # sin^2 theta = x (2 - x) and x = u0 sin^2 theta_max / (1 + cos theta_max), so
@@ -640,6 +636,12 @@ def _sphere_sample_row(pr, u0, u1, c, r, delta_i):
     den = _TWO_PI * omc
     pdf = 1.0 / den if (ok and omc > 0.0) else 0.0
     ok = ok and pdf > 0.0 and dist > 0.0
+    # Computed for every row and chosen by selects, not an early return: the batch kernel's
+    # loop vectorises only without the branch.
+    good = dc > 0.0
+    inv_d2 = 1.0 / (dc * dc) if good else 0.0
+    if delta_i:
+        return w_c, dc, (1.0 if good else 0.0), c, good, _PI * r * r * inv_d2
     return wi, dist, (pdf if ok else 0.0), pl, ok, 1.0
 
 
@@ -658,6 +660,26 @@ def sphere_sample_kernel(
         out_dist[row] = dist
         _put(out_pl, row, pl)
         out_pdf[row] = pdf
+
+
+_sphere_sample_row_inline = njit(cache=True, nogil=True, inline="always")(_sphere_sample_row.py_func)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def sphere_sample_batch_kernel(p, u, col, c, radius, delta_i, out):
+    """_sphere_sample_row for one SphereLight at many points, vectorised as
+    rect_sample_batch_kernel is (same layout: p (3, n), u (>= col + 2, n)). c: 3-tuple, radius
+    float, delta_i bool (treatAsPoint). out: (6, n) float64 receives wi (3 rows), the distance,
+    the pdf (0 where unusable) and the radiance scale l_scale."""
+    for r in range(p.shape[1]):
+        wi, dist, pdf, _pl, ok, l_scale = _sphere_sample_row_inline(
+            (p[0, r], p[1, r], p[2, r]), u[col, r], u[col + 1, r], c, radius, delta_i)
+        out[0, r] = wi[0]
+        out[1, r] = wi[1]
+        out[2, r] = wi[2]
+        out[3, r] = dist
+        out[4, r] = pdf if ok else 0.0
+        out[5, r] = l_scale
 
 
 @njit(cache=True, nogil=True)

@@ -1,5 +1,5 @@
-"""The vectorised rect-light sampler (kernels/lights.rect_sample_batch_kernel) against the scalar
-row it stands in for in the fast path.
+"""The vectorised rect- and sphere-light samplers (kernels/lights.rect_sample_batch_kernel,
+sphere_sample_batch_kernel) against the scalar rows they stand in for in the fast path.
 
 It must give the scalar row's samples bit for bit (the same operations, four or eight rows at
 a time), and must stay vectorised: an edit that makes its loop scalar again (a raising division,
@@ -17,7 +17,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from renderer.kernels.lights import _rect_sample_row, rect_sample_batch_kernel
+from renderer.kernels.lights import (
+    _rect_sample_row,
+    _sphere_sample_row,
+    rect_sample_batch_kernel,
+    sphere_sample_batch_kernel,
+)
 from renderer.lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 
 
@@ -79,6 +84,39 @@ def test_batch_kernel_reads_its_uniform_rows_from_col():
     np.testing.assert_array_equal(a, b)
 
 
+@njit(cache=False)
+def _scalar_sphere_rows(p, u, c, radius, delta, out):
+    for r in range(p.shape[1]):
+        wi, dist, pdf, _pl, ok, l_scale = _sphere_sample_row((p[0, r], p[1, r], p[2, r]), u[0, r], u[1, r], c,
+                                                             radius, delta)
+        out[0, r] = wi[0]
+        out[1, r] = wi[1]
+        out[2, r] = wi[2]
+        out[3, r] = dist
+        out[4, r] = pdf if ok else 0.0
+        out[5, r] = l_scale
+
+
+@pytest.mark.parametrize("radius,delta", [(0.5, False), (1e-4, False), (3.0, False), (0.5, True)])
+def test_sphere_batch_kernel_gives_the_scalar_rows_samples(radius, delta):
+    rng = np.random.default_rng(7)
+    # Points far, near, inside (pdf 0 for an area sphere) and at the centre of a unit-scale sphere.
+    p = np.concatenate([rng.uniform(-4, 4, (3, 20_000)), rng.uniform(-1e4, 1e4, (3, 100)),
+                        np.array([[0.1], [0.2], [0.3]]) + rng.uniform(-0.3, 0.3, (3, 100)),
+                        np.array([[0.1], [0.2], [0.3]])], axis=1)
+    u = rng.random((2, p.shape[1]))
+    args = ((0.1, 0.2, 0.3), radius, delta)
+    ref = np.empty((6, p.shape[1]))
+    got = np.empty((6, p.shape[1]))
+    _scalar_sphere_rows(p, u, *args, ref)
+    sphere_sample_batch_kernel(p, u, 0, *args, got)
+    ok = ref[4] > 0.0
+    assert ok.mean() > 0.5
+    np.testing.assert_array_equal(got[4], ref[4])
+    np.testing.assert_array_equal(got[:4][:, ok], ref[:4][:, ok])
+    np.testing.assert_array_equal(got[5][ok], ref[5][ok])
+
+
 def _has_avx() -> bool:
     try:
         with open("/proc/cpuinfo") as fh:
@@ -89,14 +127,15 @@ def _has_avx() -> bool:
 
 @pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not _has_avx(),
                     reason="checks x86 AVX packed instructions")
-def test_batch_kernel_loop_is_vectorised():
+@pytest.mark.parametrize("which", ["rect", "sphere"])
+def test_batch_kernel_loop_is_vectorised(which):
+    batch, args, rows = {"rect": (rect_sample_batch_kernel, _light(0.0, 1.0, 1.0), 5),
+                         "sphere": (sphere_sample_batch_kernel, ((0.0, 0.0, 2.0), 0.5, False), 6)}[which]
     # numba will not show cached code: compile the same function with the same options, uncached.
-    opts = {k: v for k, v in rect_sample_batch_kernel.targetoptions.items() if k not in ("cache", "nopython")}
-    kernel = njit(**opts)(rect_sample_batch_kernel.py_func)
-    p = np.zeros((3, 8))
-    u = np.zeros((2, 8))
-    kernel(p, u, 0, *_light(0.0, 1.0, 1.0), np.empty((5, 8)))
+    opts = {k: v for k, v in batch.targetoptions.items() if k not in ("cache", "nopython")}
+    kernel = njit(**opts)(batch.py_func)
+    kernel(np.zeros((3, 8)), np.zeros((2, 8)), 0, *args, np.empty((rows, 8)))
     asm = "\n".join(kernel.inspect_asm().values())
     # Packed double square roots on ymm/zmm registers come only from the loop vectoriser (the SLP
     # vectoriser pairs scalar code on xmm at most).
-    assert re.search(r"vsqrtpd\s+%[yz]mm", asm), "rect_sample_batch_kernel's loop is no longer vectorised"
+    assert re.search(r"vsqrtpd\s+%[yz]mm", asm), f"{batch.__name__}'s loop is no longer vectorised"
