@@ -19,9 +19,9 @@ from numba import njit
 
 from renderer.kernels.lights import (
     _rect_sample_row,
-    _sphere_sample_row,
     rect_sample_batch_kernel,
     sphere_sample_batch_kernel,
+    sphere_sample_kernel,
 )
 from renderer.lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 
@@ -84,19 +84,6 @@ def test_batch_kernel_reads_its_uniform_rows_from_col():
     np.testing.assert_array_equal(a, b)
 
 
-@njit(cache=False)
-def _scalar_sphere_rows(p, u, c, radius, delta, out):
-    for r in range(p.shape[1]):
-        wi, dist, pdf, _pl, ok, l_scale = _sphere_sample_row((p[0, r], p[1, r], p[2, r]), u[0, r], u[1, r], c,
-                                                             radius, delta)
-        out[0, r] = wi[0]
-        out[1, r] = wi[1]
-        out[2, r] = wi[2]
-        out[3, r] = dist
-        out[4, r] = pdf if ok else 0.0
-        out[5, r] = l_scale
-
-
 @pytest.mark.parametrize("radius,delta", [(0.5, False), (1e-4, False), (3.0, False), (0.5, True)])
 def test_sphere_batch_kernel_gives_the_scalar_rows_samples(radius, delta):
     rng = np.random.default_rng(7)
@@ -106,15 +93,21 @@ def test_sphere_batch_kernel_gives_the_scalar_rows_samples(radius, delta):
                         np.array([[0.1], [0.2], [0.3]])], axis=1)
     u = rng.random((2, p.shape[1]))
     args = ((0.1, 0.2, 0.3), radius, delta)
-    ref = np.empty((6, p.shape[1]))
     got = np.empty((6, p.shape[1]))
-    _scalar_sphere_rows(p, u, *args, ref)
     sphere_sample_batch_kernel(p, u, 0, *args, got)
-    ok = ref[4] > 0.0
+    # The reference: the general path's kernel (rows as the batch axis, unit radiance so that
+    # its L is the radiance scale).
+    n = p.shape[1]
+    L, wi, pdf, dist, pl = np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n), np.empty((n, 3))
+    sphere_sample_kernel(np.zeros(n, dtype=np.int64), np.ascontiguousarray(p.T), np.ascontiguousarray(u.T),
+                         np.array([args[0]]), np.array([radius]), np.ones((1, 3)), np.array([delta]), L, wi, pdf,
+                         dist, pl)
+    ok = pdf > 0.0
     assert ok.mean() > 0.5
-    np.testing.assert_array_equal(got[4], ref[4])
-    np.testing.assert_array_equal(got[:4][:, ok], ref[:4][:, ok])
-    np.testing.assert_array_equal(got[5][ok], ref[5][ok])
+    np.testing.assert_array_equal(got[4], pdf)
+    np.testing.assert_array_equal(got[:3][:, ok], wi[ok].T)
+    np.testing.assert_array_equal(got[3][ok], dist[ok])
+    np.testing.assert_array_equal(got[5][ok], L[ok, 0])
 
 
 def _has_avx() -> bool:
