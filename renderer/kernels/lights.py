@@ -599,7 +599,7 @@ def disk_hit_kernel(idx, o, d, center, nrm, u1, u2, s1, s2, out_t):
 # --------------------------------------------------------------------------------------
 # Sphere light
 # --------------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sphere_cone(p, c, r, delta):
     """SphereLight._cone for one row: (w_c, dc, sin2_max, 1 - cos theta_max, cos theta_max, ok)."""
     v = _sub(c, p)
