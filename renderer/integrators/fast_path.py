@@ -182,7 +182,7 @@ class FastPath:
         d32 = np.ascontiguousarray(d, dtype=np.float32)
         t32 = np.minimum(tmax, 1e37).astype(np.float32)
         pairs = 0
-        for _ in range(max_depth + 1):
+        for bounce in range(max_depth + 1):
             n = path.size
             if not n:
                 break
@@ -190,7 +190,9 @@ class FastPath:
             Pm, mat_row, emission = self._surfaces(prim, b1, b2, S) if self.per_hit else (
                 self.Pm, self.no_rows, self.no_emission)
             U = rng.random((vk.U_LIGHT + 2 * nl, n))
-            rs, ss = self._light_samples(prim, b1, b2, U)
+            # Every ray of bounce i has depth i: the last bounce scatters nowhere, so it needs no
+            # light samples (the kernel reads them only for rows that scatter).
+            rs, ss = self._light_samples(prim, b1, b2, U, bounce < max_depth)
             n_path = np.empty(n, dtype=np.int64)
             n_depth = np.empty(n, dtype=np.int64)
             n_S = np.empty((n, vk.NS))
@@ -217,15 +219,15 @@ class FastPath:
         integ.rule_counts["continuation_mis"] += pairs
         return L
 
-    def _light_samples(self, prim, b1, b2, U):
+    def _light_samples(self, prim, b1, b2, U, scatter=True):
         """(rs (rect lights, 5, n), ss (sphere lights, 6, n)): every rect and sphere light's
         light sample at every hit (wi, distance, solid-angle pdf, 0 where unusable; spheres
         also the radiance scale), by the vectorised batch kernels: ~2x faster than sampling
         row by row inside the vertex kernel."""
-        n = prim.shape[0]
+        n = prim.shape[0] if scatter else 0
         rs = np.empty((len(self.rect_args), 5, n))
         ss = np.empty((len(self.sphere_args), 6, n))
-        if rs.shape[0] or ss.shape[0]:
+        if n and (rs.shape[0] or ss.shape[0]):
             P = np.empty((3, n))
             hit_points_kernel(self.geo[0], prim, b1, b2, P)
             for j, args in enumerate(self.rect_args):
