@@ -4,7 +4,8 @@ One call per bounce does, for every live ray, all the work between two embree ca
 general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
 lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
 material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
-for every light (spherical-rectangle sampling), and the BSDF sample with the throughput update
+for every light (the rect and sphere lights' samples drawn beforehand by the vectorised batch
+kernels of kernels/lights.py, the others' here), and the BSDF sample with the throughput update
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
