@@ -238,26 +238,44 @@ def hit_points_kernel(vertices, prim, b1, b2, out):
 @njit(cache=True, nogil=True)
 def _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz):
     """The hit of direction d = (dx, dy, dz) on triangle k at barycentrics (w1, w2): point p,
+    geometric normal ng and shading normal ns as 3-tuples, both normals facing wo = -d
+    (_interaction_tri on triangle k's rows)."""
+    return _interaction_tri(
+        (vertices[k, 0, 0], vertices[k, 0, 1], vertices[k, 0, 2]),
+        (vertices[k, 1, 0], vertices[k, 1, 1], vertices[k, 1, 2]),
+        (vertices[k, 2, 0], vertices[k, 2, 1], vertices[k, 2, 2]),
+        (normals[k, 0, 0], normals[k, 0, 1], normals[k, 0, 2]),
+        (normals[k, 1, 0], normals[k, 1, 1], normals[k, 1, 2]),
+        (normals[k, 2, 0], normals[k, 2, 1], normals[k, 2, 2]),
+        (face_normal[k, 0], face_normal[k, 1], face_normal[k, 2]), w1, w2, dx, dy, dz)
+
+
+# inline="always" and scalars only: the fast path's vectorised surface pass inlines it after
+# loading the triangle itself (numba-inlining a helper that takes arrays leaves reference-count
+# calls in the loop, which keep LLVM from vectorising it).
+@njit(cache=True, nogil=True, inline="always")
+def _interaction_tri(v0, v1, v2, n0, n1, n2, fn, w1, w2, dx, dy, dz):
+    """The hit of direction d = (dx, dy, dz) at barycentrics (w1, w2) of the triangle with
+    vertices v0, v1, v2, vertex normals n0, n1, n2 and face normal fn (3-tuples): point p,
     geometric normal ng and shading normal ns as 3-tuples, both normals facing wo = -d.
 
     The shading normal is interpolated and normalised, flipped to the geometric normal's side,
     and replaced by the geometric normal where it faces away from wo (it would give a black or
-    negative cosine). Same formulas as ``surface_interaction``'s numpy path. (Also inlined by
-    the fast path's vertex kernel, renderer/integrators/_vertex_kernels.py.)
+    negative cosine). Same formulas as ``surface_interaction``'s numpy path.
     """
     w0 = 1.0 - w1 - w2
-    px, py, pz = _position_row(vertices, k, w1, w2)
-    sx = normals[k, 0, 0] * w0 + normals[k, 1, 0] * w1 + normals[k, 2, 0] * w2
-    sy = normals[k, 0, 1] * w0 + normals[k, 1, 1] * w1 + normals[k, 2, 1] * w2
-    sz = normals[k, 0, 2] * w0 + normals[k, 1, 2] * w1 + normals[k, 2, 2] * w2
+    px = v0[0] * w0 + v1[0] * w1 + v2[0] * w2
+    py = v0[1] * w0 + v1[1] * w1 + v2[1] * w2
+    pz = v0[2] * w0 + v1[2] * w1 + v2[2] * w2
+    sx = n0[0] * w0 + n1[0] * w1 + n2[0] * w2
+    sy = n0[1] * w0 + n1[1] * w1 + n2[1] * w2
+    sz = n0[2] * w0 + n1[2] * w1 + n2[2] * w2
     length = np.sqrt(sx * sx + sy * sy + sz * sz)
     s = length if length > 0.0 else 1.0
     sx /= s
     sy /= s
     sz /= s
-    gx = face_normal[k, 0]
-    gy = face_normal[k, 1]
-    gz = face_normal[k, 2]
+    gx, gy, gz = fn
     # Two-sided shading: both normals face the viewer (wo = -d).
     if -(gx * dx + gy * dy + gz * dz) < 0.0:
         gx, gy, gz = -gx, -gy, -gz

@@ -72,9 +72,10 @@ def _alpha_coord(alpha):
     return j0, fy
 
 
-@njit(cache=True, nogil=True)
-def _lookup(mu, j0, fy, ta, tb):
-    """Bilinear (A, B) at (mu, alpha coordinate (j0, fy)); as AlbedoTables.lookup. Branch-free."""
+@njit(cache=True, nogil=True, inline="always")
+def _lookup_weights(mu, fy):
+    """(i0, w00, w10, w01, w11): the mu row and the bilinear weights of _lookup's four nodes
+    (scalars only, so the fast path's vectorised passes can inline it)."""
     m = min(max(mu, 0.0), 1.0)
     x = math.sqrt(m) * (N_MU - 1)
     i0 = min(int(x), N_MU - 2)
@@ -83,6 +84,13 @@ def _lookup(mu, j0, fy, ta, tb):
     w10 = fx * (1.0 - fy)
     w01 = (1.0 - fx) * fy
     w11 = fx * fy
+    return i0, w00, w10, w01, w11
+
+
+@njit(cache=True, nogil=True)
+def _lookup(mu, j0, fy, ta, tb):
+    """Bilinear (A, B) at (mu, alpha coordinate (j0, fy)); as AlbedoTables.lookup. Branch-free."""
+    i0, w00, w10, w01, w11 = _lookup_weights(mu, fy)
     a = ta[i0, j0] * w00 + ta[i0 + 1, j0] * w10 + ta[i0, j0 + 1] * w01 + ta[i0 + 1, j0 + 1] * w11
     b = tb[i0, j0] * w00 + tb[i0 + 1, j0] * w10 + tb[i0, j0 + 1] * w01 + tb[i0 + 1, j0 + 1] * w11
     return a, b
@@ -140,61 +148,91 @@ def _specular(wox, woy, woz, wix, wiy, wiz, a):
     return ok, dv, w, pdf_s
 
 
+# pi/2 in two parts (Cody-Waite): x - k PIO2_HI is exact for the k of sampling angles.
+_PIO2_HI = 1.5707963267341256
+_PIO2_LO = 6.077100506506192e-11
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sincos(x):
+    """(sin x, cos x) for |x| up to a few thousand, branch-free: Taylor polynomials (to x^17 and
+    x^16, whose first omitted terms are below 1e-16 relative on |r| <= pi/4) of the
+    quadrant-reduced angle r, within 2e-16 of libm. libm's sin and cos are calls LLVM cannot
+    vectorise (the fast path's surface pass would make them one lane at a time); this runs packed."""
+    k = math.floor(x * (2.0 / math.pi) + 0.5)
+    r = (x - k * _PIO2_HI) - k * _PIO2_LO
+    r2 = r * r
+    # 1/(2j+1)! and 1/(2j)! with alternating signs, in Horner form.
+    ps = 1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362880.0 + r2 * (
+        -1.0 / 39916800.0 + r2 * (1.0 / 6227020800.0 + r2 * (-1.0 / 1307674368000.0 + r2 / 355687428096000.0)))))))
+    pc = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0 + r2 * (
+        -1.0 / 3628800.0 + r2 * (1.0 / 479001600.0 + r2 * (-1.0 / 87178291200.0 + r2 / 20922789888000.0)))))))
+    sr = r * ps
+    # Quadrant q = k mod 4: odd ones swap sin and cos; sin is negative in 2 and 3, cos in 1 and
+    # 2. Arithmetic, not a chain of ifs (LLVM turns that into a switch it cannot vectorise).
+    q = int(k) & 3
+    odd = (q & 1) == 1
+    sn = (1.0 - 2.0 * ((q >> 1) & 1)) * (pc if odd else sr)
+    cs = (1.0 - 2.0 * (((q + 1) >> 1) & 1)) * (sr if odd else pc)
+    return sn, cs
+
+
 @njit(cache=True, nogil=True)
 def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     """The sampled wi (3 floats) of sample_f: cosine-weighted (concentric map) if pick_diffuse,
-    else a GGX visible normal (spherical caps, Dupuy & Benyoub 2023) reflected; +z if wo.z <= 0."""
-    wix = 0.0
-    wiy = 0.0
-    wiz = 1.0
-    if woz > 0.0:
-        if pick_diffuse:
-            # Cosine-weighted hemisphere via the concentric disk map (sampling.py's warp).
-            sa = 2.0 * u0 - 1.0
-            sb = 2.0 * u1 - 1.0
-            if abs(sa) > abs(sb):
-                rad = sa
-                th = (math.pi / 4.0) * (sb / sa)
-            else:
-                rad = sb
-                th = (math.pi / 2.0) - (math.pi / 4.0) * (sa / sb if sb != 0.0 else 0.0)
-            wix = rad * math.cos(th)
-            wiy = rad * math.sin(th)
-            wiz = math.sqrt(max(0.0, 1.0 - wix * wix - wiy * wiy))
-        else:
-            vx = wox * a
-            vy = woy * a
-            vz = woz
-            vl = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if vl > 0.0:
-                vx /= vl
-                vy /= vl
-                vz /= vl
-            phi = 2.0 * math.pi * u0
-            z = (1.0 - u1) * (1.0 + vz) - vz
-            st = math.sqrt(min(max(1.0 - z * z, 0.0), 1.0))
-            hx = (st * math.cos(phi) + vx) * a
-            hy = (st * math.sin(phi) + vy) * a
-            hz = max(z + vz, 0.0)
-            hl = math.sqrt(hx * hx + hy * hy + hz * hz)
-            if hl > 0.0:
-                hx /= hl
-                hy /= hl
-                hz /= hl
-            else:
-                hx = 0.0
-                hy = 0.0
-                hz = 1.0
-            dd = wox * hx + woy * hy + woz * hz
-            wix = 2.0 * dd * hx - wox
-            wiy = 2.0 * dd * hy - woy
-            wiz = 2.0 * dd * hz - woz
-            wl = math.sqrt(wix * wix + wiy * wiy + wiz * wiz)
-            if wl > 0.0:
-                wix /= wl
-                wiy /= wl
-                wiz /= wl
-    return wix, wiy, wiz
+    else a GGX visible normal (spherical caps, Dupuy & Benyoub 2023) reflected; +z if wo.z <= 0.
+
+    Both lobes' arithmetic is written without branches around it and share one cos and one sin
+    (of the concentric map's angle or of the cap's azimuth): the fast path's vectorised surface
+    pass computes both lobes for every lane, and cos and sin are its costliest calls."""
+    # Cosine-weighted hemisphere via the concentric disk map (sampling.py's warp).
+    sa = 2.0 * u0 - 1.0
+    sb = 2.0 * u1 - 1.0
+    major_a = abs(sa) > abs(sb)
+    rad = sa if major_a else sb
+    th = (math.pi / 4.0) * (sb / sa) if major_a else (math.pi / 2.0) - (math.pi / 4.0) * (sa / sb if sb != 0.0 else 0.0)
+    phi = th if pick_diffuse else 2.0 * math.pi * u0
+    sin_phi, cos_phi = _sincos(phi)
+    dx = rad * cos_phi
+    dy = rad * sin_phi
+    dz = math.sqrt(max(0.0, 1.0 - dx * dx - dy * dy))
+    # GGX visible normal: the cap around the stretched wo, reflected.
+    vx = wox * a
+    vy = woy * a
+    vz = woz
+    vl = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if vl > 0.0:
+        vx /= vl
+        vy /= vl
+        vz /= vl
+    z = (1.0 - u1) * (1.0 + vz) - vz
+    st = math.sqrt(min(max(1.0 - z * z, 0.0), 1.0))
+    hx = (st * cos_phi + vx) * a
+    hy = (st * sin_phi + vy) * a
+    hz = max(z + vz, 0.0)
+    hl = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if hl > 0.0:
+        hx /= hl
+        hy /= hl
+        hz /= hl
+    else:
+        hx = 0.0
+        hy = 0.0
+        hz = 1.0
+    dd = wox * hx + woy * hy + woz * hz
+    rx = 2.0 * dd * hx - wox
+    ry = 2.0 * dd * hy - woy
+    rz = 2.0 * dd * hz - woz
+    wl = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if wl > 0.0:
+        rx /= wl
+        ry /= wl
+        rz /= wl
+    if not woz > 0.0:
+        return 0.0, 0.0, 1.0
+    if pick_diffuse:
+        return dx, dy, dz
+    return rx, ry, rz
 
 
 @njit(cache=True, nogil=True)
@@ -409,9 +447,11 @@ def sample_kernel(wo, u_lobe, u, P, ta, tb, out_wi, out_f, out_pdf, out_lobe):
 def _mis_weight(p_this, p_other, power):
     """h(p_this, p_other) with one sample each: power (beta = 2) or balance heuristic.
     An infinite p_this (a delta light) takes the whole weight; an infinite p_other leaves none."""
-    if math.isinf(p_this):
+    # Plain compares rather than math.isinf / isfinite (pdfs are >= 0 or NaN): LLVM's vectoriser
+    # cannot widen the llvm.is.fpclass those become, and the fast path's light pass inlines this.
+    if p_this == math.inf:
         return 1.0
-    if math.isinf(p_other):
+    if p_other == math.inf:
         return 0.0
     if power:
         f = p_this * p_this
@@ -420,7 +460,8 @@ def _mis_weight(p_this, p_other, power):
         f = p_this
         den = f + p_other
     w = f / den if den > 0.0 else 0.0
-    return w if math.isfinite(w) else 0.0
+    # w is in [0, 1] or NaN (f overflowed): here 'w <= 1' is isfinite(w).
+    return w if w <= 1.0 else 0.0
 
 
 @njit(cache=True, nogil=True)
