@@ -9,6 +9,18 @@ kernels of kernels/lights.py, the others' here), and the BSDF sample with the th
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
+The rows go in blocks of BLK. Two passes over a block are loops LLVM vectorises (4 rows per
+AVX2/AVX-512 instruction): ``_surface_pass`` (surface interaction, frame, material wo terms,
+BSDF sample, roulette) and ``_light_pass`` (each rect and sphere light's sample weighed by the
+BSDF and MIS). A scalar pass then adds emission, takes the disk and infinite lights' light half
+and writes the rays compactly. What keeps those loops vectorised, each checked by
+tests/integrators/test_vertex_vectorised.py: no branches around work (both BSDF lobes are
+computed and one is selected; _sincos instead of libm's cos and sin), error_model="numpy" (no
+exception exits), array arguments marked noalias (_NoAliasCompiler), the albedo tables as module
+constants, a compile-time row stride in the block state, and only scalar-argument helpers
+numba-inlined (inlining one that takes arrays leaves reference counting calls in the loop).
+Samples are bit-identical to the scalar kernel this replaced.
+
 The maths is not restated here: it calls the per-row helpers of the surface interaction
 (renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py) and the BSDF
 (renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels use. numba's
@@ -27,13 +39,16 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
+from numba.core.compiler import Compiler
 
 from renderer.bsdfs._preview_kernels import (
     ALPHA, F0, F90, FY, J0, KD, RHO,
-    _lookup, _mis_weight, _p_diffuse, _sample_dir, _specular,
+    _lookup_weights, _mis_weight, _p_diffuse, _sample_dir, _specular,
 )
-from renderer.geometry import _interaction_row
+from renderer.bsdfs.microfacet import albedo_tables
+from renderer.geometry import _interaction_tri
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
     _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
@@ -60,10 +75,246 @@ U_RR = 3
 U_LIGHT = 4
 
 
+class _NoAliasCompiler(Compiler):
+    """numba's standard pipeline with every array argument's pointers marked ``noalias`` (numba's
+    own ``Flags.noalias``, which @njit does not expose). Without it LLVM must assume a table read
+    at a computed index (a triangle's vertices, a material row, the albedo tables) may alias the
+    block state the loop writes, cannot bound that with a runtime check, and leaves the loop
+    scalar. Only for kernels whose array arguments never share memory (the passes below)."""
+
+    def __init__(self, typingctx, targetctx, library, args, return_type, flags, locals):
+        flags = flags.copy()
+        flags.noalias = True
+        super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
+
+
+# Per-row state of a block's surface pass (_surface_pass), rows of W (NW * BLK,; row c of column i at c * BLK + i, a
+# compile-time stride, so LLVM sees the rows never overlap): the point,
+# geometric normal, shading normal and the rest of the shading frame (FS, FT), wo in that frame,
+# the material's wo terms (AO, BO: albedo-table values at wo.z; PD: the diffuse lobe's pick
+# probability), the material row M, the ray epsilon, and the BSDF sample's outcome (the next
+# throughput NB, world direction WN, pdf PDFB, OKN 1.0 where the path goes on).
+W_P = 0
+W_G = 3
+W_N = 6
+W_FS = 9
+W_FT = 12
+W_WO = 15
+W_AO = 18
+W_BO = 19
+W_PD = 20
+W_M = 21
+W_EPS = 22
+W_NB = 23
+W_WN = 26
+W_PDFB = 29
+W_OKN = 30
+NW = 31
+# Rows per block: the passes' per-row state (NW + 4 per rect or sphere light doubles a row) stays
+# in L1/L2 between the vectorised passes and the scalar one.
+BLK = 128
+
+# The albedo tables as module constants: numba freezes them into the kernels, and LLVM knows a
+# read from constant memory cannot alias the block state the passes write (a table passed as an
+# argument could), so the lookups at computed rows do not keep the loops scalar. guard_cache
+# (below) recompiles the kernels when the tables' source changes.
+_TABLES = albedo_tables()
+_TA = np.ascontiguousarray(_TABLES.a)
+_TB = np.ascontiguousarray(_TABLES.b)
+
+# The BSDF helpers, numba-inlined into the passes (so compiled with their error_model="numpy":
+# a division by zero gives inf or NaN, masked by the passes' flags, rather than an exception
+# exit LLVM cannot vectorise). Only helpers taking scalars: inlining one that takes arrays
+# leaves numba's reference counting of them as calls in the loop body.
+_specular_i = njit(cache=True, nogil=True, inline="always")(_specular.py_func)
+_sample_dir_i = njit(cache=True, nogil=True, inline="always")(_sample_dir.py_func)
+_p_diffuse_i = njit(cache=True, nogil=True, inline="always")(_p_diffuse.py_func)
+_mis_weight_i = njit(cache=True, nogil=True, inline="always")(_mis_weight.py_func)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _albedo(mu, j0, fy):
+    """_preview_kernels._lookup on the module's tables: (A, B) at (mu, (j0, fy))."""
+    i0, w00, w10, w01, w11 = _lookup_weights(mu, fy)
+    a = _TA[i0, j0] * w00 + _TA[i0 + 1, j0] * w10 + _TA[i0, j0 + 1] * w01 + _TA[i0 + 1, j0 + 1] * w11
+    b = _TB[i0, j0] * w00 + _TB[i0 + 1, j0] * w10 + _TB[i0, j0 + 1] * w01 + _TB[i0 + 1, j0 + 1] * w11
+    return a, b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _f(kd, f0, f90, ao, bo, ai, bi, fw, dv):
+    """f(wo, wi) of a material in one channel from its diffuse colour kd, Fresnel F0 and F90,
+    the wo terms (ao, bo), the wi terms (ai, bi), the Schlick weight fw and D V of _specular
+    (the formula of _preview_kernels.eval_kernel)."""
+    c_o = 1.0 - (f0 * ao + f90 * bo)
+    c_i = 1.0 - (f0 * ai + f90 * bi)
+    return kd * c_o * c_i + (f0 + (f90 - f0) * fw) * dv
+
+
+# Helpers that read arrays are plain njit functions LLVM inlines (numba-inlining them would not
+# do, see above); error_model="numpy" keeps exception checks out of the loops calling them.
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mat(Pm, m):
+    """Material row m's (alpha, j0, fy, kd, f0, f90), the colours as 3-tuples."""
+    return (Pm[m, ALPHA], int(Pm[m, J0]), Pm[m, FY], (Pm[m, KD], Pm[m, KD + 1], Pm[m, KD + 2]),
+            (Pm[m, F0], Pm[m, F0 + 1], Pm[m, F0 + 2]), (Pm[m, F90], Pm[m, F90 + 1], Pm[m, F90 + 2]))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _light_contrib(wi, pdf_l, Le, delta, power_g, fs, ft, ns, ng, wo, ao, bo, p_d, a, j0, fy, kd, f0, f90, beta):
+    """The light half of continuation MIS for one light sample (wi world direction, pdf_l its
+    solid-angle pdf, Le its radiance) at a vertex with shading frame (fs, ft, ns), geometric
+    normal ng, wo in the frame, the material's wo terms (ao, bo, p_d) and row (a, j0, fy, kd,
+    f0, f90), and throughput beta, all 3-tuples or scalars: (ok, c0, c1, c2), c the radiance
+    the shadow ray adds if unblocked, ok False where the sample is unusable (pdf 0, below either
+    normal, zero contribution). The caller checks pdf_l is finite (math.isfinite in a loop keeps
+    LLVM from vectorising it). Branch-free, so the light pass vectorises."""
+    wx = wi[0] * fs[0] + wi[1] * fs[1] + wi[2] * fs[2]
+    wy = wi[0] * ft[0] + wi[1] * ft[1] + wi[2] * ft[2]
+    wz = wi[0] * ns[0] + wi[1] * ns[1] + wi[2] * ns[2]
+    cos_g = wi[0] * ng[0] + wi[1] * ng[1] + wi[2] * ng[2]
+    oks, dv, fw, pdf_s = _specular_i(wo[0], wo[1], wo[2], wx, wy, wz, a)
+    ai, bi = _albedo(wz, j0, fy)
+    p_b = p_d * wz * _INV_PI + (1.0 - p_d) * pdf_s
+    # A delta light (treatAsPoint) takes the whole weight, and its p_l counts as 1.
+    kk = wz if delta else wz * _mis_weight_i(pdf_l, p_b, power_g) / pdf_l
+    c0 = beta[0] * _f(kd[0], f0[0], f90[0], ao, bo, ai, bi, fw, dv) * Le[0] * kk
+    c1 = beta[1] * _f(kd[1], f0[1], f90[1], ao, bo, ai, bi, fw, dv) * Le[1] * kk
+    c2 = beta[2] * _f(kd[2], f0[2], f90[2], ao, bo, ai, bi, fw, dv) * Le[2] * kk
+    ok = (pdf_l > 0.0 and wz > 0.0 and cos_g > 0.0 and wo[2] > 0.0 and oks
+          and (c0 > 0.0 or c1 > 0.0 or c2 > 0.0))
+    return ok, c0, c1, c2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _w3(W, c, i):
+    """Rows c..c+2 of the block state W at column i, as a 3-tuple."""
+    return (W[c * BLK + i], W[(c + 1) * BLK + i], W[(c + 2) * BLK + i])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
+def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, vertices, face_normal, normals,
+                  tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W):
+    """Rows lo..hi of a bounce into the block state W (NW * BLK,), at column r - lo: the surface
+    interaction, shading frame, the material's wo terms, and the BSDF sample with its throughput
+    update and Russian roulette. One branch-free loop that LLVM vectorises; a row that missed
+    (or will not scatter) is computed on triangle 0 and ignored by vertex_kernel, which also
+    checks the sample's pdf and throughput are finite."""
+    per_hit = mat_row.shape[0] > 0
+    for r in range(lo, hi):
+        i = r - lo
+        k = max(hit_prim[r], 0)
+        dx = S[r, D]
+        dy = S[r, D + 1]
+        dz = S[r, D + 2]
+        pp, gg, ss = _interaction_tri(
+            (vertices[k, 0, 0], vertices[k, 0, 1], vertices[k, 0, 2]),
+            (vertices[k, 1, 0], vertices[k, 1, 1], vertices[k, 1, 2]),
+            (vertices[k, 2, 0], vertices[k, 2, 1], vertices[k, 2, 2]),
+            (normals[k, 0, 0], normals[k, 0, 1], normals[k, 0, 2]),
+            (normals[k, 1, 0], normals[k, 1, 1], normals[k, 1, 2]),
+            (normals[k, 2, 0], normals[k, 2, 1], normals[k, 2, 2]),
+            (face_normal[k, 0], face_normal[k, 1], face_normal[k, 2]), hit_b1[r], hit_b2[r], dx, dy, dz)
+        px, py, pz = pp
+        gx, gy, gz = gg
+        sx, sy, sz = ss
+        # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
+        sign = 1.0 if sz >= 0.0 else -1.0
+        fa = -1.0 / (sign + sz)
+        fb = sx * sy * fa
+        s0 = 1.0 + sign * sx * sx * fa
+        s1 = sign * fb
+        s2 = -sign * sx
+        t0 = fb
+        t1 = sign + sy * sy * fa
+        t2 = -sy
+        wox = -(dx * s0 + dy * s1 + dz * s2)
+        woy = -(dx * t0 + dy * t1 + dz * t2)
+        woz = -(dx * sx + dy * sy + dz * sz)
+        # ---- the material's BSDF and its wo terms -----------------------------------------
+        m = max(mat_row[r], 0) if per_hit else tri_mat[k]
+        a, j0, fy, kd, f0, f90 = _mat(Pm, m)
+        ao, bo = _albedo(woz, j0, fy)
+        p_d = _p_diffuse_i(Pm[m, RHO], Pm[m, RHO + 1], Pm[m, RHO + 2], f0[0], f0[1], f0[2], f90[0], f90[1], f90[2],
+                           ao, bo)
+        # Accel.ray_epsilon: the point's and the triangle's vertices' float32 error.
+        mag = max(max(max(abs(px), abs(py)), abs(pz)), tri_mag[k])
+        eps = eps_rel * max(mag, eps_floor) + eps_add
+        # ---- BSDF sample, throughput, Russian roulette (_preview_kernels.scatter_kernel) ----
+        wix, wiy, wiz = _sample_dir_i(wox, woy, woz, a, U[U_LOBE, r] < p_d, U[U_DIR, r], U[U_DIR + 1, r])
+        wx = wix * s0 + wiy * t0 + wiz * sx
+        wy = wix * s1 + wiy * t1 + wiz * sy
+        wz = wix * s2 + wiy * t2 + wiz * sz
+        okb, dv, fw, pdf_s = _specular_i(wox, woy, woz, wix, wiy, wiz, a)
+        pdf_b = p_d * wiz * _INV_PI + (1.0 - p_d) * pdf_s if okb else 0.0
+        cos_g = wx * gx + wy * gy + wz * gz
+        ai, bi = _albedo(wiz, j0, fy)
+        kk = abs(wiz) / pdf_b
+        nb0 = S[r, B] * _f(kd[0], f0[0], f90[0], ao, bo, ai, bi, fw, dv) * kk
+        nb1 = S[r, B + 1] * _f(kd[1], f0[1], f90[1], ao, bo, ai, bi, fw, dv) * kk
+        nb2 = S[r, B + 2] * _f(kd[2], f0[2], f90[2], ao, bo, ai, bi, fw, dv) * kk
+        ok = okb and pdf_b > 0.0 and cos_g > 0.0 and (nb0 > 0.0 or nb1 > 0.0 or nb2 > 0.0)
+        rr = depth[r] + 1 >= rr_depth
+        q = min(max(1.0 - max(nb0, max(nb1, nb2)), 0.0), 0.95)
+        inv = 1.0 / (1.0 - q)
+        ok = ok and not (rr and U[U_RR, r] < q)
+        W[W_P * BLK + i] = px
+        W[(W_P + 1) * BLK + i] = py
+        W[(W_P + 2) * BLK + i] = pz
+        W[W_G * BLK + i] = gx
+        W[(W_G + 1) * BLK + i] = gy
+        W[(W_G + 2) * BLK + i] = gz
+        W[W_N * BLK + i] = sx
+        W[(W_N + 1) * BLK + i] = sy
+        W[(W_N + 2) * BLK + i] = sz
+        W[W_FS * BLK + i] = s0
+        W[(W_FS + 1) * BLK + i] = s1
+        W[(W_FS + 2) * BLK + i] = s2
+        W[W_FT * BLK + i] = t0
+        W[(W_FT + 1) * BLK + i] = t1
+        W[(W_FT + 2) * BLK + i] = t2
+        W[W_WO * BLK + i] = wox
+        W[(W_WO + 1) * BLK + i] = woy
+        W[(W_WO + 2) * BLK + i] = woz
+        W[W_AO * BLK + i] = ao
+        W[W_BO * BLK + i] = bo
+        W[W_PD * BLK + i] = p_d
+        W[W_M * BLK + i] = m
+        W[W_EPS * BLK + i] = eps
+        W[W_NB * BLK + i] = nb0 * inv if rr else nb0
+        W[(W_NB + 1) * BLK + i] = nb1 * inv if rr else nb1
+        W[(W_NB + 2) * BLK + i] = nb2 * inv if rr else nb2
+        W[W_WN * BLK + i] = wx
+        W[(W_WN + 1) * BLK + i] = wy
+        W[(W_WN + 2) * BLK + i] = wz
+        W[W_PDFB * BLK + i] = pdf_b
+        W[W_OKN * BLK + i] = 1.0 if ok else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
+def _light_pass(lo, hi, smp, scaled, Le0, Le1, Le2, delta, power_g, S, W, Pm, C):
+    """One rect or sphere light's samples smp (5 or 6, n) (kernels.lights' batch kernels; with
+    scaled, row 5 scales the radiance Le) at rows lo..hi through _light_contrib into C (4 * BLK,):
+    the contribution and 1.0 where usable, else 0.0 (vertex_kernel checks the pdf is finite).
+    Vectorised like _surface_pass."""
+    for r in range(lo, hi):
+        i = r - lo
+        sc = smp[5, r] if scaled else 1.0
+        a, j0, fy, kd, f0, f90 = _mat(Pm, int(W[W_M * BLK + i]))
+        ok, c0, c1, c2 = _light_contrib(
+            (smp[0, r], smp[1, r], smp[2, r]), smp[4, r], (Le0 * sc, Le1 * sc, Le2 * sc), delta, power_g,
+            _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i), _w3(W, W_G, i), _w3(W, W_WO, i), W[W_AO * BLK + i],
+            W[W_BO * BLK + i], W[W_PD * BLK + i], a, j0, fy, kd, f0, f90, (S[r, B], S[r, B + 1], S[r, B + 2]))
+        C[0 * BLK + i] = c0
+        C[1 * BLK + i] = c1
+        C[2 * BLK + i] = c2
+        C[3 * BLK + i] = 1.0 if ok else 0.0
+
+
 @njit(cache=True, nogil=True)
 def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, rs, sps, Pm, mat_row, emission, max_depth,
-    vertices, face_normal, normals, tri_mat, tri_mag, ta, tb,
+    vertices, face_normal, normals, tri_mat, tri_mag,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
     d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance, disk_light, close_ratio,
@@ -95,6 +346,10 @@ def vertex_kernel(
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
     counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
+
+    The rows go in blocks of BLK: two vectorised passes (_surface_pass; _light_pass per rect and
+    sphere light, when the bounce scatters) fill the block's state, then one scalar pass per row
+    adds emission, takes the other lights' light half and writes the rays compactly.
     """
     n_rect = center.shape[0]
     n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
@@ -103,271 +358,210 @@ def vertex_kernel(
     k_next = 0
     k_sh = 0
     n_vertices = 0
-    for r in range(path.shape[0]):
-        pr_path = path[r]
-        b0 = S[r, B]
-        b1 = S[r, B + 1]
-        b2 = S[r, B + 2]
-        o = (S[r, O], S[r, O + 1], S[r, O + 2])
-        d = (S[r, D], S[r, D + 1], S[r, D + 2])
-        k = hit_prim[r]
-        t_hit = float(hit_t[r]) if k >= 0 else math.inf
-        t_geo = min(t_hit, S[r, TMAX])
-        # ---- emission of the lights crossed before the surface (lights are transparent) ----
-        for g in range(n_fin):
-            if g < n_rect:
-                j = g
-                tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
-                # The back of a one-sided light emits nothing.
-                front = -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) > 0.0
-                gl = rect_light[j]
-                Le = _row(radiance, j)
-            elif g >= n_rs:
-                j = g - n_rs
-                tl, hit = _disk_hit(o, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), d_s1[j],
-                                    d_s2[j])
-                front = -(d[0] * d_nrm[j, 0] + d[1] * d_nrm[j, 1] + d[2] * d_nrm[j, 2]) > 0.0
-                gl = disk_light[j]
-                Le = _row(d_radiance, j)
-            else:
-                j = g - n_rect
-                tl = _sphere_hit_row(o, d, _row(s_center, j), s_radius[j], s_delta[j])
-                hit = tl < math.inf
-                # Outward emission only: a ray leaving the sphere's inside sees nothing.
-                front = -((o[0] + tl * d[0] - s_center[j, 0]) * d[0] + (o[1] + tl * d[1] - s_center[j, 1]) * d[1]
-                          + (o[2] + tl * d[2] - s_center[j, 2]) * d[2]) > 0.0 if hit else False
-                gl = sphere_light[j]
-                Le = _row(s_radiance, j)
-            if not (hit and tl < t_geo and front):
-                continue
-            if unsampled[r]:
-                w = 1.0
-            else:
-                # h(p_b, p_l): p_l from the vertex the ray left, as the light half there used.
-                pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
+    n = path.shape[0]
+    W = np.empty(NW * BLK)
+    C = np.empty((n_rs, 4 * BLK))
+    # The passes read triangle 0 and material row 0 for rows that missed: only when they exist
+    # (no geometry or, with per-hit rows, no hit at all: nothing scatters).
+    surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
+    # The light samples exist when this bounce can scatter (FastPath._light_samples).
+    sampled = rs.shape[2] == n and sps.shape[2] == n
+    for lo in range(0, n, BLK):
+        hi = min(n, lo + BLK)
+        if surfaces:
+            _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, vertices, face_normal,
+                          normals, tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W)
+            if sampled:
+                for j in range(n_rect):
+                    _light_pass(lo, hi, rs[j], False, radiance[j, 0], radiance[j, 1], radiance[j, 2], False,
+                                power[rect_light[j]], S, W, Pm, C[j])
+                for j in range(n_rs - n_rect):
+                    _light_pass(lo, hi, sps[j], True, s_radiance[j, 0], s_radiance[j, 1], s_radiance[j, 2],
+                                s_delta[j], power[sphere_light[j]], S, W, Pm, C[n_rect + j])
+        for r in range(lo, hi):
+            i = r - lo
+            pr_path = path[r]
+            b0 = S[r, B]
+            b1 = S[r, B + 1]
+            b2 = S[r, B + 2]
+            o = (S[r, O], S[r, O + 1], S[r, O + 2])
+            d = (S[r, D], S[r, D + 1], S[r, D + 2])
+            k = hit_prim[r]
+            t_hit = float(hit_t[r]) if k >= 0 else math.inf
+            t_geo = min(t_hit, S[r, TMAX])
+            # ---- emission of the lights crossed before the surface (lights are transparent) ----
+            for g in range(n_fin):
                 if g < n_rect:
-                    p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
-                                        _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
-                                        edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
+                    j = g
+                    tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
+                    # The back of a one-sided light emits nothing.
+                    front = -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) > 0.0
+                    gl = rect_light[j]
+                    Le = _row(radiance, j)
                 elif g >= n_rs:
-                    p_l = _disk_pdf_row(pv, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j),
-                                        _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j], d_area[j], close_ratio,
-                                        min_sa, graz)
+                    j = g - n_rs
+                    tl, hit = _disk_hit(o, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j),
+                                        d_s1[j], d_s2[j])
+                    front = -(d[0] * d_nrm[j, 0] + d[1] * d_nrm[j, 1] + d[2] * d_nrm[j, 2]) > 0.0
+                    gl = disk_light[j]
+                    Le = _row(d_radiance, j)
                 else:
-                    p_l = _sphere_pdf_row(pv, d, _row(s_center, j), s_radius[j], s_delta[j])
-                w = _mis_weight(S[r, PB], p_l, power[gl])
-            L[pr_path, 0] += b0 * Le[0] * w
-            L[pr_path, 1] += b1 * Le[1] * w
-            L[pr_path, 2] += b2 * Le[2] * w
-        if k < 0:
-            # ---- escaped: the infinite lights (a camera ray sees them whatever its far clip) --
-            for q in range(n_fin, nl):
-                j = q - n_fin
-                if i_dome[j]:
-                    if i_tex[j] >= 0:
-                        p_l, kt = _dome_texel_row(d, i_tex[j], i_rot[j], im_height, im_width, im_weight, im_total,
-                                                  im_offset)
-                        Le = (i_radiance[j, 0] * im_texels[kt, 0], i_radiance[j, 1] * im_texels[kt, 1],
-                              i_radiance[j, 2] * im_texels[kt, 2])
+                    j = g - n_rect
+                    tl = _sphere_hit_row(o, d, _row(s_center, j), s_radius[j], s_delta[j])
+                    hit = tl < math.inf
+                    # Outward emission only: a ray leaving the sphere's inside sees nothing.
+                    front = -((o[0] + tl * d[0] - s_center[j, 0]) * d[0] + (o[1] + tl * d[1] - s_center[j, 1]) * d[1]
+                              + (o[2] + tl * d[2] - s_center[j, 2]) * d[2]) > 0.0 if hit else False
+                    gl = sphere_light[j]
+                    Le = _row(s_radiance, j)
+                if not (hit and tl < t_geo and front):
+                    continue
+                if unsampled[r]:
+                    w = 1.0
+                else:
+                    # h(p_b, p_l): p_l from the vertex the ray left, as the light half there used.
+                    pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
+                    if g < n_rect:
+                        p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
+                                            _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
+                                            edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
+                    elif g >= n_rs:
+                        p_l = _disk_pdf_row(pv, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j),
+                                            _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j], d_area[j], close_ratio,
+                                            min_sa, graz)
                     else:
-                        p_l = _INV_4PI
-                        Le = _row(i_radiance, j)
-                else:
-                    p_l = _distant_pdf_row(d, _row(i_axis, j), i_omc[j], i_delta[j])
-                    if p_l <= 0.0:
-                        continue  # outside the cone (a delta light is never seen)
-                    Le = _row(i_radiance, j)
-                w = 1.0 if unsampled[r] else _mis_weight(S[r, PB], p_l, power[inf_light[j]])
+                        p_l = _sphere_pdf_row(pv, d, _row(s_center, j), s_radius[j], s_delta[j])
+                    w = _mis_weight(S[r, PB], p_l, power[gl])
                 L[pr_path, 0] += b0 * Le[0] * w
                 L[pr_path, 1] += b1 * Le[1] * w
                 L[pr_path, 2] += b2 * Le[2] * w
-            continue
-        per_hit = mat_row.shape[0] > 0
-        m = mat_row[r] if per_hit else tri_mat[k]
-        if emission.shape[0] > 0:
-            L[pr_path, 0] += b0 * emission[m, 0]
-            L[pr_path, 1] += b1 * emission[m, 1]
-            L[pr_path, 2] += b2 * emission[m, 2]
-        if depth[r] >= max_depth:
-            continue
-        n_vertices += 1
-        # ---- surface interaction -----------------------------------------------------------
-        pp, gg, ss = _interaction_row(vertices, face_normal, normals, k, hit_b1[r], hit_b2[r], d[0], d[1], d[2])
-        px, py, pz = pp
-        gx, gy, gz = gg
-        sx, sy, sz = ss
-        # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
-        sign = 1.0 if sz >= 0.0 else -1.0
-        fa = -1.0 / (sign + sz)
-        fb = sx * sy * fa
-        s = (1.0 + sign * sx * sx * fa, sign * fb, -sign * sx)
-        t = (fb, sign + sy * sy * fa, -sy)
-        wox = -(d[0] * s[0] + d[1] * s[1] + d[2] * s[2])
-        woy = -(d[0] * t[0] + d[1] * t[1] + d[2] * t[2])
-        woz = -(d[0] * sx + d[1] * sy + d[2] * sz)
-        # ---- the material's BSDF and its wo terms -----------------------------------------
-        a = Pm[m, ALPHA]
-        j0 = int(Pm[m, J0])
-        fy = Pm[m, FY]
-        ao, bo = _lookup(woz, j0, fy, ta, tb)
-        p_d = _p_diffuse(Pm[m, RHO], Pm[m, RHO + 1], Pm[m, RHO + 2], Pm[m, F0], Pm[m, F0 + 1], Pm[m, F0 + 2],
-                         Pm[m, F90], Pm[m, F90 + 1], Pm[m, F90 + 2], ao, bo)
-        # Accel.ray_epsilon: the point's and the triangle's vertices' float32 error.
-        mag = max(max(max(abs(px), abs(py)), abs(pz)), tri_mag[k])
-        eps = eps_rel * max(mag, eps_floor) + eps_add
-        # ---- the light half of continuation MIS, every light (the exhaustive sampler) ------
-        for g in range(nl):
-            if g < n_rect:
-                j = g
-                gl = rect_light[j]
-                # Sampled before the kernel, vectorised (rs; rect_sample_batch_kernel).
-                wi = (rs[j, 0, r], rs[j, 1, r], rs[j, 2, r])
-                dist = rs[j, 3, r]
-                pdf_l = rs[j, 4, r]
-                ok = pdf_l > 0.0
-                Le = _row(radiance, j)
-                delta = False
-            elif g >= n_fin:
-                j = g - n_fin
-                gl = inf_light[j]
-                Le = _row(i_radiance, j)
-                if i_dome[j] and i_tex[j] >= 0:
-                    wi, pdf_l, kt = _dome_sample_row(
-                        U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], i_tex[j], i_rot[j], im_height, im_width,
-                        im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
-                    Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
-                elif i_dome[j]:
-                    wi = _uniform_sphere_row(U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r])
-                    pdf_l = _INV_4PI
+            if k < 0:
+                # ---- escaped: the infinite lights (a camera ray sees them whatever its far clip) --
+                for q in range(n_fin, nl):
+                    j = q - n_fin
+                    if i_dome[j]:
+                        if i_tex[j] >= 0:
+                            p_l, kt = _dome_texel_row(d, i_tex[j], i_rot[j], im_height, im_width, im_weight,
+                                                      im_total, im_offset)
+                            Le = (i_radiance[j, 0] * im_texels[kt, 0], i_radiance[j, 1] * im_texels[kt, 1],
+                                  i_radiance[j, 2] * im_texels[kt, 2])
+                        else:
+                            p_l = _INV_4PI
+                            Le = _row(i_radiance, j)
+                    else:
+                        p_l = _distant_pdf_row(d, _row(i_axis, j), i_omc[j], i_delta[j])
+                        if p_l <= 0.0:
+                            continue  # outside the cone (a delta light is never seen)
+                        Le = _row(i_radiance, j)
+                    w = 1.0 if unsampled[r] else _mis_weight(S[r, PB], p_l, power[inf_light[j]])
+                    L[pr_path, 0] += b0 * Le[0] * w
+                    L[pr_path, 1] += b1 * Le[1] * w
+                    L[pr_path, 2] += b2 * Le[2] * w
+                continue
+            if emission.shape[0] > 0:
+                m = mat_row[r] if mat_row.shape[0] > 0 else tri_mat[k]
+                L[pr_path, 0] += b0 * emission[m, 0]
+                L[pr_path, 1] += b1 * emission[m, 1]
+                L[pr_path, 2] += b2 * emission[m, 2]
+            if depth[r] >= max_depth:
+                continue
+            n_vertices += 1
+            px = W[W_P * BLK + i]
+            py = W[(W_P + 1) * BLK + i]
+            pz = W[(W_P + 2) * BLK + i]
+            eps = W[W_EPS * BLK + i]
+            # ---- the light half of continuation MIS, every light (the exhaustive sampler) ------
+            for g in range(nl):
+                if g < n_rs:
+                    # Rect and sphere lights: sampled and weighed by the vectorised passes.
+                    if g < n_rect:
+                        wi = (rs[g, 0, r], rs[g, 1, r], rs[g, 2, r])
+                        dist = rs[g, 3, r]
+                        pdf_l = rs[g, 4, r]
+                    else:
+                        wi = (sps[g - n_rect, 0, r], sps[g - n_rect, 1, r], sps[g - n_rect, 2, r])
+                        dist = sps[g - n_rect, 3, r]
+                        pdf_l = sps[g - n_rect, 4, r]
+                    if C[g, 3 * BLK + i] == 0.0 or not math.isfinite(pdf_l):
+                        continue
+                    c0 = C[g, 0 * BLK + i]
+                    c1 = C[g, 1 * BLK + i]
+                    c2 = C[g, 2 * BLK + i]
                 else:
-                    wi, pdf_l = _distant_sample_row(U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r],
-                                                    _row(i_axis, j), i_omc[j], i_delta[j])
-                dist = math.inf
-                ok = pdf_l > 0.0
-                delta = i_delta[j] and not i_dome[j]
-            elif g >= n_rs:
-                j = g - n_rs
-                gl = disk_light[j]
-                wi, dist, pdf_l, _pl, ok = _disk_sample_row(
-                    (px, py, pz), U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], _row(d_center, j),
-                    _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j],
-                    d_area[j], close_ratio, min_sa, graz)
-                Le = _row(d_radiance, j)
-                delta = False
-            else:
-                j = g - n_rect
-                gl = sphere_light[j]
-                # Sampled before the kernel, vectorised (sps; sphere_sample_batch_kernel).
-                wi = (sps[j, 0, r], sps[j, 1, r], sps[j, 2, r])
-                dist = sps[j, 3, r]
-                pdf_l = sps[j, 4, r]
-                ok = pdf_l > 0.0
-                l_scale = sps[j, 5, r]
-                Le = (s_radiance[j, 0] * l_scale, s_radiance[j, 1] * l_scale, s_radiance[j, 2] * l_scale)
-                delta = s_delta[j]
-            if not ok or not math.isfinite(pdf_l):
+                    if g >= n_fin:
+                        j = g - n_fin
+                        gl = inf_light[j]
+                        Le = _row(i_radiance, j)
+                        if i_dome[j] and i_tex[j] >= 0:
+                            wi, pdf_l, kt = _dome_sample_row(
+                                U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], i_tex[j], i_rot[j], im_height,
+                                im_width, im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight,
+                                im_total, im_offset)
+                            Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
+                        elif i_dome[j]:
+                            wi = _uniform_sphere_row(U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r])
+                            pdf_l = _INV_4PI
+                        else:
+                            wi, pdf_l = _distant_sample_row(U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r],
+                                                            _row(i_axis, j), i_omc[j], i_delta[j])
+                        dist = math.inf
+                        delta = i_delta[j] and not i_dome[j]
+                    else:
+                        j = g - n_rs
+                        gl = disk_light[j]
+                        wi, dist, pdf_l, _pl, _ok = _disk_sample_row(
+                            (px, py, pz), U[U_LIGHT + 2 * gl, r], U[U_LIGHT + 2 * gl + 1, r], _row(d_center, j),
+                            _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), _row(d_e1, j), _row(d_e2, j), d_s1[j],
+                            d_s2[j], d_area[j], close_ratio, min_sa, graz)
+                        pdf_l = pdf_l if _ok else 0.0
+                        Le = _row(d_radiance, j)
+                        delta = False
+                    if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
+                        continue
+                    a, j0, fy, kd, f0, f90 = _mat(Pm, int(W[W_M * BLK + i]))
+                    ok, c0, c1, c2 = _light_contrib(
+                        wi, pdf_l, Le, delta, power[gl], _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
+                        _w3(W, W_G, i), _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], a, j0, fy, kd, f0,
+                        f90, (b0, b1, b2))
+                    if not ok:
+                        continue
+                # The sample is above the geometric normal (ok): the shadow ray leaves on its side.
+                sh_o[k_sh, 0] = px + W[W_G * BLK + i] * eps
+                sh_o[k_sh, 1] = py + W[(W_G + 1) * BLK + i] * eps
+                sh_o[k_sh, 2] = pz + W[(W_G + 2) * BLK + i] * eps
+                sh_d[k_sh, 0] = wi[0]
+                sh_d[k_sh, 1] = wi[1]
+                sh_d[k_sh, 2] = wi[2]
+                # Stop short of the light by a relative margin and the origin offset (as _visible).
+                # Infinite lights: embree's far limit, as Accel gives inf.
+                sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
+                sh_path[k_sh] = pr_path
+                sh_c[k_sh, 0] = c0
+                sh_c[k_sh, 1] = c1
+                sh_c[k_sh, 2] = c2
+                k_sh += 1
+            if W[W_OKN * BLK + i] == 0.0 or not (math.isfinite(W[W_PDFB * BLK + i])
+                                          and math.isfinite(W[W_NB * BLK + i] + W[(W_NB + 1) * BLK + i] + W[(W_NB + 2) * BLK + i])):
                 continue
-            wx = wi[0] * s[0] + wi[1] * s[1] + wi[2] * s[2]
-            wy = wi[0] * t[0] + wi[1] * t[1] + wi[2] * t[2]
-            wz = wi[0] * sx + wi[1] * sy + wi[2] * sz
-            cos_g = wi[0] * gx + wi[1] * gy + wi[2] * gz
-            if not (wz > 0.0 and cos_g > 0.0 and woz > 0.0):
-                continue
-            oks, dv, fw, pdf_s = _specular(wox, woy, woz, wx, wy, wz, a)
-            if not oks:
-                continue
-            ai, bi = _lookup(wz, j0, fy, ta, tb)
-            p_b = p_d * wz * _INV_PI + (1.0 - p_d) * pdf_s
-            # A delta light (treatAsPoint) takes the whole weight, and its p_l counts as 1.
-            kk = wz if delta else wz * _mis_weight(pdf_l, p_b, power[gl]) / pdf_l
-            c0 = b0 * _f_channel(Pm, m, 0, ao, bo, ai, bi, fw, dv) * Le[0] * kk
-            c1 = b1 * _f_channel(Pm, m, 1, ao, bo, ai, bi, fw, dv) * Le[1] * kk
-            c2 = b2 * _f_channel(Pm, m, 2, ao, bo, ai, bi, fw, dv) * Le[2] * kk
-            if not (c0 > 0.0 or c1 > 0.0 or c2 > 0.0):
-                continue
-            side = eps if cos_g >= 0.0 else -eps
-            sh_o[k_sh, 0] = px + gx * side
-            sh_o[k_sh, 1] = py + gy * side
-            sh_o[k_sh, 2] = pz + gz * side
-            sh_d[k_sh, 0] = wi[0]
-            sh_d[k_sh, 1] = wi[1]
-            sh_d[k_sh, 2] = wi[2]
-            # Stop short of the light by a relative margin and the origin offset (as _visible).
-            # Infinite lights: embree's far limit, as Accel gives inf.
-            sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
-            sh_path[k_sh] = pr_path
-            sh_c[k_sh, 0] = c0
-            sh_c[k_sh, 1] = c1
-            sh_c[k_sh, 2] = c2
-            k_sh += 1
-        # ---- BSDF sample, throughput, Russian roulette (_preview_kernels.scatter_kernel) ----
-        wix, wiy, wiz = _sample_dir(wox, woy, woz, a, U[U_LOBE, r] < p_d, U[U_DIR, r], U[U_DIR + 1, r])
-        wx = wix * s[0] + wiy * t[0] + wiz * sx
-        wy = wix * s[1] + wiy * t[1] + wiz * sy
-        wz = wix * s[2] + wiy * t[2] + wiz * sz
-        okb, dv, fw, pdf_s = _specular(wox, woy, woz, wix, wiy, wiz, a)
-        pdf_b = p_d * wiz * _INV_PI + (1.0 - p_d) * pdf_s if okb else 0.0
-        cos_g = wx * gx + wy * gy + wz * gz
-        if not (okb and pdf_b > 0.0 and math.isfinite(pdf_b) and cos_g > 0.0):
-            continue
-        ai, bi = _lookup(wiz, j0, fy, ta, tb)
-        kk = abs(wiz) / pdf_b
-        nb0 = b0 * _f_channel(Pm, m, 0, ao, bo, ai, bi, fw, dv) * kk
-        nb1 = b1 * _f_channel(Pm, m, 1, ao, bo, ai, bi, fw, dv) * kk
-        nb2 = b2 * _f_channel(Pm, m, 2, ao, bo, ai, bi, fw, dv) * kk
-        if not ((nb0 > 0.0 or nb1 > 0.0 or nb2 > 0.0) and math.isfinite(nb0 + nb1 + nb2)):
-            continue
-        if depth[r] + 1 >= rr_depth:
-            q = min(max(1.0 - max(nb0, max(nb1, nb2)), 0.0), 0.95)
-            if U[U_RR, r] < q:
-                continue
-            inv = 1.0 / (1.0 - q)
-            nb0 *= inv
-            nb1 *= inv
-            nb2 *= inv
-        # ---- the next bounce's ray ------------------------------------------------------
-        side = eps if cos_g >= 0.0 else -eps
-        n_path[k_next] = pr_path
-        n_depth[k_next] = depth[r] + 1
-        n_S[k_next, B] = nb0
-        n_S[k_next, B + 1] = nb1
-        n_S[k_next, B + 2] = nb2
-        n_S[k_next, O] = px + gx * side
-        n_S[k_next, O + 1] = py + gy * side
-        n_S[k_next, O + 2] = pz + gz * side
-        n_S[k_next, D] = wx
-        n_S[k_next, D + 1] = wy
-        n_S[k_next, D + 2] = wz
-        n_S[k_next, TMAX] = math.inf
-        n_S[k_next, PP] = px
-        n_S[k_next, PP + 1] = py
-        n_S[k_next, PP + 2] = pz
-        n_S[k_next, PNG] = gx
-        n_S[k_next, PNG + 1] = gy
-        n_S[k_next, PNG + 2] = gz
-        n_S[k_next, PNS] = sx
-        n_S[k_next, PNS + 1] = sy
-        n_S[k_next, PNS + 2] = sz
-        n_S[k_next, PB] = pdf_b
-        for c in range(3):
-            n_o32[k_next, c] = n_S[k_next, O + c]
-            n_d32[k_next, c] = n_S[k_next, D + c]
-        n_t32[k_next] = 1e37
-        k_next += 1
+            # ---- the next bounce's ray (the BSDF sample _surface_pass drew; it left above ng) ----
+            n_path[k_next] = pr_path
+            n_depth[k_next] = depth[r] + 1
+            for c in range(3):
+                n_S[k_next, B + c] = W[(W_NB + c) * BLK + i]
+                n_S[k_next, O + c] = W[(W_P + c) * BLK + i] + W[(W_G + c) * BLK + i] * eps
+                n_S[k_next, D + c] = W[(W_WN + c) * BLK + i]
+                n_S[k_next, PP + c] = W[(W_P + c) * BLK + i]
+                n_S[k_next, PNG + c] = W[(W_G + c) * BLK + i]
+                n_S[k_next, PNS + c] = W[(W_N + c) * BLK + i]
+                n_o32[k_next, c] = n_S[k_next, O + c]
+                n_d32[k_next, c] = n_S[k_next, D + c]
+            n_S[k_next, TMAX] = math.inf
+            n_S[k_next, PB] = W[W_PDFB * BLK + i]
+            n_t32[k_next] = 1e37
+            k_next += 1
     counts[0] = k_next
     counts[1] = k_sh
     counts[2] = n_vertices
-
-
-@njit(cache=True, nogil=True)
-def _f_channel(Pm, m, c, ao, bo, ai, bi, fw, dv):
-    """f(wo, wi) of material m in channel c, from the wo terms (ao, bo), the wi terms (ai, bi),
-    the Schlick weight fw and D V of _specular (the formula of _preview_kernels.eval_kernel)."""
-    fk = Pm[m, F0 + c]
-    gk = Pm[m, F90 + c]
-    c_o = 1.0 - (fk * ao + gk * bo)
-    c_i = 1.0 - (fk * ai + gk * bi)
-    return Pm[m, KD + c] * c_o * c_i + (fk + (gk - fk) * fw) * dv
 
 
 @njit(cache=True, nogil=True)
@@ -381,6 +575,6 @@ def add_unblocked_kernel(L, sh_path, sh_c, blocked):
             L[r, 2] += sh_c[i, 2]
 
 
-guard_cache(__name__, [vertex_kernel, _f_channel, add_unblocked_kernel],
+guard_cache(__name__, [vertex_kernel, _surface_pass, _light_pass, _mat, _w3, add_unblocked_kernel],
             ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py",
-             "renderer/geometry.py"])
+             "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py"])

@@ -123,13 +123,8 @@ class FastPath:
         # Textured inputs or emission: the material is evaluated per hit (st needed) and the
         # kernel reads per-hit rows; otherwise one packed row per material.
         self.per_hit = bool(mats.params_needed)
-        if self.per_hit:
-            from ..bsdfs.microfacet import albedo_tables
-
-            tables = albedo_tables()
-            self.Pm, self.ta, self.tb = np.zeros((0, 0)), tables.a, tables.b
-        else:
-            self.Pm, self.ta, self.tb = mats.packed_bsdf()
+        # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
+        self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
         self.no_rows = np.zeros(0, dtype=np.int64)
         self.no_emission = np.zeros((0, 3))
         g = scene.geometry
@@ -152,7 +147,7 @@ class FastPath:
         rl, sl, dl = self.rect, self.sphere, self.disk
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         self.tables = (
-            *self.geo, self.ta, self.tb,
+            *self.geo,
             rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
             rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
