@@ -207,6 +207,8 @@ def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, ve
         dx = S[r, D]
         dy = S[r, D + 1]
         dz = S[r, D + 2]
+        # The triangle's loads are written out here, as in geometry._interaction_row: a helper
+        # returning its tuples (a call LLVM leaves in place) turns this loop scalar.
         pp, gg, ss = _interaction_tri(
             (vertices[k, 0, 0], vertices[k, 0, 1], vertices[k, 0, 2]),
             (vertices[k, 1, 0], vertices[k, 1, 1], vertices[k, 1, 2]),
