@@ -37,6 +37,8 @@ import numpy as np
 from numba import njit
 
 from renderer.bsdfs.microfacet import ALPHA_MIN, LUMINANCE, N_A, N_MU
+from renderer.kernels import guard_cache, module_dispatchers
+from renderer.kernels.vmath import sincos
 
 _LOG_ALPHA_MIN = math.log(ALPHA_MIN)
 _INV_PI = 1.0 / math.pi
@@ -148,35 +150,6 @@ def _specular(wox, woy, woz, wix, wiy, wiz, a):
     return ok, dv, w, pdf_s
 
 
-# pi/2 in two parts (Cody-Waite): x - k PIO2_HI is exact for the k of sampling angles.
-_PIO2_HI = 1.5707963267341256
-_PIO2_LO = 6.077100506506192e-11
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _sincos(x):
-    """(sin x, cos x) for |x| up to a few thousand, branch-free: Taylor polynomials (to x^17 and
-    x^16, whose first omitted terms are below 1e-16 relative on |r| <= pi/4) of the
-    quadrant-reduced angle r, within 2e-16 of libm. libm's sin and cos are calls LLVM cannot
-    vectorise (the fast path's surface pass would make them one lane at a time); this runs packed."""
-    k = math.floor(x * (2.0 / math.pi) + 0.5)
-    r = (x - k * _PIO2_HI) - k * _PIO2_LO
-    r2 = r * r
-    # 1/(2j+1)! and 1/(2j)! with alternating signs, in Horner form.
-    ps = 1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362880.0 + r2 * (
-        -1.0 / 39916800.0 + r2 * (1.0 / 6227020800.0 + r2 * (-1.0 / 1307674368000.0 + r2 / 355687428096000.0)))))))
-    pc = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0 + r2 * (
-        -1.0 / 3628800.0 + r2 * (1.0 / 479001600.0 + r2 * (-1.0 / 87178291200.0 + r2 / 20922789888000.0)))))))
-    sr = r * ps
-    # Quadrant q = k mod 4: odd ones swap sin and cos; sin is negative in 2 and 3, cos in 1 and
-    # 2. Arithmetic, not a chain of ifs (LLVM turns that into a switch it cannot vectorise).
-    q = int(k) & 3
-    odd = (q & 1) == 1
-    sn = (1.0 - 2.0 * ((q >> 1) & 1)) * (pc if odd else sr)
-    cs = (1.0 - 2.0 * (((q + 1) >> 1) & 1)) * (sr if odd else pc)
-    return sn, cs
-
-
 @njit(cache=True, nogil=True)
 def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     """The sampled wi (3 floats) of sample_f: cosine-weighted (concentric map) if pick_diffuse,
@@ -192,7 +165,7 @@ def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     rad = sa if major_a else sb
     th = (math.pi / 4.0) * (sb / sa) if major_a else (math.pi / 2.0) - (math.pi / 4.0) * (sa / sb if sb != 0.0 else 0.0)
     phi = th if pick_diffuse else 2.0 * math.pi * u0
-    sin_phi, cos_phi = _sincos(phi)
+    sin_phi, cos_phi = sincos(phi)
     dx = rad * cos_phi
     dy = rad * sin_phi
     dz = math.sqrt(max(0.0, 1.0 - dx * dx - dy * dy))
@@ -596,3 +569,7 @@ def scatter_kernel(wo, s, t, ns, ng, beta, u_lobe, u, u_rr, rr, P, ta, tb, out_w
 def as_rows(a: np.ndarray, k: int) -> np.ndarray:
     """C-contiguous float64 (n, k) view or copy of a."""
     return np.ascontiguousarray(a, dtype=np.float64).reshape(-1, k)
+
+
+# _sample_dir inlines vmath.sincos: flush this file's cached kernels when vmath.py changes.
+guard_cache(__name__, module_dispatchers(globals()), ["renderer/kernels/vmath.py"])

@@ -14,9 +14,10 @@ Conventions shared by every kernel here:
 * Kernels never import numba functions or constants from other modules: numba's on-disk cache
   is keyed on the defining file only, so a kernel that inlined a function (or froze a global)
   from another file would silently keep a stale copy after that file changed. Tunable
-  constants (thresholds) are passed in as arguments instead. The one exception is a module
-  that calls ``guard_cache`` (below) with the files it inlines from: the fused path vertex,
-  renderer/integrators/_vertex_kernels.py.
+  constants (thresholds) are passed in as arguments instead. The exception is a module that
+  calls ``guard_cache`` (below) with the files it inlines from: the fused path vertex
+  (renderer/integrators/_vertex_kernels.py), and the users of ``vmath`` (this package's
+  vectorisable sin, cos and atan: kernels/lights.py, bsdfs/_preview_kernels.py).
 """
 
 from __future__ import annotations
@@ -25,6 +26,14 @@ import hashlib
 import os
 
 _ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def module_dispatchers(namespace: dict) -> list:
+    """Every numba dispatcher defined in a module (pass its ``globals()``), for guard_cache."""
+    from numba.core.registry import CPUDispatcher
+
+    name = namespace.get("__name__")
+    return [v for v in namespace.values() if isinstance(v, CPUDispatcher) and v.py_func.__module__ == name]
 
 
 def guard_cache(module: str, dispatchers: list, sources: list[str]) -> None:

@@ -25,6 +25,9 @@ import math
 
 from numba import njit
 
+from renderer.kernels import guard_cache, module_dispatchers
+from renderer.kernels.vmath import arg_upper, sincos
+
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 
@@ -87,8 +90,9 @@ def _around(axis, c, sn, phi):
     fb = axis[0] * axis[1] * fa
     s = (1.0 + sign * axis[0] * axis[0] * fa, sign * fb, -sign * axis[0])
     t = (fb, sign + axis[1] * axis[1] * fa, -axis[1])
-    ks = sn * math.cos(phi)
-    kt = sn * math.sin(phi)
+    sp, cp = sincos(phi)
+    ks = sn * cp
+    kt = sn * sp
     return _add(_add(_scale(c, axis), _scale(ks, s)), _scale(kt, t))
 
 
@@ -184,15 +188,12 @@ def _sr_setup(p, corner, x_hat, y_hat, lx, ly, min_solid_angle, grazing_nz2):
     d1 = r00 * r10 * r11 + (x01 + dd0) * r11 + v00_v11 * r10 + (xx1 + y01 + z2) * r00
     d2 = r00 * r11 * r01 + v00_v11 * r01 + (xx0 + y01 + z2) * r11 + (x01 + dd2) * r00
     nn = -z0 * lx * ly
-    # Omega / 2 = arg(re + i im) in [0, pi), by atan (measured cheaper than atan2 here).
-    im = nn * (d1 + d2)
+    # Omega / 2 = arg(re + i im) in [0, pi], by vmath's branch-free atan (libm's is a call the
+    # batch kernel's loop would make one lane at a time). im < 0 only by rounding, at Omega ~ 0
+    # or ~ 2 pi: clamped to 0, the argument is then 0 or pi.
+    im = max(nn * (d1 + d2), 0.0)
     re = d1 * d2 - nn * nn
-    if re > abs(im):
-        half = math.atan(im / re)
-    elif im > 0.0:
-        half = 0.5 * _PI - math.atan(re / im)
-    else:
-        half = _PI if re < 0.0 else 0.0  # im < 0 only by rounding, at Omega ~ 0 or ~ 2 pi
+    half = arg_upper(re, im)
     if all_ok and z0 < 0.0:
         solid = max(2.0 * half, 0.0)
     else:
@@ -221,8 +222,7 @@ def _sr_sample(p, st, u0, u1):
     sin_h = -z0 * n3 * (n2 * r00 + n0 * r01) * k
     # au = u0 * solid - (h2 + h3): cos au and sin au by rotating e^{i u0 solid}.
     phi = u0 * solid
-    cp = math.cos(phi)
-    sp = math.sin(phi)
+    sp, cp = sincos(phi)
     num = (cp * cos_h + sp * sin_h) * b0 + b1
     den = sp * cos_h - cp * sin_h
     # spherical_rect.sample: cu = den sign(num) / sqrt(num^2 + b0^2 den^2), xu = -cu z0 / sqrt(1 -
@@ -331,8 +331,8 @@ _rect_sample_row_inline = njit(cache=True, nogil=True, inline="always")(_rect_sa
 @njit(cache=True, nogil=True, error_model="numpy")
 def rect_sample_batch_kernel(p, u, col, c, e1, e2, xh, yh, lx, ly, nl, area_i, is_rect_i, min_sa, graz, out):
     """_rect_sample_row for one untextured rect light at many points, in a loop LLVM vectorises
-    (~2x the scalar row on AVX2/AVX-512: LLVM predicates the branches and calls libm's atan,
-    sin and cos lane by lane, while the square roots and divisions run packed).
+    (LLVM predicates the branches; the atan, sin and cos are vmath's polynomials, so the whole
+    row runs packed).
 
     p: (3, n) points (world), one row per coordinate; u: (>= col + 2, n) uniforms, rows col and
     col + 1 used. Batch axis last, unlike the rest of the kernels: the vectoriser needs unit
@@ -871,3 +871,8 @@ def _dome_texel_row(wi, img, rot, height, width, weight, total, offset):
     k = _texel_flat(img, row, col, offset, height, width)
     pmf = weight[k] / total[img]
     return (pmf / omega if omega > 0.0 else 0.0), k
+
+
+# The spherical rectangle and the cone inline vmath's sin, cos and atan: flush this file's cached
+# kernels when vmath.py changes.
+guard_cache(__name__, module_dispatchers(globals()), ["renderer/kernels/vmath.py"])

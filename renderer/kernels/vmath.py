@@ -1,0 +1,73 @@
+"""Transcendental functions that LLVM can vectorise, for the kernels' hot loops.
+
+numba compiles ``math.sin``, ``math.cos`` and ``math.atan`` to calls into libm, and LLVM runs a
+call one lane at a time even in a loop it otherwise vectorises: the sampling loops (the BSDF's
+direction, the spherical rectangle's solid angle and inverse CDF, the sphere's cone) spent most
+of their time in those calls. These are straight-line polynomial code with arithmetic selects
+instead of branches, numba-inlined (``inline="always"``, scalars only), so they run packed
+(4 or 8 lanes) wherever they are inlined. Each stays within a few units in the last place of
+libm (tests/kernels/test_vmath.py).
+
+A kernel module that uses them must list this file in its ``guard_cache`` call (numba's
+on-disk cache is keyed on the defining file only; see renderer/kernels/__init__.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+_PI = math.pi
+# pi/2 in two parts (Cody-Waite): x - k PIO2_HI is exact for the k of sampling angles.
+_PIO2_HI = 1.5707963267341256
+_PIO2_LO = 6.077100506506192e-11
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sincos(x):
+    """(sin x, cos x) for |x| up to a few thousand, branch-free: Taylor polynomials (to x^17 and
+    x^16, whose first omitted terms are below 1e-16 relative on |r| <= pi/4) of the
+    quadrant-reduced angle r, within 2.2e-16 of libm."""
+    k = math.floor(x * (2.0 / math.pi) + 0.5)
+    r = (x - k * _PIO2_HI) - k * _PIO2_LO
+    r2 = r * r
+    # 1/(2j+1)! and 1/(2j)! with alternating signs, in Horner form.
+    ps = 1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362880.0 + r2 * (
+        -1.0 / 39916800.0 + r2 * (1.0 / 6227020800.0 + r2 * (-1.0 / 1307674368000.0 + r2 / 355687428096000.0)))))))
+    pc = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40320.0 + r2 * (
+        -1.0 / 3628800.0 + r2 * (1.0 / 479001600.0 + r2 * (-1.0 / 87178291200.0 + r2 / 20922789888000.0)))))))
+    sr = r * ps
+    # Quadrant q = k mod 4: odd ones swap sin and cos; sin is negative in 2 and 3, cos in 1 and
+    # 2. Arithmetic, not a chain of ifs (LLVM turns that into a switch it cannot vectorise).
+    q = int(k) & 3
+    odd = (q & 1) == 1
+    sn = (1.0 - 2.0 * ((q >> 1) & 1)) * (pc if odd else sr)
+    cs = (1.0 - 2.0 * (((q + 1) >> 1) & 1)) * (sr if odd else pc)
+    return sn, cs
+
+
+@njit(cache=True, nogil=True, inline="always")
+def atan_unit(a):
+    """atan a for a in [0, 1], branch-free: two half-angle steps (atan a = 2 atan(a / (1 +
+    sqrt(1 + a^2)))) bring a below tan(pi/16) ~ 0.199, where the Taylor series to a^23 leaves
+    less than 1e-17 relative (the first omitted term, 0.199^24 / 25). Square roots and divisions
+    run packed; error within a few ulp of libm."""
+    a = a / (1.0 + math.sqrt(1.0 + a * a))
+    a = a / (1.0 + math.sqrt(1.0 + a * a))
+    z = a * a
+    p = 1.0 + z * (-1.0 / 3.0 + z * (1.0 / 5.0 + z * (-1.0 / 7.0 + z * (1.0 / 9.0 + z * (-1.0 / 11.0 + z * (
+        1.0 / 13.0 + z * (-1.0 / 15.0 + z * (1.0 / 17.0 + z * (-1.0 / 19.0 + z * (1.0 / 21.0 - z / 23.0))))))))))
+    return 4.0 * (a * p)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def arg_upper(x, y):
+    """arg(x + i y) in [0, pi] for y >= 0 (atan2(y, x) on the upper half plane), branch-free:
+    atan_unit of min(|x|, y) / max(|x|, y) folded by octant. 0 at x = y = 0. No squares of x or
+    y, so no overflow for any finite input."""
+    ax = abs(x)
+    big = max(ax, y)
+    t = atan_unit(min(ax, y) / big if big > 0.0 else 0.0)
+    t = 0.5 * _PI - t if y > ax else t  # angle from the positive x axis for x >= 0
+    return _PI - t if x < 0.0 else t
