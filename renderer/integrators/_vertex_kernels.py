@@ -4,15 +4,15 @@ One call per bounce does, for every live ray, all the work between two embree ca
 general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
 lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
 material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
-for every light (the rect and sphere lights' samples drawn beforehand by the vectorised batch
-kernels of kernels/lights.py, the others' here), and the BSDF sample with the throughput update
+for every light (the rect and sphere lights' samples drawn block by block by the vectorised
+batch kernels of kernels/lights.py, the others' row by row), and the BSDF sample with the throughput update
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
-The rows go in blocks of BLK. Two passes over a block are loops LLVM vectorises (4 rows per
+The rows go in blocks of BLK. Three passes over a block are loops LLVM vectorises (4 rows per
 AVX2/AVX-512 instruction): ``_surface_pass`` (surface interaction, frame, material wo terms,
-BSDF sample, roulette) and ``_light_pass`` (each rect and sphere light's sample weighed by the
-BSDF and MIS). A scalar pass then adds emission, takes the disk and infinite lights' light half
+BSDF sample, roulette), the rect and sphere lights' batch samplers (kernels/lights.py, from the
+block's hit points) and ``_light_pass`` (each such sample weighed by the BSDF and MIS). A scalar pass then adds emission, takes the disk and infinite lights' light half
 and writes the rays compactly. What keeps those loops vectorised, each checked by
 tests/integrators/test_vertex_vectorised.py: no branches around work (both BSDF lobes are
 computed and one is selected; _sincos instead of libm's cos and sin), error_model="numpy" (no
@@ -27,12 +27,11 @@ The maths is not restated here: it calls the per-row helpers of the surface inte
 on-disk cache is keyed on this file only, so ``guard_cache`` (renderer/kernels/__init__.py) flushes
 this file's cache whenever any of the files it inlines from changes.
 
-Shapes: n live rays; S (n, 20) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
-``D`` (unit direction), ``TMAX``, ``PP``/``PNG``/``PNS`` (the previous vertex's point, geometric
-and shading normal) and ``PB`` (the BSDF pdf of d there); U (4 + 2 lights, n) uniforms, batch
-axis last (the rect lights' samples are drawn from it by a vectorised kernel, which needs
-unit stride along the batch); rs (rect lights, 5, n) and sps (sphere lights, 6, n) those
-samples.
+Shapes: n live rays; S (n, 14) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
+``D`` (unit direction), ``TMAX``, ``PP`` (the previous vertex's point, for the light pdf of
+continuation MIS) and ``PB`` (the BSDF pdf of d there); U (4 + 2 lights, n) uniforms, batch
+axis last (the rect and sphere lights' samples are drawn from it by vectorised kernels, which
+need unit stride along the batch).
 """
 
 from __future__ import annotations
@@ -51,7 +50,7 @@ from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import guard_cache
 from renderer.kernels.lights import (
-    _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
+    rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _row, _sphere_hit_row, _sphere_pdf_row, _uniform_sphere_row,
 )
 
@@ -64,10 +63,8 @@ O = 3
 D = 6
 TMAX = 9
 PP = 10
-PNG = 13
-PNS = 16
-PB = 19
-NS = 20
+PB = 13
+NS = 14
 # Uniform columns: lobe choice, direction (2), roulette, then (2 per light) light samples.
 U_LOBE = 0
 U_DIR = 1
@@ -295,16 +292,16 @@ def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, ve
 
 @njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
 def _light_pass(lo, hi, smp, scaled, Le0, Le1, Le2, delta, power_g, S, W, Pm, C):
-    """One rect or sphere light's samples smp (5 or 6, n) (kernels.lights' batch kernels; with
-    scaled, row 5 scales the radiance Le) at rows lo..hi through _light_contrib into C (4 * BLK,):
-    the contribution and 1.0 where usable, else 0.0 (vertex_kernel checks the pdf is finite).
-    Vectorised like _surface_pass."""
+    """One rect or sphere light's samples of the block, smp (6, BLK) (kernels.lights' batch
+    kernels: wi, distance, pdf and, with scaled, the radiance scale in row 5) at rows lo..hi
+    through _light_contrib into C (4 * BLK,): the contribution and 1.0 where usable, else 0.0
+    (vertex_kernel checks the pdf is finite). Vectorised like _surface_pass."""
     for r in range(lo, hi):
         i = r - lo
-        sc = smp[5, r] if scaled else 1.0
+        sc = smp[5, i] if scaled else 1.0
         a, j0, fy, kd, f0, f90 = _mat(Pm, int(W[W_M * BLK + i]))
         ok, c0, c1, c2 = _light_contrib(
-            (smp[0, r], smp[1, r], smp[2, r]), smp[4, r], (Le0 * sc, Le1 * sc, Le2 * sc), delta, power_g,
+            (smp[0, i], smp[1, i], smp[2, i]), smp[4, i], (Le0 * sc, Le1 * sc, Le2 * sc), delta, power_g,
             _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i), _w3(W, W_G, i), _w3(W, W_WO, i), W[W_AO * BLK + i],
             W[W_BO * BLK + i], W[W_PD * BLK + i], a, j0, fy, kd, f0, f90, (S[r, B], S[r, B + 1], S[r, B + 2]))
         C[0 * BLK + i] = c0
@@ -315,7 +312,7 @@ def _light_pass(lo, hi, smp, scaled, Le0, Le1, Le2, delta, power_g, S, W, Pm, C)
 
 @njit(cache=True, nogil=True)
 def vertex_kernel(
-    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, rs, sps, Pm, mat_row, emission, max_depth,
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, Pm, mat_row, emission, max_depth,
     vertices, face_normal, normals, tri_mat, tri_mag,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
@@ -332,9 +329,8 @@ def vertex_kernel(
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
-    a miss, where t is meaningless); rs: each rect light's sample at each hit, drawn before the kernel
-    by kernels.lights.rect_sample_batch_kernel (wi, distance, pdf; pdf 0 where unusable); sps: each
-    sphere light's, by sphere_sample_batch_kernel (the same and the radiance scale); Pm: (materials, K) packed BSDF rows, or with mat_row (n,)
+    a miss, where t is meaningless); U: (4 + 2 lights, n) uniforms (module docstring); Pm:
+    (materials, K) packed BSDF rows, or with mat_row (n,)
     non-empty, per-hit rows: ray r's row is mat_row[r], and emission (hits, 3) (if not empty) is
     the radiance its surface emits (added in full: emitting surfaces are reached by BSDF samples
     only, as in the general path); light tables: the
@@ -349,9 +345,10 @@ def vertex_kernel(
     sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
     counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
 
-    The rows go in blocks of BLK: two vectorised passes (_surface_pass; _light_pass per rect and
-    sphere light, when the bounce scatters) fill the block's state, then one scalar pass per row
-    adds emission, takes the other lights' light half and writes the rays compactly.
+    The rows go in blocks of BLK: vectorised passes (_surface_pass; when a row of the block
+    scatters, each rect and sphere light's batch sampler and _light_pass) fill the block's state,
+    then one scalar pass per row adds emission, takes the other lights' light half and writes the
+    rays compactly.
     """
     n_rect = center.shape[0]
     n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
@@ -362,24 +359,37 @@ def vertex_kernel(
     n_vertices = 0
     n = path.shape[0]
     W = np.empty(NW * BLK)
+    # The block state as (NW, BLK) rows: its first three (W_P = 0) are the hit points the batch
+    # samplers read.
+    W2 = W.reshape((NW, BLK))
     C = np.empty((n_rs, 4 * BLK))
+    # The block's rect and sphere light samples (wi, distance, pdf, radiance scale).
+    R = np.empty((n_rs, 6, BLK))
     # The passes read triangle 0 and material row 0 for rows that missed: only when they exist
     # (no geometry or, with per-hit rows, no hit at all: nothing scatters).
     surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
-    # The light samples exist when this bounce can scatter (FastPath._light_samples).
-    sampled = rs.shape[2] == n and sps.shape[2] == n
     for lo in range(0, n, BLK):
         hi = min(n, lo + BLK)
         if surfaces:
             _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, vertices, face_normal,
                           normals, tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W)
+            # Light samples only for a block where some row scatters (none at the last bounce).
+            sampled = False
+            for r in range(lo, hi):
+                sampled = sampled or (hit_prim[r] >= 0 and depth[r] < max_depth)
             if sampled:
                 for j in range(n_rect):
-                    _light_pass(lo, hi, rs[j], False, radiance[j, 0], radiance[j, 1], radiance[j, 2], False,
+                    rect_sample_batch_kernel(W2, U, U_LIGHT + 2 * rect_light[j], lo, hi - lo, _row(center, j),
+                                             _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
+                                             edge_len[j, 1], _row(nrm, j), area[j], is_rect[j], min_sa, graz, R[j])
+                    _light_pass(lo, hi, R[j], False, radiance[j, 0], radiance[j, 1], radiance[j, 2], False,
                                 power[rect_light[j]], S, W, Pm, C[j])
                 for j in range(n_rs - n_rect):
-                    _light_pass(lo, hi, sps[j], True, s_radiance[j, 0], s_radiance[j, 1], s_radiance[j, 2],
-                                s_delta[j], power[sphere_light[j]], S, W, Pm, C[n_rect + j])
+                    g = n_rect + j
+                    sphere_sample_batch_kernel(W2, U, U_LIGHT + 2 * sphere_light[j], lo, hi - lo, _row(s_center, j),
+                                               s_radius[j], s_delta[j], R[g])
+                    _light_pass(lo, hi, R[g], True, s_radiance[j, 0], s_radiance[j, 1], s_radiance[j, 2],
+                                s_delta[j], power[sphere_light[j]], S, W, Pm, C[g])
         for r in range(lo, hi):
             i = r - lo
             pr_path = path[r]
@@ -476,14 +486,9 @@ def vertex_kernel(
             for g in range(nl):
                 if g < n_rs:
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
-                    if g < n_rect:
-                        wi = (rs[g, 0, r], rs[g, 1, r], rs[g, 2, r])
-                        dist = rs[g, 3, r]
-                        pdf_l = rs[g, 4, r]
-                    else:
-                        wi = (sps[g - n_rect, 0, r], sps[g - n_rect, 1, r], sps[g - n_rect, 2, r])
-                        dist = sps[g - n_rect, 3, r]
-                        pdf_l = sps[g - n_rect, 4, r]
+                    wi = (R[g, 0, i], R[g, 1, i], R[g, 2, i])
+                    dist = R[g, 3, i]
+                    pdf_l = R[g, 4, i]
                     if C[g, 3 * BLK + i] == 0.0 or not math.isfinite(pdf_l):
                         continue
                     c0 = C[g, 0 * BLK + i]
@@ -553,8 +558,6 @@ def vertex_kernel(
                 n_S[k_next, O + c] = W[(W_P + c) * BLK + i] + W[(W_G + c) * BLK + i] * eps
                 n_S[k_next, D + c] = W[(W_WN + c) * BLK + i]
                 n_S[k_next, PP + c] = W[(W_P + c) * BLK + i]
-                n_S[k_next, PNG + c] = W[(W_G + c) * BLK + i]
-                n_S[k_next, PNS + c] = W[(W_N + c) * BLK + i]
                 n_o32[k_next, c] = n_S[k_next, O + c]
                 n_d32[k_next, c] = n_S[k_next, D + c]
             n_S[k_next, TMAX] = math.inf
@@ -579,4 +582,4 @@ def add_unblocked_kernel(L, sh_path, sh_c, blocked):
 
 guard_cache(__name__, [vertex_kernel, _surface_pass, _light_pass, _mat, _w3, add_unblocked_kernel],
             ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py",
-             "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py"])
+             "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py"])

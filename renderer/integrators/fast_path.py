@@ -29,8 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import hit_points_kernel, surface_interaction
-from ..kernels.lights import rect_sample_batch_kernel, sphere_sample_batch_kernel
+from ..geometry import surface_interaction
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
@@ -132,15 +131,6 @@ class FastPath:
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
                     np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64),
                     scene.accel.tri_mag)
-        rl = self.rect
-        t3 = lambda a: tuple(float(x) for x in a)  # noqa: E731
-        # Each rect and sphere light's arguments to its batch sampling kernel after (p, u, col),
-        # before out.
-        self.rect_args = [(t3(rl.center[j]), t3(rl.ex[j]), t3(rl.ey[j]), t3(rl.x_hat[j]), t3(rl.y_hat[j]),
-                           float(rl.edge_len[j, 0]), float(rl.edge_len[j, 1]), t3(rl.n[j]), float(rl.area[j]),
-                           bool(rl.is_rectangle[j]), MIN_SOLID_ANGLE, GRAZING_NZ2) for j in range(rl.count)]
-        sl = self.sphere
-        self.sphere_args = [(t3(sl.center[j]), float(sl.radius[j]), bool(sl.delta[j])) for j in range(sl.count)]
         from ..estimators import HEURISTICS
 
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
@@ -177,7 +167,7 @@ class FastPath:
         d32 = np.ascontiguousarray(d, dtype=np.float32)
         t32 = np.minimum(tmax, 1e37).astype(np.float32)
         pairs = 0
-        for bounce in range(max_depth + 1):
+        for _bounce in range(max_depth + 1):
             n = path.size
             if not n:
                 break
@@ -185,9 +175,6 @@ class FastPath:
             Pm, mat_row, emission = self._surfaces(prim, b1, b2, S) if self.per_hit else (
                 self.Pm, self.no_rows, self.no_emission)
             U = rng.random((vk.U_LIGHT + 2 * nl, n))
-            # Every ray of bounce i has depth i: the last bounce scatters nowhere, so it needs no
-            # light samples (the kernel reads them only for rows that scatter).
-            rs, ss = self._light_samples(prim, b1, b2, U, bounce < max_depth)
             n_path = np.empty(n, dtype=np.int64)
             n_depth = np.empty(n, dtype=np.int64)
             n_S = np.empty((n, vk.NS))
@@ -199,7 +186,7 @@ class FastPath:
             sh_t = np.empty(n * nl, dtype=np.float32)
             sh_path = np.empty(n * nl, dtype=np.int64)
             sh_c = np.empty((n * nl, 3))
-            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, U, rs, ss, Pm, mat_row, emission, max_depth,
+            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, U, Pm, mat_row, emission, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])
@@ -213,23 +200,6 @@ class FastPath:
             unsampled = np.zeros(k_next, dtype=bool)
         integ.rule_counts["continuation_mis"] += pairs
         return L
-
-    def _light_samples(self, prim, b1, b2, U, scatter=True):
-        """(rs (rect lights, 5, n), ss (sphere lights, 6, n)): every rect and sphere light's
-        light sample at every hit (wi, distance, solid-angle pdf, 0 where unusable; spheres
-        also the radiance scale), by the vectorised batch kernels: ~2x faster than sampling
-        row by row inside the vertex kernel."""
-        n = prim.shape[0] if scatter else 0
-        rs = np.empty((len(self.rect_args), 5, n))
-        ss = np.empty((len(self.sphere_args), 6, n))
-        if n and (rs.shape[0] or ss.shape[0]):
-            P = np.empty((3, n))
-            hit_points_kernel(self.geo[0], prim, b1, b2, P)
-            for j, args in enumerate(self.rect_args):
-                rect_sample_batch_kernel(P, U, vk.U_LIGHT + 2 * int(self.rect_light[j]), *args, rs[j])
-            for j, args in enumerate(self.sphere_args):
-                sphere_sample_batch_kernel(P, U, vk.U_LIGHT + 2 * int(self.sphere_light[j]), *args, ss[j])
-        return rs, ss
 
     def _surfaces(self, prim, b1, b2, S):
         """Per-hit material rows for textured or emissive materials: (P (h, K) packed

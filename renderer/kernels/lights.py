@@ -329,29 +329,31 @@ _rect_sample_row_inline = njit(cache=True, nogil=True, inline="always")(_rect_sa
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def rect_sample_batch_kernel(p, u, col, c, e1, e2, xh, yh, lx, ly, nl, area_i, is_rect_i, min_sa, graz, out):
-    """_rect_sample_row for one untextured rect light at many points, in a loop LLVM vectorises
+def rect_sample_batch_kernel(p, u, col, lo, n, c, e1, e2, xh, yh, lx, ly, nl, area_i, is_rect_i, min_sa, graz, out):
+    """_rect_sample_row for one untextured rect light at n points, in a loop LLVM vectorises
     (LLVM predicates the branches; the atan, sin and cos are vmath's polynomials, so the whole
     row runs packed).
 
-    p: (3, n) points (world), one row per coordinate; u: (>= col + 2, n) uniforms, rows col and
-    col + 1 used. Batch axis last, unlike the rest of the kernels: the vectoriser needs unit
+    Row i < n takes its point from p[0:3, i] and its uniforms from u[col, lo + i] and
+    u[col + 1, lo + i], and writes out[0:5, i]: the fast path's vertex kernel passes its block
+    state as p (the hit points are its first rows) and the bounce's uniforms with the block's
+    first row as lo. Batch axis last, unlike the rest of the kernels: the vectoriser needs unit
     stride along the loop, which numba knows only for the last axis of a C array. The light's c,
-    e1, e2, xh, yh, nl as 3-tuples, lx, ly, area_i floats, is_rect_i bool. out: (5, n) float64
-    receives wi (3 rows, unit, toward the light), the distance and the solid-angle pdf, 0 where
-    the sample is unusable (ok False in _rect_sample_row).
+    e1, e2, xh, yh, nl as 3-tuples, lx, ly, area_i floats, is_rect_i bool. out receives wi
+    (3 rows, unit, toward the light), the distance and the solid-angle pdf, 0 where the sample is
+    unusable (ok False in _rect_sample_row).
     error_model="numpy": numba's ZeroDivisionError checks are branches the vectoriser refuses;
     every division here is guarded or meant to give inf.
     """
-    for r in range(p.shape[1]):
+    for i in range(n):
         wi, dist, pdf, _pl, ok = _rect_sample_row_inline(
-            (p[0, r], p[1, r], p[2, r]), u[col, r], u[col + 1, r], c, e1, e2, xh, yh, lx, ly, nl, area_i,
+            (p[0, i], p[1, i], p[2, i]), u[col, lo + i], u[col + 1, lo + i], c, e1, e2, xh, yh, lx, ly, nl, area_i,
             False, is_rect_i, 0.0, 0.0, 0.0, min_sa, graz)
-        out[0, r] = wi[0]
-        out[1, r] = wi[1]
-        out[2, r] = wi[2]
-        out[3, r] = dist
-        out[4, r] = pdf if ok else 0.0
+        out[0, i] = wi[0]
+        out[1, i] = wi[1]
+        out[2, i] = wi[2]
+        out[3, i] = dist
+        out[4, i] = pdf if ok else 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -666,20 +668,20 @@ _sphere_sample_row_inline = njit(cache=True, nogil=True, inline="always")(_spher
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def sphere_sample_batch_kernel(p, u, col, c, radius, delta_i, out):
-    """_sphere_sample_row for one SphereLight at many points, vectorised as
-    rect_sample_batch_kernel is (same layout: p (3, n), u (>= col + 2, n)). c: 3-tuple, radius
-    float, delta_i bool (treatAsPoint). out: (6, n) float64 receives wi (3 rows), the distance,
-    the pdf (0 where unusable) and the radiance scale l_scale."""
-    for r in range(p.shape[1]):
+def sphere_sample_batch_kernel(p, u, col, lo, n, c, radius, delta_i, out):
+    """_sphere_sample_row for one SphereLight at n points, vectorised as rect_sample_batch_kernel
+    is (same rows: p[0:3, i], u[col:col + 2, lo + i], out[:, i]). c: 3-tuple, radius float,
+    delta_i bool (treatAsPoint). out receives wi (3 rows), the distance, the pdf (0 where
+    unusable) and the radiance scale l_scale."""
+    for i in range(n):
         wi, dist, pdf, _pl, ok, l_scale = _sphere_sample_row_inline(
-            (p[0, r], p[1, r], p[2, r]), u[col, r], u[col + 1, r], c, radius, delta_i)
-        out[0, r] = wi[0]
-        out[1, r] = wi[1]
-        out[2, r] = wi[2]
-        out[3, r] = dist
-        out[4, r] = pdf if ok else 0.0
-        out[5, r] = l_scale
+            (p[0, i], p[1, i], p[2, i]), u[col, lo + i], u[col + 1, lo + i], c, radius, delta_i)
+        out[0, i] = wi[0]
+        out[1, i] = wi[1]
+        out[2, i] = wi[2]
+        out[3, i] = dist
+        out[4, i] = pdf if ok else 0.0
+        out[5, i] = l_scale
 
 
 @njit(cache=True, nogil=True)

@@ -1,5 +1,5 @@
-"""The fast path's vectorised loops (the vertex passes, the rect light's batch sampler) stay
-vectorised. (The branch-free sin, cos and atan they rely on: tests/core/test_vmath.py.)
+"""The fast path's vectorised vertex passes stay vectorised. (The branch-free sin, cos and atan
+they rely on: tests/core/test_vmath.py; the light samplers' loops: tests/lights/test_rect_batch.py.)
 
 The passes (renderer/integrators/_vertex_kernels.py) are correct by the fast-path tests (they
 z-test the fast path against the general path and render stages with both); what those cannot
@@ -17,7 +17,6 @@ import pytest
 from numba import njit
 
 import renderer.integrators._vertex_kernels as vk
-from renderer.kernels.lights import rect_sample_batch_kernel
 
 
 def _has_avx2() -> bool:
@@ -28,13 +27,11 @@ def _has_avx2() -> bool:
         return False
 
 
-def _uncached(dispatcher, pipeline_class=vk._NoAliasCompiler):
+def _uncached(dispatcher):
     """The same function compiled with the same options, uncached (numba shows no assembly for
-    cached code), through the same pipeline (the passes' noalias one by default)."""
+    cached code), through the same noalias pipeline."""
     opts = {k: v for k, v in dispatcher.targetoptions.items() if k not in ("cache", "nopython")}
-    if pipeline_class is not None:
-        opts["pipeline_class"] = pipeline_class
-    return njit(**opts)(dispatcher.py_func)
+    return njit(pipeline_class=vk._NoAliasCompiler, **opts)(dispatcher.py_func)
 
 
 def _surface_args(n=8):
@@ -73,22 +70,3 @@ def test_vertex_pass_loop_is_vectorised(which):
     assert re.search(r"vsqrtpd\s+%[yz]mm", asm), f"_{which}_pass's loop is no longer vectorised"
 
 
-
-@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not _has_avx2(),
-                    reason="checks x86 AVX packed instructions")
-def test_rect_batch_sampler_is_vectorised_without_libm_calls():
-    """The rect light's batch sampler (FastPath's light samples) runs packed through: its atan,
-    sin and cos are vmath's polynomials, so the loop has no libm call left to run lane by lane."""
-    kernel = _uncached(rect_sample_batch_kernel, pipeline_class=None)
-    rng = np.random.default_rng(2)
-    n = 64
-    p = np.ascontiguousarray(np.stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), np.full(n, -1.0)]))
-    out = np.empty((5, n))
-    kernel(p, rng.random((2, n)), 0, (0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.0),
-           (0.0, 1.0, 0.0), 1.0, 1.0, (0.0, 0.0, -1.0), 1.0, True, 1e-4, 0.99999, out)
-    assert np.all(out[4] > 0.0)
-    asm = "\n".join(kernel.inspect_asm().values())
-    assert re.search(r"vsqrtpd\s+%[yz]mm", asm), "rect_sample_batch_kernel's loop is no longer vectorised"
-    # numba calls libm through an address it loads first (movabsq $atan, %rax; callq *%rax).
-    libm = set(re.findall(r"\$(\w*(?:atan|sin|cos)\w*)", asm))
-    assert not libm, f"rect_sample_batch_kernel calls libm's {sorted(libm)} (one lane at a time)"

@@ -65,23 +65,26 @@ def test_batch_kernel_gives_the_scalar_rows_samples(tilt, lx, ly):
     ref = np.empty((5, p.shape[1]))
     got = np.empty((5, p.shape[1]))
     _scalar_rows(np.ascontiguousarray(p), u, *args, ref)
-    rect_sample_batch_kernel(np.ascontiguousarray(p), u, 0, *args, got)
+    rect_sample_batch_kernel(np.ascontiguousarray(p), u, 0, 0, p.shape[1], *args, got)
     ok = ref[4] > 0.0
     assert ok.mean() > 0.3  # the comparison covers real samples
     np.testing.assert_array_equal(got[4], ref[4])
     np.testing.assert_array_equal(got[:4][:, ok], ref[:4][:, ok])
 
 
-def test_batch_kernel_reads_its_uniform_rows_from_col():
+def test_batch_kernel_reads_its_uniform_rows_from_col_and_lo():
+    """Row i takes the uniforms u[col:col + 2, lo + i] (the vertex kernel's block at lo) and
+    writes out[:, i], leaving columns from n on alone."""
     rng = np.random.default_rng(6)
     p = rng.uniform(-1, 1, (3, 1000))
-    u = rng.random((6, 1000))
+    u = rng.random((6, 1300))
     args = _light(0.2, 1.0, 1.0)
     a = np.empty((5, 1000))
-    b = np.empty((5, 1000))
-    rect_sample_batch_kernel(p, u, 4, *args, a)
-    rect_sample_batch_kernel(p, np.ascontiguousarray(u[4:6]), 0, *args, b)
-    np.testing.assert_array_equal(a, b)
+    b = np.full((5, 1000), -7.0)
+    rect_sample_batch_kernel(p, np.ascontiguousarray(u[4:6, 300:]), 0, 0, 1000, *args, a)
+    rect_sample_batch_kernel(p, u, 4, 300, 900, *args, b)
+    np.testing.assert_array_equal(a[:, :900], b[:, :900])
+    assert np.all(b[:, 900:] == -7.0)
 
 
 @pytest.mark.parametrize("radius,delta", [(0.5, False), (1e-4, False), (3.0, False), (0.5, True)])
@@ -94,7 +97,7 @@ def test_sphere_batch_kernel_gives_the_scalar_rows_samples(radius, delta):
     u = rng.random((2, p.shape[1]))
     args = ((0.1, 0.2, 0.3), radius, delta)
     got = np.empty((6, p.shape[1]))
-    sphere_sample_batch_kernel(p, u, 0, *args, got)
+    sphere_sample_batch_kernel(p, u, 0, 0, p.shape[1], *args, got)
     # The reference: the general path's kernel (rows as the batch axis, unit radiance so that
     # its L is the radiance scale).
     n = p.shape[1]
@@ -127,8 +130,12 @@ def test_batch_kernel_loop_is_vectorised(which):
     # numba will not show cached code: compile the same function with the same options, uncached.
     opts = {k: v for k, v in batch.targetoptions.items() if k not in ("cache", "nopython")}
     kernel = njit(**opts)(batch.py_func)
-    kernel(np.zeros((3, 8)), np.zeros((2, 8)), 0, *args, np.empty((rows, 8)))
+    kernel(np.zeros((3, 8)), np.zeros((2, 8)), 0, 0, 8, *args, np.empty((rows, 8)))
     asm = "\n".join(kernel.inspect_asm().values())
     # Packed double square roots on ymm/zmm registers come only from the loop vectoriser (the SLP
     # vectoriser pairs scalar code on xmm at most).
     assert re.search(r"vsqrtpd\s+%[yz]mm", asm), f"{batch.__name__}'s loop is no longer vectorised"
+    # Their atan, sin and cos are renderer/kernels/vmath.py's polynomials: a libm call would run one
+    # lane at a time. numba calls libm through an address it loads first (movabsq $atan, %rax).
+    libm = set(re.findall(r"\$(\w*(?:atan|sin|cos)\w*)", asm))
+    assert not libm, f"{batch.__name__} calls libm's {sorted(libm)}"
