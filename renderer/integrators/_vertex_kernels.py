@@ -310,6 +310,47 @@ def _light_pass(lo, hi, smp, scaled, Le0, Le1, Le2, delta, power_g, S, W, Pm, C)
         C[3 * BLK + i] = 1.0 if ok else 0.0
 
 
+@njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
+def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_radius, s_delta, X):
+    """X[r - lo] = 1.0 for the rows lo..hi that may cross a rect or sphere light before their
+    surface, else 0.0: a conservative pre-test (margins of 1e-9 relative; a sphere's whole line)
+    in loops LLVM vectorises, so that vertex_kernel's scalar pass runs its exact emission test
+    (_rect_hit, _sphere_hit_row) only for those rows, a few per cent of them in a typical scene.
+    No isfinite (LLVM does not widen it): an infinite or NaN t fails a compare instead."""
+    for r in range(lo, hi):
+        X[r - lo] = 0.0
+    for j in range(center.shape[0]):
+        cx, cy, cz = center[j, 0], center[j, 1], center[j, 2]
+        nx, ny, nz = nrm[j, 0], nrm[j, 1], nrm[j, 2]
+        for r in range(lo, hi):
+            ox, oy, oz = S[r, O], S[r, O + 1], S[r, O + 2]
+            dx, dy, dz = S[r, D], S[r, D + 1], S[r, D + 2]
+            t_geo = min(float(hit_t[r]) if hit_prim[r] >= 0 else math.inf, S[r, TMAX])
+            # As _rect_hit: the plane's t, then the hit's edge coordinates (a, b).
+            den = nx * dx + ny * dy + nz * dz
+            t = (nx * (cx - ox) + ny * (cy - oy) + nz * (cz - oz)) / den
+            qx = ox + t * dx - cx
+            qy = oy + t * dy - cy
+            qz = oz + t * dz - cz
+            a = qx * exd[j, 0] + qy * exd[j, 1] + qz * exd[j, 2]
+            b = qx * eyd[j, 0] + qy * eyd[j, 1] + qz * eyd[j, 2]
+            crossed = (den < 0.0 and t > 0.0 and t <= t_geo * (1.0 + 1e-9) and abs(a) <= 0.5 + 1e-9
+                       and abs(b) <= 0.5 + 1e-9)
+            X[r - lo] = 1.0 if crossed else X[r - lo]
+    for j in range(s_center.shape[0]):
+        cx, cy, cz = s_center[j, 0], s_center[j, 1], s_center[j, 2]
+        rr = s_radius[j] * s_radius[j] * (1.0 + 1e-9)
+        seen = s_radius[j] > 0.0 and not s_delta[j]
+        for r in range(lo, hi):
+            ox, oy, oz = S[r, O] - cx, S[r, O + 1] - cy, S[r, O + 2] - cz
+            dx, dy, dz = S[r, D], S[r, D + 1], S[r, D + 2]
+            # The line's squared distance from the centre (as _sphere_hit_row's discriminant).
+            b = ox * dx + oy * dy + oz * dz
+            px, py, pz = ox - b * dx, oy - b * dy, oz - b * dz
+            crossed = seen and px * px + py * py + pz * pz <= rr
+            X[r - lo] = 1.0 if crossed else X[r - lo]
+
+
 @njit(cache=True, nogil=True)
 def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, U, Pm, mat_row, emission, max_depth,
@@ -365,6 +406,8 @@ def vertex_kernel(
     C = np.empty((n_rs, 4 * BLK))
     # The block's rect and sphere light samples (wi, distance, pdf, radiance scale).
     R = np.empty((n_rs, 6, BLK))
+    # 1.0 for the block's rows that may cross a rect or sphere light (_cross_pass).
+    X = np.empty(BLK)
     # The passes read triangle 0 and material row 0 for rows that missed: only when they exist
     # (no geometry or, with per-hit rows, no hit at all: nothing scatters).
     surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
@@ -390,6 +433,8 @@ def vertex_kernel(
                                                s_radius[j], s_delta[j], R[g])
                     _light_pass(lo, hi, R[g], True, s_radiance[j, 0], s_radiance[j, 1], s_radiance[j, 2],
                                 s_delta[j], power[sphere_light[j]], S, W, Pm, C[g])
+        if n_rs:
+            _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_radius, s_delta, X)
         for r in range(lo, hi):
             i = r - lo
             pr_path = path[r]
@@ -402,7 +447,8 @@ def vertex_kernel(
             t_hit = float(hit_t[r]) if k >= 0 else math.inf
             t_geo = min(t_hit, S[r, TMAX])
             # ---- emission of the lights crossed before the surface (lights are transparent) ----
-            for g in range(n_fin):
+            # The rect and sphere lights only where _cross_pass found the row may cross one.
+            for g in range(0 if n_rs and X[i] != 0.0 else n_rs, n_fin):
                 if g < n_rect:
                     j = g
                     tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
