@@ -174,7 +174,8 @@ class FastPath:
             prim, b1, b2 = accel.intersect_prepared(o32, d32, t32)
             Pm, mat_row, emission = self._surfaces(prim, b1, b2, S) if self.per_hit else (
                 self.Pm, self.no_rows, self.no_emission)
-            U = rng.random((vk.U_LIGHT + 2 * nl, n))
+            # The kernel draws its uniforms from this key (a counter-based stream, _uniform_pass).
+            key = np.uint64(rng.integers(0, 2 ** 63, dtype=np.int64))
             n_path = np.empty(n, dtype=np.int64)
             n_depth = np.empty(n, dtype=np.int64)
             n_S = np.empty((n, vk.NS))
@@ -186,7 +187,7 @@ class FastPath:
             sh_t = np.empty(n * nl, dtype=np.float32)
             sh_path = np.empty(n * nl, dtype=np.int64)
             sh_c = np.empty((n * nl, 3))
-            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, U, Pm, mat_row, emission, max_depth,
+            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, vk.U_LIGHT + 2 * nl, Pm, mat_row, emission, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])
