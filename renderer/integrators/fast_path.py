@@ -156,16 +156,15 @@ class FastPath:
         path = np.arange(m, dtype=np.int64)
         depth = np.zeros(m, dtype=np.int64)
         unsampled = np.ones(m, dtype=bool)
-        S = np.zeros((m, vk.NS))
-        S[:, vk.B:vk.B + 3] = 1.0
-        S[:, vk.O:vk.O + 3] = o
-        S[:, vk.D:vk.D + 3] = d
-        S[:, vk.TMAX] = tmax
         counts = np.zeros(3, dtype=np.int64)
-        # The rays in embree's float32 format; the kernel writes the later bounces' directly.
-        o32 = np.ascontiguousarray(o, dtype=np.float32)
-        d32 = np.ascontiguousarray(d, dtype=np.float32)
-        t32 = np.minimum(tmax, 1e37).astype(np.float32)
+        # The ray state, and the rays in embree's float32 format (the kernel writes the later
+        # bounces' directly).
+        S = np.empty((m, vk.NS))
+        o32 = np.empty((m, 3), dtype=np.float32)
+        d32 = np.empty((m, 3), dtype=np.float32)
+        t32 = np.empty(m, dtype=np.float32)
+        vk.start_kernel(np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
+                        np.ascontiguousarray(tmax, dtype=np.float64), S, o32, d32, t32)
         pairs = 0
         for _bounce in range(max_depth + 1):
             n = path.size
