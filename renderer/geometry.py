@@ -271,10 +271,12 @@ def _interaction_tri(v0, v1, v2, n0, n1, n2, fn, w1, w2, dx, dy, dz):
     sy = n0[1] * w0 + n1[1] * w1 + n2[1] * w2
     sz = n0[2] * w0 + n1[2] * w1 + n2[2] * w2
     length = np.sqrt(sx * sx + sy * sy + sz * sz)
-    s = length if length > 0.0 else 1.0
-    sx /= s
-    sy /= s
-    sz /= s
+    # One division and three products (the fast path's vectorised surface pass is bound by the
+    # unit divisions and square roots share).
+    inv = 1.0 / (length if length > 0.0 else 1.0)
+    sx *= inv
+    sy *= inv
+    sz *= inv
     gx, gy, gz = fn
     # Two-sided shading: both normals face the viewer (wo = -d).
     if -(gx * dx + gy * dy + gz * dz) < 0.0:

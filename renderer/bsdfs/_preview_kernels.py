@@ -125,9 +125,10 @@ def _specular(wox, woy, woz, wix, wiy, wiz, a):
     w = 0.0
     pdf_s = 0.0
     if ok:
-        hx /= hl
-        hy /= hl
-        hz /= hl
+        inv = 1.0 / hl  # one division, three products (the division unit bounds the fast path)
+        hx *= inv
+        hy *= inv
+        hz *= inv
         a2 = a * a
         # GGX D(h).
         t = hz * hz * (a2 - 1.0) + 1.0
@@ -163,7 +164,10 @@ def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     sb = 2.0 * u1 - 1.0
     major_a = abs(sa) > abs(sb)
     rad = sa if major_a else sb
-    th = (math.pi / 4.0) * (sb / sa) if major_a else (math.pi / 2.0) - (math.pi / 4.0) * (sa / sb if sb != 0.0 else 0.0)
+    # One division for both branches' ratios (sb / sa or sa / sb): the fast path's vectorised
+    # surface pass computes both lobes for every lane and is bound by the division unit.
+    ratio = (sb if major_a else sa) / (sa if major_a else (sb if sb != 0.0 else 1.0))
+    th = (math.pi / 4.0) * ratio if major_a else (math.pi / 2.0) - (math.pi / 4.0) * ratio
     phi = th if pick_diffuse else 2.0 * math.pi * u0
     sin_phi, cos_phi = sincos(phi)
     dx = rad * cos_phi
@@ -174,10 +178,11 @@ def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     vy = woy * a
     vz = woz
     vl = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if vl > 0.0:
-        vx /= vl
-        vy /= vl
-        vz /= vl
+    # Normalised by one division and three products here and below (see above).
+    inv = 1.0 / vl if vl > 0.0 else 1.0
+    vx *= inv
+    vy *= inv
+    vz *= inv
     z = (1.0 - u1) * (1.0 + vz) - vz
     st = math.sqrt(min(max(1.0 - z * z, 0.0), 1.0))
     hx = (st * cos_phi + vx) * a
@@ -185,9 +190,10 @@ def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     hz = max(z + vz, 0.0)
     hl = math.sqrt(hx * hx + hy * hy + hz * hz)
     if hl > 0.0:
-        hx /= hl
-        hy /= hl
-        hz /= hl
+        inv = 1.0 / hl
+        hx *= inv
+        hy *= inv
+        hz *= inv
     else:
         hx = 0.0
         hy = 0.0
@@ -197,10 +203,10 @@ def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     ry = 2.0 * dd * hy - woy
     rz = 2.0 * dd * hz - woz
     wl = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if wl > 0.0:
-        rx /= wl
-        ry /= wl
-        rz /= wl
+    inv = 1.0 / wl if wl > 0.0 else 1.0
+    rx *= inv
+    ry *= inv
+    rz *= inv
     if not woz > 0.0:
         return 0.0, 0.0, 1.0
     if pick_diffuse:

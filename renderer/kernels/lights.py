@@ -101,8 +101,10 @@ def _dir_dist(p, q):
     """_common.direction_and_distance for one row: unit p -> q and the distance (zero stays zero)."""
     v = _sub(q, p)
     d = math.sqrt(_dot(v, v))
-    s = d if d > 0.0 else 1.0
-    return (v[0] / s, v[1] / s, v[2] / s), d
+    # One division and three products: divisions and square roots share one unit, the
+    # vectorised samplers' bottleneck.
+    inv = 1.0 / (d if d > 0.0 else 1.0)
+    return (v[0] * inv, v[1] * inv, v[2] * inv), d
 
 
 @njit(cache=True, nogil=True)
@@ -213,11 +215,13 @@ def _sr_sample(p, st, u0, u1):
     n3 = -x0
     d0 = math.sqrt(dd0)
     d2 = math.sqrt(dd2)
-    b0 = n0 / d0 if d0 > 0.0 else 0.0  # nz0
-    b1 = n2 / d2 if d2 > 0.0 else 0.0  # nz2
-    # e^{i(h2 + h3)} (see the section comment), both parts over the common d0 d2 d3^2.
+    # One division for b0 = n0 / d0, b1 = n2 / d2 and k (divisions and square roots share one unit,
+    # the vectorised sampler's bottleneck). All three are 0 where a distance is 0 (an unusable row).
     k = d0 * d2 * dd3
     k = 1.0 / k if k > 0.0 else 0.0
+    b0 = n0 * (d2 * dd3 * k)  # nz0
+    b1 = n2 * (d0 * dd3 * k)  # nz2
+    # e^{i(h2 + h3)} (see the section comment), both parts over the common d0 d2 d3^2: k.
     cos_h = (z2 * r00 * r01 - n0 * n2 * n3 * n3) * k
     sin_h = -z0 * n3 * (n2 * r00 + n0 * r01) * k
     # au = u0 * solid - (h2 + h3): cos au and sin au by rotating e^{i u0 solid}.
@@ -227,9 +231,10 @@ def _sr_sample(p, st, u0, u1):
     den = sp * cos_h - cp * sin_h
     # spherical_rect.sample: cu = den sign(num) / sqrt(num^2 + b0^2 den^2), xu = -cu z0 / sqrt(1 -
     # cu^2). As 1 - cu^2 = (num^2 - (1 - b0^2) den^2) / (num^2 + b0^2 den^2) and 1 - b0^2 =
-    # z0^2 / dd0, xu = -z0 den sign(num) / sqrt(num^2 - z0^2 den^2 / dd0): one sqrt, one division.
-    t = -z0 * den * math.copysign(1.0, num)
-    rad = num * num - (z2 / dd0) * den * den if dd0 > 0.0 else 0.0
+    # z0^2 / dd0, xu = -z0 den sign(num) / sqrt(num^2 - z0^2 den^2 / dd0)
+    # = -z0 den sign(num) d0 / sqrt(num^2 dd0 - z0^2 den^2): one sqrt, one division.
+    t = -z0 * den * math.copysign(1.0, num) * d0
+    rad = num * num * dd0 - z2 * den * den if dd0 > 0.0 else 0.0
     if rad > 0.0:
         xu = t / math.sqrt(rad)
     else:

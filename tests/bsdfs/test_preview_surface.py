@@ -437,8 +437,11 @@ def test_kernels_match_numpy_reference(rng):
     np.testing.assert_array_equal(s.lobe, r.lobe)
     up = wo[:, 2] > 0.0
     np.testing.assert_allclose(s.wi[up], r.wi[up], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(s.pdf, r.pdf, rtol=1e-9, atol=1e-300)
-    np.testing.assert_allclose(s.f, r.f, rtol=1e-9, atol=1e-300)
+    # The sampled pdf and f are those of the sampled half vector, in a narrow lobe very sensitive to
+    # its rounding: at GGX alpha ~1e-3 a pdf near 1e6 moves ~1e-9 relative per ulp of h, so the
+    # kernel and the reference (equal directions to 1e-12) agree to a few 1e-9, no better.
+    np.testing.assert_allclose(s.pdf, r.pdf, rtol=5e-9, atol=1e-300)
+    np.testing.assert_allclose(s.f, r.f, rtol=5e-9, atol=1e-300)
 
 
 def test_non_contiguous_inputs(rng):
