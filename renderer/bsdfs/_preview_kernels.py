@@ -188,25 +188,20 @@ def _sample_dir(wox, woy, woz, a, pick_diffuse, u0, u1):
     hx = (st * cos_phi + vx) * a
     hy = (st * sin_phi + vy) * a
     hz = max(z + vz, 0.0)
-    hl = math.sqrt(hx * hx + hy * hy + hz * hz)
-    if hl > 0.0:
-        inv = 1.0 / hl
-        hx *= inv
-        hy *= inv
-        hz *= inv
-    else:
+    # wo reflected about h = H / |H|: r = 2 (wo.H) H / |H|^2 - wo, with no square root (and no
+    # final normalisation: r is unit to rounding, as wo is). Both sit on the vectorised surface
+    # pass's critical path of dependent square roots and divisions. H = 0 (a measure-zero set of
+    # u) falls back to the macro normal.
+    hl2 = hx * hx + hy * hy + hz * hz
+    if not hl2 > 0.0:
         hx = 0.0
         hy = 0.0
         hz = 1.0
-    dd = wox * hx + woy * hy + woz * hz
-    rx = 2.0 * dd * hx - wox
-    ry = 2.0 * dd * hy - woy
-    rz = 2.0 * dd * hz - woz
-    wl = math.sqrt(rx * rx + ry * ry + rz * rz)
-    inv = 1.0 / wl if wl > 0.0 else 1.0
-    rx *= inv
-    ry *= inv
-    rz *= inv
+        hl2 = 1.0
+    k = 2.0 * (wox * hx + woy * hy + woz * hz) / hl2
+    rx = k * hx - wox
+    ry = k * hy - woy
+    rz = k * hz - woz
     if not woz > 0.0:
         return 0.0, 0.0, 1.0
     if pick_diffuse:
