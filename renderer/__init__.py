@@ -1,13 +1,18 @@
 """illum: a USD-native path tracer (see README.md).
 
-Importing the package sets one process-wide numba option before any kernel compiles: on CPUs
-with AVX-512 that run it at full clock, the compiled kernels' vectorised loops use 512-bit
-registers (8 doubles) instead of LLVM's default 256 for Intel server parts. The fast path's
-vertex kernel runs ~15% faster per row with them (bench/results.md). ``ILLUM_VECTOR_WIDTH``
-chooses: ``auto`` (the default: 512 where AVX-512 is present, except the Skylake-SP family,
-whose clock drops under 512-bit work), ``512`` or ``256`` (LLVM's default). numba's own
-``NUMBA_CPU_FEATURES``, when set, wins. numba keys its on-disk cache on the target features, so
-code compiled for one width is never loaded for the other.
+Importing the package sets two process-wide code-generation options before any kernel compiles:
+on CPUs with AVX-512 that run it at full clock, the compiled kernels' vectorised loops use
+512-bit registers (8 doubles) instead of LLVM's default 256 for Intel server parts, and LLVM's
+loop vectoriser interleaves two vectors per iteration. The fast path's vertex passes are long
+chains of dependent square roots and divisions, too long for the core to overlap iterations on
+its own; two independent chains per iteration (32 vector registers leave room for them) hide
+part of that latency. Together they make the vertex kernel ~20% faster per row
+(bench/results.md). ``ILLUM_VECTOR_WIDTH`` chooses: ``auto`` (the default: 512 where AVX-512
+is present, except the Skylake-SP family, whose clock drops under 512-bit work), ``512`` or
+``256`` (LLVM's defaults, no interleaving). numba's own ``NUMBA_CPU_FEATURES``, when set, wins.
+numba keys its on-disk cache on the target features string, so code compiled one way is never
+loaded the other way; the interleaving, an LLVM option rather than a feature, is recorded in
+that string too, by a tuning feature that is off on these CPUs anyway (``-prefer-128-bit``).
 """
 
 from __future__ import annotations
@@ -28,7 +33,14 @@ def _vector_width_features(mode: str, cpu: str, features: str) -> str | None:
         return None
     if mode == "auto" and cpu in _DOWNCLOCKING_AVX512:
         return None
-    return features + ",-prefer-256-bit"
+    # -prefer-128-bit: a no-op here (no AVX-512 CPU prefers 128-bit vectors) that marks code
+    # compiled with _INTERLEAVE in numba's cache key (the module docstring).
+    return features + ",-prefer-256-bit,-prefer-128-bit"
+
+
+# Vectors per iteration of LLVM's loop vectoriser in the 512-bit mode (its cost model picks 1
+# for the vertex passes' long loop bodies).
+_INTERLEAVE = 2
 
 
 def _configure_numba() -> None:
@@ -44,6 +56,7 @@ def _configure_numba() -> None:
                                    get_host_cpu_features())
     if feats is not None:
         config.CPU_FEATURES = feats
+        ll.set_option("illum", f"-force-vector-interleave={_INTERLEAVE}")
 
 
 _configure_numba()

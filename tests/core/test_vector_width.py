@@ -12,11 +12,12 @@ from renderer import _vector_width_features
 
 HOST = "+64bit,+avx,+avx2,+avx512f,+avx512vl,+fma"
 NO_512 = "+64bit,+avx,+avx2,-avx512f,+fma"
+WIDE = HOST + ",-prefer-256-bit,-prefer-128-bit"
 
 
 def test_auto_prefers_512_bit_vectors_on_cpus_that_keep_their_clock():
-    assert _vector_width_features("auto", "sapphirerapids", HOST) == HOST + ",-prefer-256-bit"
-    assert _vector_width_features("auto", "znver4", HOST) == HOST + ",-prefer-256-bit"
+    assert _vector_width_features("auto", "sapphirerapids", HOST) == WIDE
+    assert _vector_width_features("auto", "znver4", HOST) == WIDE
 
 
 def test_auto_keeps_llvm_default_on_downclocking_or_avx2_only_cpus():
@@ -26,7 +27,7 @@ def test_auto_keeps_llvm_default_on_downclocking_or_avx2_only_cpus():
 
 
 def test_explicit_widths():
-    assert _vector_width_features("512", "skylake-avx512", HOST) == HOST + ",-prefer-256-bit"
+    assert _vector_width_features("512", "skylake-avx512", HOST) == WIDE
     assert _vector_width_features("512", "haswell", NO_512) is None  # nothing to widen to
     assert _vector_width_features("256", "sapphirerapids", HOST) is None
 
