@@ -17,6 +17,7 @@ from numba import njit
 from .description import CameraDesc
 from .errors import SettingsError
 from .geometry import normalize
+from .kernels import NoAliasCompiler
 from .sampling import sample_uniform_disk_concentric
 
 MAX_SIDE = 16384
@@ -77,6 +78,24 @@ class CameraRays:
     d: np.ndarray  # (n, 3) unit
     tmax: np.ndarray  # (n,) far clip distance along d
     tmin: np.ndarray  # (n,) near clip distance along d
+
+    def at_near_plane(self) -> tuple[np.ndarray, np.ndarray]:
+        """(o + tmin d (n, 3), tmax - tmin (n,)): the rays started at the near clip plane, as
+        the integrators trace them. One compiled pass (numpy's took three temporaries, ~2% of a
+        fast-path render); the same operations, so the same values."""
+        o = np.empty_like(self.o)
+        t = np.empty_like(self.tmax)
+        _near_plane_kernel(self.o, self.d, self.tmin, self.tmax, o, t)
+        return o, t
+
+
+@njit(cache=True, nogil=True)
+def _near_plane_kernel(o, d, tmin, tmax, o_out, t_out):
+    """CameraRays.at_near_plane for n rows."""
+    for i in range(o.shape[0]):
+        for c in range(3):
+            o_out[i, c] = o[i, c] + d[i, c] * tmin[i]
+        t_out[i] = tmax[i] - tmin[i]
 
 
 # --------------------------------------------------------------------------------------
@@ -202,6 +221,47 @@ def _generate_kernel(px, py, u_filter, u_lens, inv, window, width, height, ortho
         tmax[i] = t1 * scale
 
 
+@njit(cache=True, nogil=True, error_model="numpy", pipeline_class=NoAliasCompiler)
+def _generate_pinhole_kernel(px, py, u_filter, inv, window, width, height, near, far, M, o, d, tmin, tmax):
+    """_generate_kernel for the common camera, perspective without a thin lens or clipping
+    planes: the same operations (so bit-identical results) in a loop LLVM vectorises, with no
+    inner loop or branches around work (the general kernel ran ~20 ns a ray, a few per cent of a
+    fast-path render). u_filter (2 n,), o, d (3 n,) flat, row i at 2 i or 3 i: with a runtime
+    row stride (a 2-D array's) LLVM either cannot rule out that one row's stores overlap the
+    next's or vectorises on the guess that the stride is 1 and runs the scalar loop when it is
+    not; the arrays noalias (NoAliasCompiler)."""
+    wx0 = window[0]
+    wx1 = window[1]
+    wy0 = window[2]
+    wy1 = window[3]
+    for i in range(px.shape[0]):
+        rx = px[i] + 0.5 + _filter_offset(inv, u_filter[2 * i])
+        ry = py[i] + 0.5 + _filter_offset(inv, u_filter[2 * i + 1])
+        sx = wx0 + (rx / width) * (wx1 - wx0)
+        sy = wy1 - (ry / height) * (wy1 - wy0)
+        length = math.sqrt(sx * sx + sy * sy + 1.0)
+        s = length if length > 0.0 else 1.0
+        dx = sx / s
+        dy = sy / s
+        dz = -1.0 / s
+        c = -dz
+        if c < 1e-12:
+            c = 1e-12
+        inv_cos = 1.0 / c
+        dwx = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+        dwy = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+        dwz = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+        o[3 * i] = M[0, 3]
+        o[3 * i + 1] = M[1, 3]
+        o[3 * i + 2] = M[2, 3]
+        scale = math.sqrt(dwx * dwx + dwy * dwy + dwz * dwz)
+        d[3 * i] = dwx / scale
+        d[3 * i + 1] = dwy / scale
+        d[3 * i + 2] = dwz / scale
+        tmin[i] = (near * inv_cos) * scale
+        tmax[i] = (far * inv_cos) * scale
+
+
 class Camera:
     """Generates world-space rays for raster positions.
 
@@ -272,6 +332,13 @@ class Camera:
         d = np.empty((n, 3))
         tmin = np.empty(n)
         tmax = np.empty(n)
+        u_filter = np.ascontiguousarray(u_filter, dtype=np.float64)
+        M = np.ascontiguousarray(self.camera_to_world, dtype=np.float64)
+        if not self.orthographic and not self.lens_radius > 0.0 and len(self.clip_planes) == 0:
+            _generate_pinhole_kernel(px, py, u_filter.reshape(-1), self.filter._inv, np.array(self.window, dtype=np.float64),
+                                     float(self.width), float(self.height), float(self.near), float(self.far), M,
+                                     o.reshape(-1), d.reshape(-1), tmin, tmax)
+            return CameraRays(o=o, d=d, tmax=tmax, tmin=tmin)
         _generate_kernel(px, py, np.ascontiguousarray(u_filter, dtype=np.float64),
                          np.ascontiguousarray(u_lens, dtype=np.float64), self.filter._inv,
                          np.array(self.window, dtype=np.float64), float(self.width), float(self.height),

@@ -40,7 +40,6 @@ import math
 
 import numpy as np
 from numba import njit
-from numba.core.compiler import Compiler
 
 from renderer.bsdfs._preview_kernels import (
     ALPHA, F0, F90, FY, J0, KD, RHO,
@@ -48,7 +47,7 @@ from renderer.bsdfs._preview_kernels import (
 )
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
-from renderer.kernels import guard_cache, module_dispatchers
+from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _row, _sphere_hit_row, _sphere_pdf_row, _uniform_sphere_row,
@@ -72,17 +71,8 @@ U_RR = 3
 U_LIGHT = 4
 
 
-class _NoAliasCompiler(Compiler):
-    """numba's standard pipeline with every array argument's pointers marked ``noalias`` (numba's
-    own ``Flags.noalias``, which @njit does not expose). Without it LLVM must assume a table read
-    at a computed index (a triangle's vertices, a material row, the albedo tables) may alias the
-    block state the loop writes, cannot bound that with a runtime check, and leaves the loop
-    scalar. Only for kernels whose array arguments never share memory (the passes below)."""
-
-    def __init__(self, typingctx, targetctx, library, args, return_type, flags, locals):
-        flags = flags.copy()
-        flags.noalias = True
-        super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
+# The noalias pipeline (renderer/kernels: NoAliasCompiler), under the name the tests use.
+_NoAliasCompiler = NoAliasCompiler
 
 
 # Per-row state of a block's surface pass (_surface_pass), rows of W (NW * BLK,; row c of column i at c * BLK + i, a

@@ -108,8 +108,8 @@ def pilot_points(integ, rng: np.random.Generator):
                          np.linspace(0, cam.height - 1, gy).astype(np.int64))
     px, py = px.ravel(), py.ravel()
     rays = cam.generate(px, py, rng.random((px.size, 2)), rng.random((px.size, 2)))
-    o = rays.o + rays.d * rays.tmin[:, None]
-    hits = scene.accel.intersect(o, rays.d, rays.tmax - rays.tmin)
+    o, tmax = rays.at_near_plane()
+    hits = scene.accel.intersect(o, rays.d, tmax)
     k = np.nonzero(hits.hit)[0]
     if not k.size:
         return None

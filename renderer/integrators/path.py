@@ -311,12 +311,14 @@ class PathIntegrator:
         rays = self.camera.generate(px, py, u_filter, u_lens)
         self.rays.add(camera=m)
         # Near clip: start the ray at the near plane.
-        L = self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng, emit0=1.0 / K)
+        o, tmax = rays.at_near_plane()
+        L = self.trace(o, rays.d, tmax, rng, emit0=1.0 / K)
         for k in range(1, K):
             rays = self.camera.generate(px, py, pixel_sequence(self.opt.seed, pixel, pass_index * K + k),
                                         rng.random((m, 2)) if thin_lens else u_lens)
             self.rays.add(camera=m)
-            L += self.trace(rays.o + rays.d * rays.tmin[:, None], rays.d, rays.tmax - rays.tmin, rng,
+            o, tmax = rays.at_near_plane()
+            L += self.trace(o, rays.d, tmax, rng,
                             emit0=1.0 / K, max_depth=0)
         return L
 

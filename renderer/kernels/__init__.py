@@ -25,6 +25,22 @@ from __future__ import annotations
 import hashlib
 import os
 
+from numba.core.compiler import Compiler
+
+class NoAliasCompiler(Compiler):
+    """numba's standard pipeline with every array argument's pointers marked ``noalias`` (numba's
+    own ``Flags.noalias``, which @njit does not expose). Without it LLVM must assume a table read
+    at a computed index (a triangle's vertices, a material row, the albedo tables) may alias the
+    block state the loop writes, cannot bound that with a runtime check, and leaves the loop
+    scalar. Only for kernels whose array arguments never share memory (the fast path's vertex passes,
+    the camera's pinhole kernel): use as ``@njit(pipeline_class=NoAliasCompiler)``."""
+
+    def __init__(self, typingctx, targetctx, library, args, return_type, flags, locals):
+        flags = flags.copy()
+        flags.noalias = True
+        super().__init__(typingctx, targetctx, library, args, return_type, flags, locals)
+
+
 _ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 

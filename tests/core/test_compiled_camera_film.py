@@ -194,3 +194,23 @@ def test_pixel_sequence_matches_the_numpy_hash_exactly(seed):
         assert np.array_equal(pixel_sequence(seed, small.astype(np.int32), index), _splitmix_reference(seed, small, index))
     grid = np.arange(12).reshape(3, 4)  # any shape keeps working (numpy path)
     assert np.array_equal(pixel_sequence(seed, grid, 3), _splitmix_reference(seed, grid, 3))
+
+
+@pytest.mark.parametrize("case", ["pinhole", "scaled", "offsets"])
+def test_pinhole_kernel_is_the_general_kernel_bit_for_bit(case):
+    """Camera.generate's vectorised kernel for perspective cameras without a lens or clipping
+    planes gives exactly what the general kernel gives (out-of-range and NaN filter numbers too)."""
+    from renderer.camera import _generate_kernel, _raster_index
+
+    cam = _camera(**CASES[case])
+    px, py, u_filter, u_lens = _inputs(seed=3)
+    u_filter[6:9] = [[-0.5, 2.0], [np.nan, 0.5], [0.5, np.inf]]
+    fast = cam.generate(px, py, u_filter, u_lens)
+    n = px.size
+    o, d, tmin, tmax = np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty(n)
+    _generate_kernel(_raster_index(px), _raster_index(py), u_filter, u_lens, cam.filter._inv,
+                     np.array(cam.window, dtype=np.float64), float(cam.width), float(cam.height), False, 0.0,
+                     float(cam.focus_distance), float(cam.near), float(cam.far), np.zeros((0, 4)),
+                     np.ascontiguousarray(cam.camera_to_world, dtype=np.float64), o, d, tmin, tmax)
+    for got, ref in ((fast.o, o), (fast.d, d), (fast.tmin, tmin), (fast.tmax, tmax)):
+        np.testing.assert_array_equal(got, ref)
