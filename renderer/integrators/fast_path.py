@@ -166,7 +166,9 @@ class FastPath:
         vk.start_kernel(np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
                         np.ascontiguousarray(tmax, dtype=np.float64), S, o32, d32, t32)
         pairs = 0
-        for _bounce in range(max_depth + 1):
+        # One stream key per bounce, drawn at once (a Generator call costs ~10 us).
+        keys = rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64)
+        for bounce in range(max_depth + 1):
             n = path.size
             if not n:
                 break
@@ -174,7 +176,7 @@ class FastPath:
             Pm, mat_row, emission = self._surfaces(prim, b1, b2, S) if self.per_hit else (
                 self.Pm, self.no_rows, self.no_emission)
             # The kernel draws its uniforms from this key (a counter-based stream, _uniform_pass).
-            key = np.uint64(rng.integers(0, 2 ** 63, dtype=np.int64))
+            key = np.uint64(keys[bounce])
             n_path = np.empty(n, dtype=np.int64)
             n_depth = np.empty(n, dtype=np.int64)
             n_S = np.empty((n, vk.NS))
