@@ -208,34 +208,6 @@ def offset_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, eps: np.ndarray 
 # Surface interaction from a hit (prim, barycentrics)
 # --------------------------------------------------------------------------------------
 @njit(cache=True, nogil=True)
-def _position_row(vertices, k, w1, w2):
-    """The point of triangle k at barycentrics (w1, w2), as a 3-tuple."""
-    w0 = 1.0 - w1 - w2
-    return (vertices[k, 0, 0] * w0 + vertices[k, 1, 0] * w1 + vertices[k, 2, 0] * w2,
-            vertices[k, 0, 1] * w0 + vertices[k, 1, 1] * w1 + vertices[k, 2, 1] * w2,
-            vertices[k, 0, 2] * w0 + vertices[k, 1, 2] * w1 + vertices[k, 2, 2] * w2)
-
-
-@njit(cache=True, nogil=True)
-def hit_points_kernel(vertices, prim, b1, b2, out):
-    """The hit points of embree's closest hits (prim (n,) int32, -1 on a miss; b1, b2 (n,)
-    float32 barycentrics) into out (3, n) float64, one row per coordinate (0 on a miss): the
-    points _interaction_row computes, for batch kernels that want them first (the fast path's
-    vectorised rect-light samples)."""
-    for r in range(prim.shape[0]):
-        k = prim[r]
-        if k >= 0:
-            p = _position_row(vertices, k, float(b1[r]), float(b2[r]))
-            out[0, r] = p[0]
-            out[1, r] = p[1]
-            out[2, r] = p[2]
-        else:
-            out[0, r] = 0.0
-            out[1, r] = 0.0
-            out[2, r] = 0.0
-
-
-@njit(cache=True, nogil=True)
 def _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz):
     """The hit of direction d = (dx, dy, dz) on triangle k at barycentrics (w1, w2): point p,
     geometric normal ng and shading normal ns as 3-tuples, both normals facing wo = -d
