@@ -9,17 +9,20 @@ batch kernels of kernels/lights.py, the others' row by row), and the BSDF sample
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
-The rows go in blocks of BLK. Three passes over a block are loops LLVM vectorises (4 rows per
-AVX2/AVX-512 instruction): ``_surface_pass`` (surface interaction, frame, material wo terms,
-BSDF sample, roulette), the rect and sphere lights' batch samplers (kernels/lights.py, from the
-block's hit points) and ``_light_pass`` (each such sample weighed by the BSDF and MIS). A scalar pass then adds emission, takes the disk and infinite lights' light half
-and writes the rays compactly. What keeps those loops vectorised, each checked by
-tests/integrators/test_vertex_vectorised.py: no branches around work (both BSDF lobes are
-computed and one is selected; _sincos instead of libm's cos and sin), error_model="numpy" (no
-exception exits), array arguments marked noalias (_NoAliasCompiler), the albedo tables as module
-constants, a compile-time row stride in the block state, and only scalar-argument helpers
-numba-inlined (inlining one that takes arrays leaves reference counting calls in the loop).
-Samples are bit-identical to the scalar kernel this replaced.
+The rows go in blocks of BLK. Most of the work on a block is loops LLVM vectorises (4 rows per
+AVX2 instruction, 8 with AVX-512; renderer/__init__.py): ``_uniform_pass`` (the block's random
+numbers, a counter-based stream), ``_surface_pass`` (surface interaction, frame, material wo
+terms, BSDF sample, roulette), the rect and sphere lights' batch samplers (kernels/lights.py, from
+the block's hit points), ``_light_pass`` (each such sample weighed by the BSDF and MIS) and
+``_cross_pass`` (which rows may cross a light before their surface). A scalar pass then adds
+emission, takes the disk and infinite lights' light half and writes the rays compactly. What keeps
+those loops vectorised, each checked by tests/integrators/test_vertex_vectorised.py: no branches
+around work (both BSDF lobes are computed and one is selected), no libm calls (kernels/vmath.py's
+sin, cos and atan), error_model="numpy" (no exception exits), array arguments marked noalias
+(_NoAliasCompiler), the albedo tables as module constants, a compile-time row stride in the block
+state, no isfinite (LLVM does not widen it), and only scalar-argument helpers numba-inlined
+(inlining one that takes arrays leaves reference counting calls in the loop). The passes are bound
+by the unit that does divisions and square roots, so the helpers avoid the ones they can.
 
 The maths is not restated here: it calls the per-row helpers of the surface interaction
 (renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py) and the BSDF
