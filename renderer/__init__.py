@@ -52,8 +52,15 @@ def _configure_numba() -> None:
     from numba.core.codegen import get_host_cpu_features
 
     cpu = config.CPU_NAME or ll.get_host_cpu_name()
-    feats = _vector_width_features(os.environ.get("ILLUM_VECTOR_WIDTH", "auto").strip().lower(), cpu,
-                                   get_host_cpu_features())
+    mode = os.environ.get("ILLUM_VECTOR_WIDTH", "auto").strip().lower()
+    try:
+        feats = _vector_width_features(mode, cpu, get_host_cpu_features())
+    except ValueError as exc:
+        # A performance setting: say what is wrong and render anyway, with the default.
+        import warnings
+
+        warnings.warn(f"{exc}; using auto", RuntimeWarning, stacklevel=3)
+        feats = _vector_width_features("auto", cpu, get_host_cpu_features())
     if feats is not None:
         config.CPU_FEATURES = feats
         ll.set_option("illum", f"-force-vector-interleave={_INTERLEAVE}")

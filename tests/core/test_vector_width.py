@@ -43,3 +43,14 @@ def test_numba_cpu_features_set_by_the_user_wins():
     out = subprocess.run([sys.executable, "-c", "import renderer; from numba.core import config; "
                           "print(config.CPU_FEATURES)"], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "+64bit,+sse2"
+
+
+def test_a_bad_environment_value_warns_and_renders_with_the_default():
+    """Importing the package with ILLUM_VECTOR_WIDTH=1024 warns, naming the variable, and keeps
+    going with auto (a performance setting must not stop a render)."""
+    env = dict(os.environ, ILLUM_VECTOR_WIDTH="1024")
+    env.pop("NUMBA_CPU_FEATURES", None)
+    out = subprocess.run([sys.executable, "-c", "import renderer; print('imported')"], env=env,
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "imported"
+    assert "ILLUM_VECTOR_WIDTH" in out.stderr and "using auto" in out.stderr
