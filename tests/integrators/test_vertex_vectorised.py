@@ -9,7 +9,6 @@ runtime row stride does that (the module docstring lists them)."""
 
 from __future__ import annotations
 
-import platform
 import re
 
 import numpy as np
@@ -17,21 +16,12 @@ import pytest
 from numba import njit
 
 import renderer.integrators._vertex_kernels as vk
-
-
-def _has_avx2() -> bool:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            return " avx2" in fh.read()
-    except OSError:
-        return False
+from tests.simd import assembly, needs_avx2, uncached
 
 
 def _uncached(dispatcher):
-    """The same function compiled with the same options, uncached (numba shows no assembly for
-    cached code), through the same noalias pipeline."""
-    opts = {k: v for k, v in dispatcher.targetoptions.items() if k not in ("cache", "nopython")}
-    return njit(pipeline_class=vk._NoAliasCompiler, **opts)(dispatcher.py_func)
+    """An uncached copy through the passes' noalias pipeline."""
+    return uncached(dispatcher, pipeline_class=vk._NoAliasCompiler)
 
 
 def _surface_args(n=8):
@@ -49,15 +39,14 @@ def _surface_args(n=8):
             1e-9, np.empty(vk.NW * vk.BLK))
 
 
-@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not _has_avx2(),
-                    reason="checks x86 AVX packed instructions")
+@needs_avx2
 @pytest.mark.parametrize("which", ["surface", "light", "cross"])
 def test_vertex_pass_loop_is_vectorised(which):
     args = _surface_args()
     if which == "cross":
         kernel = _uncached(vk._cross_pass)
         kernel(*_cross_args(np.random.default_rng(3), 8))
-        asm = "\n".join(kernel.inspect_asm().values())
+        asm = assembly(kernel)
         # The rect test's division, packed (there is no square root in this pass).
         assert re.search(r"vdivpd\s+%[yz]mm", asm), "_cross_pass's loops are no longer vectorised"
         return
@@ -71,7 +60,7 @@ def test_vertex_pass_loop_is_vectorised(which):
         smp[2] = 1.0
         smp[3:5] = 1.0
         kernel(0, 8, smp, False, 1.0, 1.0, 1.0, False, True, args[5], args[-1], args[8], np.empty(4 * vk.BLK))
-    asm = "\n".join(kernel.inspect_asm().values())
+    asm = assembly(kernel)
     # Packed double square roots on ymm/zmm registers come only from the loop vectoriser (the SLP
     # vectoriser pairs scalar code on xmm at most).
     assert re.search(r"vsqrtpd\s+%[yz]mm", asm), f"_{which}_pass's loop is no longer vectorised"

@@ -10,7 +10,6 @@ the compiled loop is checked for packed 256/512-bit square roots.
 from __future__ import annotations
 
 import math
-import platform
 import re
 
 import numpy as np
@@ -24,6 +23,7 @@ from renderer.kernels.lights import (
     sphere_sample_kernel,
 )
 from renderer.lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
+from tests.simd import assembly, needs_avx2, uncached
 
 
 @njit(cache=False)
@@ -113,25 +113,14 @@ def test_sphere_batch_kernel_gives_the_scalar_rows_samples(radius, delta):
     np.testing.assert_array_equal(got[5][ok], L[ok, 0])
 
 
-def _has_avx() -> bool:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            return " avx2" in fh.read()
-    except OSError:
-        return False
-
-
-@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or not _has_avx(),
-                    reason="checks x86 AVX packed instructions")
+@needs_avx2
 @pytest.mark.parametrize("which", ["rect", "sphere"])
 def test_batch_kernel_loop_is_vectorised(which):
     batch, args, rows = {"rect": (rect_sample_batch_kernel, _light(0.0, 1.0, 1.0), 5),
                          "sphere": (sphere_sample_batch_kernel, ((0.0, 0.0, 2.0), 0.5, False), 6)}[which]
-    # numba will not show cached code: compile the same function with the same options, uncached.
-    opts = {k: v for k, v in batch.targetoptions.items() if k not in ("cache", "nopython")}
-    kernel = njit(**opts)(batch.py_func)
+    kernel = uncached(batch)
     kernel(np.zeros((3, 8)), np.zeros((2, 8)), 0, 0, 8, *args, np.empty((rows, 8)))
-    asm = "\n".join(kernel.inspect_asm().values())
+    asm = assembly(kernel)
     # Packed double square roots on ymm/zmm registers come only from the loop vectoriser (the SLP
     # vectoriser pairs scalar code on xmm at most).
     assert re.search(r"vsqrtpd\s+%[yz]mm", asm), f"{batch.__name__}'s loop is no longer vectorised"
