@@ -120,6 +120,32 @@ def _filter_offset(inv, u):
     return lo + (f - i) * (inv[i + 1] - lo)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _pinhole_dir(sx, sy):
+    """The pinhole direction through window point (sx, sy): (sx, sy, -1) normalised."""
+    length = math.sqrt(sx * sx + sy * sy + 1.0)
+    s = length if length > 0.0 else 1.0
+    return sx / s, sy / s, -1.0 / s
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _clip_per_t(dz):
+    """1 / cos of the view axis angle (-dz, at least 1e-12): the clip planes are perpendicular to
+    the view axis, so a clip distance z is z times this along d."""
+    c = -dz
+    if c < 1e-12:
+        c = 1e-12
+    return 1.0 / c
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _unit_and_scale(dwx, dwy, dwz):
+    """A camera_to_world-transformed direction as a unit vector and its length (world scale in
+    the matrix rescales the clip distances by it)."""
+    scale = math.sqrt(dwx * dwx + dwy * dwy + dwz * dwz)
+    return dwx / scale, dwy / scale, dwz / scale, scale
+
+
 @njit(cache=True, nogil=True)
 def _generate_kernel(px, py, u_filter, u_lens, inv, window, width, height, orthographic, lens_radius,
                      focus_distance, near, far, planes, M, o, d, tmin, tmax):
@@ -145,12 +171,7 @@ def _generate_kernel(px, py, u_filter, u_lens, inv, window, width, height, ortho
             t0 = near
             t1 = far
         else:
-            # Pinhole direction: the window point (sx, sy, -1) normalised.
-            length = math.sqrt(sx * sx + sy * sy + 1.0)
-            s = length if length > 0.0 else 1.0
-            dx = sx / s
-            dy = sy / s
-            dz = -1.0 / s
+            dx, dy, dz = _pinhole_dir(sx, sy)
             ox = 0.0
             oy = 0.0
             oz = 0.0
@@ -176,11 +197,7 @@ def _generate_kernel(px, py, u_filter, u_lens, inv, window, width, height, ortho
                 dx = qx / s
                 dy = qy / s
                 dz = qz / s
-            # Clipping planes are perpendicular to the view axis: convert to distances along d.
-            c = -dz
-            if c < 1e-12:
-                c = 1e-12
-            inv_cos = 1.0 / c
+            inv_cos = _clip_per_t(dz)
             t0 = near * inv_cos
             t1 = far * inv_cos
         # clippingPlanes (Camera._clip): each plane keeps a half-line of t.
@@ -213,10 +230,7 @@ def _generate_kernel(px, py, u_filter, u_lens, inv, window, width, height, ortho
         o[i, 0] = ox * M[0, 0] + oy * M[0, 1] + oz * M[0, 2] + M[0, 3]
         o[i, 1] = ox * M[1, 0] + oy * M[1, 1] + oz * M[1, 2] + M[1, 3]
         o[i, 2] = ox * M[2, 0] + oy * M[2, 1] + oz * M[2, 2] + M[2, 3]
-        scale = math.sqrt(dwx * dwx + dwy * dwy + dwz * dwz)
-        d[i, 0] = dwx / scale
-        d[i, 1] = dwy / scale
-        d[i, 2] = dwz / scale
+        d[i, 0], d[i, 1], d[i, 2], scale = _unit_and_scale(dwx, dwy, dwz)
         tmin[i] = t0 * scale
         tmax[i] = t1 * scale
 
@@ -239,25 +253,15 @@ def _generate_pinhole_kernel(px, py, u_filter, inv, window, width, height, near,
         ry = py[i] + 0.5 + _filter_offset(inv, u_filter[2 * i + 1])
         sx = wx0 + (rx / width) * (wx1 - wx0)
         sy = wy1 - (ry / height) * (wy1 - wy0)
-        length = math.sqrt(sx * sx + sy * sy + 1.0)
-        s = length if length > 0.0 else 1.0
-        dx = sx / s
-        dy = sy / s
-        dz = -1.0 / s
-        c = -dz
-        if c < 1e-12:
-            c = 1e-12
-        inv_cos = 1.0 / c
+        dx, dy, dz = _pinhole_dir(sx, sy)
+        inv_cos = _clip_per_t(dz)
         dwx = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
         dwy = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
         dwz = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
         o[3 * i] = M[0, 3]
         o[3 * i + 1] = M[1, 3]
         o[3 * i + 2] = M[2, 3]
-        scale = math.sqrt(dwx * dwx + dwy * dwy + dwz * dwz)
-        d[3 * i] = dwx / scale
-        d[3 * i + 1] = dwy / scale
-        d[3 * i + 2] = dwz / scale
+        d[3 * i], d[3 * i + 1], d[3 * i + 2], scale = _unit_and_scale(dwx, dwy, dwz)
         tmin[i] = (near * inv_cos) * scale
         tmax[i] = (far * inv_cos) * scale
 

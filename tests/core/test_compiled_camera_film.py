@@ -12,6 +12,7 @@ from renderer.camera import Camera
 from renderer.description import CameraDesc
 from renderer.film import Film
 from renderer.sampling import _sobol2, pixel_sequence
+from tests.simd import assembly, needs_avx2, uncached
 
 _ROT_SCALE = np.array([[0.0, -2.0, 0.0, 1.0],    # rotate 90 deg about z, scale 2, translate
                        [2.0, 0.0, 0.0, -2.0],
@@ -214,3 +215,20 @@ def test_pinhole_kernel_is_the_general_kernel_bit_for_bit(case):
                      np.ascontiguousarray(cam.camera_to_world, dtype=np.float64), o, d, tmin, tmax)
     for got, ref in ((fast.o, o), (fast.d, d), (fast.tmin, tmin), (fast.tmax, tmax)):
         np.testing.assert_array_equal(got, ref)
+
+
+@needs_avx2
+def test_pinhole_kernel_loop_is_vectorised():
+    """The pinhole camera kernel runs packed (its square roots on ymm/zmm registers): a 2-D
+    array's runtime stride or a branch around work would turn it scalar, ~2x slower a ray."""
+    import re
+
+    from renderer.camera import _generate_pinhole_kernel
+    from renderer.kernels import NoAliasCompiler
+
+    kernel = uncached(_generate_pinhole_kernel, pipeline_class=NoAliasCompiler)
+    n = 16
+    kernel(np.arange(n), np.arange(n), np.full(2 * n, 0.5), np.linspace(-1.0, 1.0, 65),
+           np.array([-1.0, 1.0, -1.0, 1.0]), 16.0, 16.0, 0.1, 10.0, np.eye(4), np.empty(3 * n), np.empty(3 * n),
+           np.empty(n), np.empty(n))
+    assert re.search(r"vsqrtpd\s+%[yz]mm", assembly(kernel)), "the pinhole camera loop is no longer vectorised"
