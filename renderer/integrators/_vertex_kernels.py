@@ -250,6 +250,8 @@ def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, ve
         q = min(max(1.0 - max(nb0, max(nb1, nb2)), 0.0), 0.95)
         inv = 1.0 / (1.0 - q)
         ok = ok and not (rr and U[U_RR, i] < q)
+        # Stores written out, like the triangle loads: a store helper (the counterpart of _w3)
+        # turns this loop scalar, 2x slower a row (tried; test_vertex_vectorised catches it).
         W[W_P * BLK + i] = px
         W[(W_P + 1) * BLK + i] = py
         W[(W_P + 2) * BLK + i] = pz
