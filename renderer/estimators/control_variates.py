@@ -8,8 +8,10 @@ exactly (lights/analytic.py), and the shadowed integral is estimated as
     α = v̄   (…Unbiased)           v̄F + (1/(N−1)) Σ f_i (v_i − v̄) / p_i   unbiased for independent samples
 
 with f_i = f_d L cos at light sample i, p_i its light pdf, v_i its visibility and v̄ the mean of
-the v_i. Samples below the geometric or shading horizon have v_i = 0 (the surface itself blocks
-them), so a light straddling the horizon keeps an unbiased estimate.
+the v_i. Samples below the geometric or shading horizon carry f_i = 0: F leaves that part out,
+so v̄ is the mean over the samples F covers (``covered_samples``), and the unbiased form takes
+it leave-one-out (``cv_diffuse``). Counting those samples as v = 0 made v̄ ≈ 1/2 at a fully lit
+point under a dome, and the control variate noisier than MIS on a white furnace.
 
 Here f is the BSDF's *control lobe* g = c(wo), constant in wi (UsdPreviewSurface's diffuse lobe
 is c(wo)·k(wi) with k averaging 1, see bsdfs/preview_surface.py), and F = c(wo)·E exactly. The
@@ -53,20 +55,52 @@ def specular_and_fallback(q, lights, trace, N, u, heuristic, exact, ls):
     return spec, full, rays
 
 
+def covered_samples(fd: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(n, N) bool: the samples that fall where F integrates, i.e. whose control integrand
+    fd (n, N, 3) is non-zero. Samples below the geometric or shading horizon (or where the
+    light's radiance is zero) carry fd = 0: the surface, not the scene, hides them, and F
+    already leaves them out, so they say nothing about the visibility that α must measure."""
+    return valid & ((fd[:, :, 0] > 0.0) | (fd[:, :, 1] > 0.0) | (fd[:, :, 2] > 0.0))
+
+
+def cv_diffuse(F: np.ndarray, X: np.ndarray, v: np.ndarray, covered: np.ndarray, alpha: str) -> np.ndarray:
+    """The control-variate estimate (n, 3) of ∫ g L v cos⁺ dω from F (n, 3), X = f_i / p_i
+    (n, N, 3), the visibilities v (n, N) and the covered mask (n, N) (``covered_samples``).
+
+    one:  F + (1/N) Σ X_i (v_i − 1).
+    averageVisibility (the talk's biased form): v̄ F + (1/N) Σ X_i (v_i − v̄), with v̄ the mean
+        visibility of the covered samples (α = 1 where none is covered: then every X_i = 0).
+    averageVisibilityUnbiased: leave-one-out, (1/N) Σ_i [α_i F + X_i (v_i − α_i)] with α_i the
+        mean visibility of the *other* covered samples (1 where there is none). α_i does not
+        depend on sample i, so each term has expectation E[α_i] F + ∫fv − F E[α_i] = ∫fv: the
+        estimate is unbiased. Where every sample is covered it equals the talk's
+        v̄ F + 1/(N−1) Σ X_i (v_i − v̄) term for term.
+    A fully lit point (every covered v_i = 1) gives F exactly, a fully shadowed one 0, in the
+    last two forms, whatever share of the samples fell below the horizon.
+    """
+    N = v.shape[1]
+    if alpha == "one" or N < 2:
+        return F + (X * (v - 1.0)[:, :, None]).sum(axis=1) / N
+    c = covered.astype(np.float64)
+    cv = c * v
+    if alpha == "averageVisibility":
+        M = c.sum(axis=1)
+        v_bar = np.divide(cv.sum(axis=1), M, out=np.ones_like(M), where=M > 0.0)
+        return v_bar[:, None] * F + (X * (v - v_bar[:, None])[:, :, None]).sum(axis=1) / N
+    M_i = c.sum(axis=1)[:, None] - c          # covered samples other than i, (n, N)
+    S_i = cv.sum(axis=1)[:, None] - cv
+    a = np.divide(S_i, M_i, out=np.ones_like(S_i), where=M_i > 0.0)
+    return (a.sum(axis=1) / N)[:, None] * F + (X * (v - a)[:, :, None]).sum(axis=1) / N
+
+
 class ControlVariateEstimator:
     token = "controlVariate"
 
     def estimate(self, q: DirectQuery, lights, trace: TraceFn, N: int, u: DirectRandom,
                  alpha: str = "averageVisibilityUnbiased", heuristic: str = "power") -> DirectResult:
         F, exact, ls, rays = diffuse_cv_inputs(q, lights, trace, N, u)
-        g = ratio(ls.fd, ls.p_l)                       # (n, N, 3): f_i / p_i
-        if alpha == "one" or N < 2:
-            a = np.ones(q.n)
-            scale = 1.0 / N
-        else:
-            a = ls.v.mean(axis=1)                      # v̄ per row
-            scale = 1.0 / (N - 1) if alpha == "averageVisibilityUnbiased" else 1.0 / N
-        diffuse = a[:, None] * F + scale * (g * (ls.v - a[:, None])[:, :, None]).sum(axis=1)
+        X = ratio(ls.fd, ls.p_l)                       # (n, N, 3): f_i / p_i
+        diffuse = cv_diffuse(F, X, ls.v, covered_samples(ls.fd, ls.valid), alpha)
         spec, full, rays_s = specular_and_fallback(q, lights, trace, N, u, heuristic, exact, ls)
         Ld = np.where(exact[:, None], diffuse + spec, full)
         return DirectResult(Ld, rays + rays_s)
