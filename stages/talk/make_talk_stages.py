@@ -50,7 +50,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux  # noqa: E402
 
 import make_stages as ms  # noqa: E402
 
-STAGE_FILES = ["sphere_occluder.usda", "large_rect.usda", "penumbra.usda", "dome.usda"]
+STAGE_FILES = ["sphere_occluder.usda", "large_rect.usda", "penumbra.usda", "dome.usda", "furnace.usda", "disks.usda"]
 SKY_FILE = "talk_sky.exr"
 RES = (200, 150)
 # 35 mm lens on a 36 x 27 mm (4:3) gate, written in tenths of a metre (USD camera units).
@@ -288,6 +288,56 @@ def make_dome():
     ms.render_settings(stage, "/World/Camera", RES, "dome.exr")
     return save(stage)
 
+# --------------------------------------------------------------------------- 5. white furnace
+def make_furnace():
+    doc = ("The white furnace, the control variate's canonical case: a white near-Lambertian sphere (albedo 1) "
+           "inside a constant DomeLight of radiance 1. Every point of the convex sphere sees the whole upper "
+           "hemisphere of the dome, so at the first vertex the control variate with alpha = v_bar returns the "
+           "exact F with no noise, and every pixel converges to 1 (the sphere is energy-conserving up to the "
+           "Schlick grazing term). IllumLightAPI: controlVariate, samples 4.")
+    stage = new_stage("furnace.usda", doc)
+    white = ms.material(stage, "White", diffuseColor=(1.0, 1.0, 1.0), **DIFFUSE)
+    ms.sphere(stage, "/World/Ball", white, (0.0, 0.0, 0.0), 1.0)
+    dome = UsdLux.DomeLight.Define(stage, "/World/Lights/Furnace")
+    dome.GetPrim().SetDocumentation("Constant DomeLight, radiance 1 nit in every direction.")
+    dome.CreateIntensityAttr(1.0)
+    illum_light_api(dome, "controlVariate", samples=4)
+    aimed_camera(stage, (0.0, 0.0, 3.2), (0.0, 0.0, 0.0))
+    ms.render_settings(stage, "/World/Camera", RES, "furnace.exr")
+    return save(stage)
+
+
+# --------------------------------------------------------------------------- 6. three disks
+def make_disks():
+    doc = ("Three DiskLights of different sizes and hues 2.4-3 m above a near-Lambertian floor, with a hanging "
+           "slab and a sphere between them and the floor: three overlapping soft shadows, each lit by some "
+           "disks and shadowed from others, so most of the floor is penumbra of at least one light. Each disk "
+           "has an exact unshadowed integral (polygonal Lambert on the disk), so the control variate applies "
+           "per light. IllumLightAPI: controlVariate, cv:alpha averageVisibilityUnbiased, samples 4.")
+    stage = new_stage("disks.usda", doc)
+    floor_m = ms.material(stage, "Floor", diffuseColor=(0.7, 0.7, 0.68), **DIFFUSE)
+    grey = ms.material(stage, "Grey", diffuseColor=(0.5, 0.5, 0.5), **DIFFUSE)
+    ms.bind(ms.quad(stage, "/World/Floor", 40.0, 40.0, doc="40 x 40 m near-Lambertian floor."), floor_m)
+    UsdGeom.Xform.Define(stage, "/World/Occluders").GetPrim().SetDocumentation(
+        "Hanging above the camera's eye height, so out of frame; only their shadows are seen.")
+    ms.cube(stage, "/World/Occluders/Slab", grey, translate=(-0.3, 1.3, 1.0), scale=(0.8, 0.05, 0.5),
+            doc="A slab 1.3 m up.")
+    ms.sphere(stage, "/World/Occluders/Ball", grey, (0.5, 1.4, 1.3), 0.22, doc="A sphere 1.4 m up.")
+    for name, pos, radius, colour, intensity in (
+            ("Warm", (-1.0, 3.0, 0.6), 0.35, (1.0, 0.75, 0.5), 30.0),
+            ("Cool", (1.1, 2.6, 0.9), 0.25, (0.5, 0.7, 1.0), 45.0),
+            ("White", (0.1, 2.4, 2.0), 0.15, (1.0, 1.0, 1.0), 90.0)):
+        light = UsdLux.DiskLight.Define(stage, f"/World/Lights/{name}")
+        light.GetPrim().SetDocumentation(f"Disk of radius {radius} m facing down (rotateX -90).")
+        ms.place(light, translate=pos, rotate_x=-90)
+        light.CreateRadiusAttr(radius)
+        light.CreateColorAttr(Gf.Vec3f(*colour))
+        light.CreateIntensityAttr(intensity)
+        illum_light_api(light, "controlVariate", samples=4, cv_alpha="averageVisibilityUnbiased")
+    aimed_camera(stage, (0.0, 1.05, 3.6), (0.0, 0.0, 1.4))
+    ms.render_settings(stage, "/World/Camera", RES, "disks.exr")
+    return save(stage)
+
 
 # --------------------------------------------------------------------------- validation
 def validate(paths) -> bool:
@@ -326,6 +376,7 @@ EXPOSURE_PROBES = {
     "large_rect.usda": [("floor centre", (0, 0, 0.5), (0, 1, 0)), ("box side facing +Z", (0.85, 0.4, 0.6), (0, 0, 1))],
     "penumbra.usda": [("floor below the light", (0.0, 0, 0.6), (0, 1, 0)), ("floor front", (0, 0, 2.6), (0, 1, 0))],
     "dome.usda": [("ground", (0, 0, 2.5), (0, 1, 0)), ("box side facing +Z", (0.7, 0.45, 0.2), (0, 0, 1))],
+    "disks.usda": [("floor under the warm disk", (-1.0, 0, 0.6), (0, 1, 0)), ("floor front", (0, 0, 2.6), (0, 1, 0))],
 }
 
 
@@ -348,7 +399,7 @@ def main(argv=None) -> int:
     if not args.check:
         os.makedirs(TEX_DIR, exist_ok=True)
         write_sky(os.path.join(TEX_DIR, SKY_FILE))
-        for fn in (make_sphere_occluder, make_large_rect, make_penumbra, make_dome):
+        for fn in (make_sphere_occluder, make_large_rect, make_penumbra, make_dome, make_furnace, make_disks):
             fn()
     ok = validate([os.path.join(HERE, f) for f in STAGE_FILES])
     if args.exposure:
