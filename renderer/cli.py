@@ -34,17 +34,27 @@ def _float(name):
 
 
 def _overrides(values: list[str] | None, flag: str) -> dict:
-    """Parse repeatable `TOKEN` (all lights) or `/Path/To/Light=TOKEN` (one light) flags."""
+    """Parse repeatable `TOKEN` or `*=TOKEN` (all lights, key '') or `/Path/To/Light=TOKEN`
+    (one light) flags."""
     out: dict = {}
     for v in values or []:
         if "=" in v:
             path, token = v.split("=", 1)
-            if not path.startswith("/"):
-                raise SettingsError(f"expected /Path/To/Light=VALUE, got {v!r}", attribute=flag)
+            if path == "*":
+                path = ""
+            elif not path.startswith("/"):
+                raise SettingsError(f"expected /Path/To/Light=VALUE or *=VALUE, got {v!r}", attribute=flag)
             out[path] = token
         else:
             out[""] = v
     return out
+
+
+def _estimator_flags(values: list[str] | None) -> tuple[dict, str | None]:
+    """--estimator: plain TOKEN is the stage-wide default (lights whose illum:estimator is
+    unauthored); *=TOKEN forces every light; /Path=TOKEN one light. Returns (overrides, default)."""
+    plain = [v for v in values or [] if "=" not in v]
+    return _overrides([v for v in values or [] if "=" in v], "estimator"), (plain[-1] if plain else None)
 
 
 def add_render_flags(p: argparse.ArgumentParser) -> None:
@@ -67,8 +77,11 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-fast-path", dest="fast_path", action="store_false",
                    help="always use the general integrator, even where the scene qualifies for the compiled "
                         "path vertex (stats 'fast_path' says whether it ran and why not)")
-    p.add_argument("--estimator", action="append", metavar="[/Light=]TOKEN",
-                   help="direct-lighting estimator for all lights, or /Path=TOKEN for one (repeatable)")
+    p.add_argument("--estimator", action="append", metavar="[/Light=|*=]TOKEN",
+                   help="direct-lighting estimator: TOKEN is the default for lights whose illum:estimator is "
+                        "not authored (overrides RenderSettings illum:estimator), *=TOKEN forces every light, "
+                        "/Path=TOKEN one light (repeatable); tokens: mis, lightSampling, bsdfSampling, "
+                        "controlVariate, ratio, auto")
     p.add_argument("--cv-alpha", action="append", metavar="[/Light=]TOKEN")
     p.add_argument("--light-samples", action="append", metavar="[/Light=]N")
     p.add_argument("--purpose", action="append", help="purposes to render (default: RenderSettings includedPurposes)")
@@ -83,6 +96,7 @@ def options_from_args(a) -> "RenderOptions":
             samples[k] = int(v)
         except ValueError:
             raise SettingsError(f"expected an integer, got {v!r}", attribute="light-samples")
+    estimator, default_estimator = _estimator_flags(a.estimator)
     return RenderOptions(
         spp=a.spp,
         time_budget=a.time_budget,
@@ -97,7 +111,8 @@ def options_from_args(a) -> "RenderOptions":
         light_sampler=a.light_sampler,
         emitter_samples=a.emitter_samples,
         fast_path=a.fast_path,
-        estimator=_overrides(a.estimator, "estimator"),
+        estimator=estimator,
+        default_estimator=default_estimator,
         cv_alpha=_overrides(a.cv_alpha, "cv-alpha"),
         light_samples=samples,
     )

@@ -153,6 +153,8 @@ class RenderSettingsDesc:
     data_window_ndc: (xmin, ymin, xmax, ymax), (0,0) bottom-left.
     product_name: default output path ('' when none).
     light_sampler: from IllumRenderSettingsAPI ('' when unauthored: the renderer picks by light count).
+    estimator: IllumRenderSettingsAPI's stage-wide default estimator for lights whose own
+        illum:estimator is unauthored ('' when unauthored: the schema fallback, mis).
     """
 
     path: str = ""
@@ -165,6 +167,7 @@ class RenderSettingsDesc:
     material_binding_purposes: tuple = ("full", "")
     product_name: str = ""
     light_sampler: str = ""
+    estimator: str = ""
 
 
 # --------------------------------------------------------------------------------------
@@ -172,13 +175,16 @@ class RenderSettingsDesc:
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class EstimatorSettings:
-    """IllumLightAPI opinions for one light (fallbacks equal the schema's fallbacks)."""
+    """IllumLightAPI opinions for one light (fallbacks equal the schema's fallbacks).
+    estimator_authored: whether illum:estimator is authored; where it is not, the stage-wide
+    default (IllumRenderSettingsAPI illum:estimator, or --estimator TOKEN) applies."""
 
     estimator: str = "mis"
     cv_alpha: str = "averageVisibilityUnbiased"
     samples: int = 1
     mis_heuristic: str = "power"
     dome_irradiance: str = ""
+    estimator_authored: bool = False
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,7 @@ class RenderOptions:
     emitter_samples: int = 0                            # camera samples of emitters seen directly; 0 = auto
     fast_path: bool = True                              # compiled path vertex where the scene qualifies
     estimator: dict = field(default_factory=dict)       # {"": token} for all lights or {path: token}
+    default_estimator: Optional[str] = None             # for lights whose illum:estimator is unauthored
     cv_alpha: dict = field(default_factory=dict)
     light_samples: dict = field(default_factory=dict)
 
@@ -70,6 +71,11 @@ class RenderOptions:
             bad("emitter_samples", f"must be an integer in [0, 64] (0 = auto), got {self.emitter_samples!r}")
         if self.threads is not None and not (1 <= self.threads <= 256):
             bad("threads", f"must be in [1, 256], got {self.threads!r}")
+        if self.default_estimator is not None:
+            from .estimators import TOKENS
+
+            if self.default_estimator not in TOKENS:
+                bad("estimator", f"{self.default_estimator!r} is not one of {', '.join(TOKENS)}")
         if self.frame is not None and not math.isfinite(self.frame):
             bad("frame", f"must be finite, got {self.frame!r}")
         if self.resolution is not None:
@@ -158,6 +164,7 @@ def render(
     integrator = PathIntegrator(scene, camera, IntegratorOptions(
         max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed, threads=shading_threads,
         estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples),
+        default_estimator=opt.default_estimator or settings.estimator,
         emitter_samples=int(opt.emitter_samples), fast_path=bool(opt.fast_path)))
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
@@ -211,6 +218,9 @@ def render(
         "threads": threads,
         "max_depth": opt.max_depth,
         "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
+        # What lights without an authored illum:estimator use (--estimator TOKEN, else
+        # IllumRenderSettingsAPI illum:estimator, else the schema fallback).
+        "default_estimator": opt.default_estimator or settings.estimator or "mis",
         "emitter_samples": integrator.emitter_samples,
         # The compiled path vertex (integrators/fast_path.py): "on", or why the scene needs the
         # general path.

@@ -53,10 +53,13 @@ its warm-up) reuse it at no cost. The stats JSON records, per auto light, ``auto
 of the pilot, V_c and T_c per candidate, dropped candidates, whether the result came from the
 cache).
 
-Candidates: lightSampling, bsdfSampling and mis always; controlVariate (α = v̄ with the
-unbiased 1/(N−1) rescaling) where the light has an exact F and N ≥ 2. ``ratio`` is biased and
-the α = 1 control variate goes negative, so auto never picks them. Delta lights can only be
+Candidates: every unbiased form. lightSampling, bsdfSampling and mis always; where the light
+has an exact F, the control variate with α = 1 (``controlVariate:one``: unbiased, and exact at a
+fully lit point, though a penumbra can give negative samples, which the film keeps), and with
+N ≥ 2 also α = v̄ leave-one-out (``controlVariate:averageVisibilityUnbiased``). ``ratio`` and
+the plain α = v̄ form are biased, so auto never picks them. Delta lights can only be
 light-sampled. Lights with no pilot signal (not seen from any pilot pixel) get ``mis``.
+A pick is returned as the estimator token plus, for the control variate, its α.
 
 Because T_c is measured, two candidates within the tie margin may swap between runs (either is
 then as good); a TD who needs bit-identical re-renders authors the chosen token. The pilot
@@ -92,9 +95,17 @@ def candidates(lights, i: int, N: int) -> list[str]:
     if lights.delta[i]:
         return ["lightSampling"]
     out = ["lightSampling", "bsdfSampling", "mis"]
-    if lights.has_exact_integral[i] and N >= 2:
-        out.append("controlVariate")
+    if lights.has_exact_integral[i]:
+        out.append("controlVariate:one")
+        if N >= 2:
+            out.append("controlVariate:averageVisibilityUnbiased")
     return out
+
+
+def split_candidate(c: str) -> tuple[str, str]:
+    """'controlVariate:one' -> ('controlVariate', 'one'); a plain token -> (token, 'one')."""
+    token, _, alpha = c.partition(":")
+    return token, alpha or "one"
 
 
 def pilot_points(integ, rng: np.random.Generator):
@@ -169,8 +180,8 @@ class _LightPilot:
                 continue
             t0 = time.process_time()
             u = DirectRandom.draw(rng, rows.size, self.N)
-            res = REGISTRY[c].estimate(q, integ.lights, trace, self.N, u,
-                                       self.alpha if c == "controlVariate" else "one", self.heuristic)
+            token, alpha = split_candidate(c)
+            res = REGISTRY[token].estimate(q, integ.lights, trace, self.N, u, alpha, self.heuristic)
             dt = time.process_time() - t0
             v = res.Ld.sum(axis=1) / 3.0
             idx = k[rows]
@@ -265,7 +276,7 @@ def choose(integ, light_indices: list[int], settings: list[dict]) -> dict[int, d
         N = int(settings[i]["samples"])
         cands = candidates(lights, i, N)
         if len(cands) == 1:
-            out[i] = {"estimator": cands[0], "scores": {}}
+            out[i] = {"estimator": cands[0], "cv_alpha": None, "scores": {}}
             continue
         p = _LightPilot(i, cands, settings[i], n_points)
         if cache is not None and _cache_key(integ, p) in cache:
@@ -306,11 +317,12 @@ def choose(integ, light_indices: list[int], settings: list[dict]) -> dict[int, d
                 "wall_seconds": wall / len(pilots), "points": n_points, "dropped": dict(p.dropped),
                 "cached": False}
         if den is None or not np.any(p.consensus() != 0.0):
-            pick = {"estimator": "mis", "scores": {}}
+            pick = {"estimator": "mis", "cv_alpha": None, "scores": {}}
         else:
             S, V, T, _ = p.scores(den, s2)
             best = min(p.active, key=lambda c: (S[c], T[c]))
-            pick = {"estimator": best, "scores": S}
+            token, alpha = split_candidate(best)
+            pick = {"estimator": token, "cv_alpha": alpha if token == "controlVariate" else None, "scores": S}
             info["relmse_per_sample"] = V
             info["cpu_seconds_per_round"] = T
         out[i] = pick

@@ -68,7 +68,9 @@ PIXELS_PER_CHUNK = 16384
 @dataclass
 class IntegratorOptions:
     """estimator / cv_alpha / light_samples: overrides, {"": value} for all lights or
-    {"/Light/Path": value} for one (the CLI's --estimator, --cv-alpha, --light-samples)."""
+    {"/Light/Path": value} for one (the CLI's --estimator, --cv-alpha, --light-samples).
+    default_estimator: the stage-wide default for lights whose illum:estimator is unauthored
+    ('' = the schema fallback); an override above wins over it and over authored tokens."""
 
     max_depth: int = 8
     rr_depth: int = 3
@@ -77,6 +79,7 @@ class IntegratorOptions:
     estimator: dict = field(default_factory=dict)
     cv_alpha: dict = field(default_factory=dict)
     light_samples: dict = field(default_factory=dict)
+    default_estimator: str = ""
     emitter_samples: int = 0  # camera samples per pass for emitters seen directly; 0 = auto
     fast_path: bool = True  # the compiled path vertex where the scene qualifies (fast_path.py)
 
@@ -104,7 +107,8 @@ def resolve_estimators(lights, opt: IntegratorOptions) -> list[dict]:
     out = []
     for i, path in enumerate(paths):
         es = lights.estimators[i]
-        token = opt.estimator.get(path, opt.estimator.get("", es.estimator))
+        own = es.estimator if es.estimator_authored else (opt.default_estimator or es.estimator)
+        token = opt.estimator.get(path, opt.estimator.get("", own))
         alpha = opt.cv_alpha.get(path, opt.cv_alpha.get("", es.cv_alpha))
         samples = opt.light_samples.get(path, opt.light_samples.get("", es.samples))
         if token not in TOKENS:
@@ -218,6 +222,8 @@ class PathIntegrator:
 
             for i, pick in auto_mod.choose(self, auto_lights, ls).items():
                 ls[i]["estimator"] = pick["estimator"]
+                if pick.get("cv_alpha"):
+                    ls[i]["cv_alpha"] = pick["cv_alpha"]
                 ls[i]["auto_scores"] = pick["scores"]
             self.rays = RayCounters()
         self.est_token = np.array([ESTIMATOR_TOKENS.index(x["estimator"]) for x in ls], dtype=np.int64)

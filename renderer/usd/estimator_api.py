@@ -22,6 +22,7 @@ __all__ = [
     "LIGHT_SAMPLERS",
     "read_estimator_settings",
     "read_light_sampler",
+    "read_default_estimator",
     "has_light_api",
     "check_light_api_target",
 ]
@@ -82,7 +83,7 @@ def check_light_api_target(prim: Usd.Prim, ctx: ReadContext) -> None:
 
 def read_estimator_settings(prim: Usd.Prim, ctx: ReadContext, *, is_dome: bool) -> EstimatorSettings:
     """IllumLightAPI opinions of one light prim (schema fallbacks where unauthored)."""
-    estimator, _ = _token(prim, ctx, _ESTIMATOR)
+    estimator, estimator_authored = _token(prim, ctx, _ESTIMATOR)
     cv_alpha, alpha_authored = _token(prim, ctx, _CV_ALPHA)
     heuristic, _ = _token(prim, ctx, _MIS_HEURISTIC)
 
@@ -111,7 +112,8 @@ def read_estimator_settings(prim: Usd.Prim, ctx: ReadContext, *, is_dome: bool) 
             ctx.warn("dome-irradiance-not-dome",
                      f"{prim.GetPath()}: {_DOME_IRRADIANCE} is only meaningful on DomeLights; ignored")
 
-    return EstimatorSettings(estimator=estimator, cv_alpha=cv_alpha, samples=samples,
+    return EstimatorSettings(estimator=estimator, estimator_authored=estimator_authored, cv_alpha=cv_alpha,
+                             samples=samples,
                              mis_heuristic=heuristic, dome_irradiance=irradiance)
 
 
@@ -119,4 +121,11 @@ def read_light_sampler(prim: Usd.Prim, ctx: ReadContext) -> str:
     """IllumRenderSettingsAPI ``illum:lightSampler``: '' when unauthored (the renderer chooses,
     as the schema fallback 'auto' says), else the validated token."""
     value, authored = _token(prim, ctx, _LIGHT_SAMPLER)
+    return value if authored else ""
+
+
+def read_default_estimator(prim: Usd.Prim, ctx: ReadContext) -> str:
+    """IllumRenderSettingsAPI ``illum:estimator``, the stage-wide default for lights whose own
+    estimator is unauthored: '' when unauthored (the schema fallback), else the validated token."""
+    value, authored = _token(prim, ctx, _ESTIMATOR)
     return value if authored else ""

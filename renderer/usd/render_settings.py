@@ -8,7 +8,7 @@ from renderer.description import RenderSettingsDesc
 from renderer.errors import SettingsError
 
 from .common import ReadContext
-from .estimator_api import read_light_sampler
+from .estimator_api import read_default_estimator, read_light_sampler
 
 __all__ = ["find_settings_prim", "read_render_settings", "MAX_SIDE", "MAX_PIXELS"]
 
@@ -149,6 +149,7 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
         material_binding_purposes=binding,
         product_name=product_name,
         light_sampler=read_light_sampler(settings, ctx),
+        estimator=read_default_estimator(settings, ctx),
     )
     return desc, bool(dof_off)
 

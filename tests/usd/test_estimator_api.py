@@ -38,7 +38,8 @@ def test_authored_attributes(stage):
     prim.GetAttribute("illum:samples").Set(4)
     prim.GetAttribute("illum:mis:heuristic").Set("balance")
     d = read(stage)
-    assert d.lights[0].estimator == EstimatorSettings("controlVariate", "averageVisibility", 4, "balance", "")
+    assert d.lights[0].estimator == EstimatorSettings("controlVariate", "averageVisibility", 4, "balance", "",
+                                                      estimator_authored=True)
     assert not d.warnings
 
 
@@ -131,3 +132,70 @@ def test_reader_does_not_depend_on_plugin_registration(tmp_path):
     expect = sorted((light.path, light.estimator.estimator, light.estimator.samples, light.estimator.cv_alpha)
                     for light in load_stage(str(path)).lights)
     assert out.stdout.strip() == str(expect)
+
+
+# ---------------------------------------------------------------------------------------------
+# The stage-wide default estimator (IllumRenderSettingsAPI illum:estimator, --estimator TOKEN)
+
+
+def _two_light_stage(path, default: str | None):
+    """A floor under two rect lights: /World/Authored says lightSampling, /World/Plain says nothing."""
+    from pxr import Usd
+    from tests.stage_builders import quad_light_stage
+
+    quad_light_stage(path)
+    stage = Usd.Stage.Open(str(path))
+    authored = UsdLux.RectLight.Define(stage, "/World/Authored")
+    UsdGeom.Xformable(authored).AddTranslateOp().Set((0.5, 2.0, 0.0))
+    UsdGeom.Xformable(authored).AddRotateXOp().Set(-90.0)
+    authored.GetPrim().ApplyAPI("IllumLightAPI")
+    authored.GetPrim().GetAttribute("illum:estimator").Set("lightSampling")
+    if default is not None:
+        rs = stage.GetPrimAtPath("/Render/Settings")
+        rs.ApplyAPI("IllumRenderSettingsAPI")
+        rs.GetAttribute("illum:estimator").Set(default)
+    stage.GetRootLayer().Save()
+
+
+def _estimators(stats):
+    return {li["path"]: li["estimator"] for li in stats["lights"]}
+
+
+@pytest.mark.parametrize("default", [None, "bsdfSampling"])
+def test_render_settings_default_applies_to_unauthored_lights_only(tmp_path, default):
+    from renderer.render import RenderOptions, render
+
+    path = tmp_path / "two.usda"
+    _two_light_stage(path, default)
+    r = render(str(path), RenderOptions(spp=1, max_depth=1, threads=1))
+    assert _estimators(r.stats) == {"/World/Light": default or "mis", "/World/Authored": "lightSampling"}
+    assert r.stats["default_estimator"] == (default or "mis")
+
+
+def test_cli_estimator_token_is_the_default_and_star_forces_every_light(tmp_path):
+    path = tmp_path / "two.usda"
+    _two_light_stage(path, "bsdfSampling")
+    out = {}
+    for name, flags in (("plain", ["--estimator", "controlVariate"]), ("star", ["--estimator", "*=controlVariate"]),
+                        ("one", ["--estimator", "/World/Authored=mis"])):
+        stats = tmp_path / f"{name}.json"
+        proc = subprocess.run([sys.executable, "-m", "renderer.cli", "render", str(path), "-o", str(tmp_path / f"{name}.exr"),
+                               "--spp", "1", "--max-depth", "1", "--res", "8", "8", "--stats", str(stats), *flags],
+                              cwd=REPO, capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        import json
+
+        out[name] = _estimators(json.loads(stats.read_text()))
+    assert out["plain"] == {"/World/Light": "controlVariate", "/World/Authored": "lightSampling"}
+    assert out["star"] == {"/World/Light": "controlVariate", "/World/Authored": "controlVariate"}
+    assert out["one"] == {"/World/Light": "bsdfSampling", "/World/Authored": "mis"}
+
+
+def test_bad_render_settings_default_names_the_attribute(tmp_path):
+    path = tmp_path / "two.usda"
+    _two_light_stage(path, "guess")
+    proc = subprocess.run([sys.executable, "-m", "renderer.cli", "render", str(path), "-o", str(tmp_path / "x.exr"),
+                           "--spp", "1"], cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "/Render/Settings" in proc.stderr and "illum:estimator" in proc.stderr and "guess" in proc.stderr
+    assert not (tmp_path / "x.exr").exists()

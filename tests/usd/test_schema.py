@@ -74,7 +74,8 @@ def test_registered_schema_matches_the_reader_fallbacks():
     assert light["illum:samples"][0] == "1" and light["illum:samples"][2] == "int"
     assert light["illum:dome:irradiance"][2] == "asset"
     rs = got["IllumRenderSettingsAPI"]
-    assert rs == {"illum:lightSampler": ["auto", list(estimator_api.LIGHT_SAMPLERS), "token"]}
+    assert rs == {"illum:lightSampler": ["auto", list(estimator_api.LIGHT_SAMPLERS), "token"],
+                  "illum:estimator": ["mis", list(estimator_api.ESTIMATORS), "token"]}
     assert got["can_apply"] == [True, False]
     assert "IllumIllumLightAPI" in got["tftype"]
 
