@@ -1,6 +1,6 @@
 """Progressive film: per-pixel running sums, a variance estimate, and EXR/PNG output.
 
-Policy for unusual samples (documented in the README):
+Policy for unusual samples (documented in docs/design.md, "Film policy"):
 * non-finite samples (NaN/Inf in any channel) are dropped -- the pixel's sample count is not
   increased -- and counted in ``nonfinite_dropped``; output can therefore never hold NaN/Inf;
 * negative samples are *kept* (the alpha = 1 control variate is unbiased only if they are) and

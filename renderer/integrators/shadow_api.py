@@ -21,7 +21,7 @@ ShadowAPI (UsdLux user doc, ShadowAPI; RenderMan's shadow distance/falloff contr
 
 v is then fractional (in [0, 1]); every estimator is linear in v, so MIS, light and BSDF
 sampling stay unbiased, and the control variate's alpha = v_bar is simply the mean of the
-fractional v (README, "Shaping and shadows").
+fractional v (docs/lights.md, "Shaping and shadows").
 """
 
 from __future__ import annotations

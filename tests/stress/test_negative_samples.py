@@ -9,7 +9,7 @@
   1/N and the 1/(N−1) form, the latter being what ``auto`` picks for N ≥ 2) and the ratio
   estimator on UsdPreviewSurface also produce negative samples: v̄F + Σ g(v − v̄)/p /(N−1) is
   negative when a blocked sample has a large g/p, and the residual f − g that both send to MIS
-  is negative where the diffuse lobe's k(wi) < 1. The README's film policy names only α = 1.
+  is negative where the diffuse lobe's k(wi) < 1. The film policy in docs/design.md lists all of these.
   The tests below pin the actual behaviour (negatives exist, are kept and counted) so that a
   change in either direction is noticed.
 """
