@@ -142,7 +142,9 @@ def test_absurd_resolution(tmp_path, res):
 def test_unknown_estimator_token(tmp_path):
     stage = tmp_path / "q.usda"
     quad_light_stage(stage)
-    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "/World/Light", "illum:estimator")
+    # refused before the stage is read: the flag's value is checked against the declaration
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "estimator: must be one of mis",
+           "got 'magic'")
     _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "/World/Nope=mis"), "/World/Nope")
 
 
