@@ -143,7 +143,7 @@ def test_unknown_estimator_token(tmp_path):
     stage = tmp_path / "q.usda"
     quad_light_stage(stage)
     # refused before the stage is read: the flag's value is checked against the declaration
-    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "estimator: must be one of mis",
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "estimator: all lights: must be one of mis",
            "got 'magic'")
     _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "/World/Nope=mis"), "/World/Nope")
 
