@@ -44,6 +44,9 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 PRIM_PATH = r"^/[^\x00-\x1f\x7f]*$"                   # a NUL would cut the path short in C++
 PRIM_PATH_OR_NAME = r"^(/[^\x00-\x1f\x7f]*|[A-Za-z_][A-Za-z0-9_]*)$"
 PURPOSE_TOKEN = r"^[A-Za-z_][A-Za-z0-9_]*$"
+_PATTERN_WORDS = {PRIM_PATH: "a prim path starting with '/'",
+                  PRIM_PATH_OR_NAME: "a prim path starting with '/' or a prim name",
+                  PURPOSE_TOKEN: "a purpose token such as default, render or proxy"}
 
 
 def _estimator_tokens() -> tuple[str, ...]:
@@ -125,6 +128,8 @@ class Option:
         """The allowed values in words, for help text and error messages."""
         if self.choices is not None:
             return "one of " + ", ".join(self.choices())
+        if self.pattern is not None:
+            return _PATTERN_WORDS.get(self.pattern, "of the form " + self.pattern)
         lo, hi = _num(self.lo), _num(self.hi)
         if self.lo is not None and self.hi is not None:
             return f"in {'(' if self.lo_open else '['}{lo}, {hi}]"
@@ -218,9 +223,7 @@ def _check_one(o: Option, kind: str, v) -> None:
         if len(v) > o.max_length:
             raise ValueError(f"is longer than {o.max_length} characters")
         if o.pattern and not re.match(o.pattern, v):
-            what = {PRIM_PATH: "a prim path starting with '/'", PRIM_PATH_OR_NAME: "a prim path starting with '/' "
-                    "or a prim name", PURPOSE_TOKEN: "a purpose token such as default, render or proxy"}
-            raise ValueError(f"must be {what.get(o.pattern, 'of the form ' + o.pattern)}, got {v!r}")
+            raise ValueError(f"must be {o.bounds_text()}, got {v!r}")
         return
     if kind in ("int", "float"):
         too_low = o.lo is not None and (v <= o.lo if o.lo_open else v < o.lo)
@@ -412,7 +415,9 @@ def options_from_args(a, route: str):
 
 def routes_of(o: Option) -> dict:
     """{route: the spelling on that route, or None} (for the docs table)."""
-    return {"render": ", ".join(o.flags) if "render" in o.routes else None,
-            "submit": ", ".join(o.flags) if "submit" in o.routes else None,
+    flags = ", ".join((*o.flags, *("--no-" + f[2:] for f in o.flags if f.startswith("--"))) if o.kind == "bool"
+                      else o.flags)
+    return {"render": flags if "render" in o.routes else None,
+            "submit": flags if "submit" in o.routes else None,
             "api": f"settings.{o.api_name}" if "api" in o.routes and o.api_name else None}
 
