@@ -11,111 +11,22 @@ import os
 import sys
 import time
 
-from .errors import IllumError, SettingsError
+from .errors import IllumError
 
 
-def _positive_int(name):
-    def conv(s):
-        try:
-            v = int(s)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"--{name} expects an integer, got {s!r}")
-        return v
-    return conv
+def add_render_flags(p: argparse.ArgumentParser, route: str = "render") -> None:
+    """The render flags of `illum render` (route "render") or `illum submit` (route "submit"):
+    every option renderer/options.py declares for that route."""
+    from .options import add_flags
+
+    add_flags(p, route)
 
 
-def _float(name):
-    def conv(s):
-        try:
-            return float(s)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"--{name} expects a number, got {s!r}")
-    return conv
+def options_from_args(a, route: str = "render") -> "RenderOptions":
+    """Parsed render flags -> a validated RenderOptions (SettingsError, exit 2, on a bad value)."""
+    from .options import options_from_args as from_args
 
-
-def _overrides(values: list[str] | None, flag: str) -> dict:
-    """Parse repeatable `TOKEN` or `*=TOKEN` (all lights, key '') or `/Path/To/Light=TOKEN`
-    (one light) flags."""
-    out: dict = {}
-    for v in values or []:
-        if "=" in v:
-            path, token = v.split("=", 1)
-            if path == "*":
-                path = ""
-            elif not path.startswith("/"):
-                raise SettingsError(f"expected /Path/To/Light=VALUE or *=VALUE, got {v!r}", attribute=flag)
-            out[path] = token
-        else:
-            out[""] = v
-    return out
-
-
-def _estimator_flags(values: list[str] | None) -> tuple[dict, str | None]:
-    """--estimator: plain TOKEN is the stage-wide default (lights whose illum:estimator is
-    unauthored); *=TOKEN forces every light; /Path=TOKEN one light. Returns (overrides, default)."""
-    plain = [v for v in values or [] if "=" not in v]
-    return _overrides([v for v in values or [] if "=" in v], "estimator"), (plain[-1] if plain else None)
-
-
-def add_render_flags(p: argparse.ArgumentParser) -> None:
-    """Render flags shared by `illum render` and `illum submit`."""
-    p.add_argument("--spp", type=_positive_int("spp"), help="samples per pixel (default 64, or the time budget)")
-    p.add_argument("--time-budget", type=_float("time-budget"), metavar="SECONDS",
-                   help="stop after this many seconds of rendering")
-    p.add_argument("--res", nargs=2, type=_positive_int("res"), metavar=("W", "H"), help="resolution override")
-    p.add_argument("--camera", help="camera prim path (default: RenderSettings camera, else the first camera)")
-    p.add_argument("--settings", help="RenderSettings prim path (default: the stage's renderSettingsPrimPath)")
-    p.add_argument("--frame", type=_float("frame"), help="time code to render")
-    p.add_argument("--seed", type=_positive_int("seed"), default=0)
-    p.add_argument("--max-depth", type=_positive_int("max-depth"), default=8,
-                   help="scattering events: 0 = emitters only, 1 = direct lighting (pbrt's maxdepth)")
-    p.add_argument("--light-sampler", default="auto", help="lighting service: auto, exhaustive, uniform, power, bvh (auto: by light count)")
-    p.add_argument("--emitter-samples", type=_positive_int("emitter-samples"), default=0, metavar="K",
-                   help="camera rays per pixel and pass that see emitters directly (one continues as the "
-                        "path): anti-aliases small bright lights on screen; 0 = auto (2 where subpixel "
-                        "lights touch >= 1%% of the pixels, else 1)")
-    p.add_argument("--no-fast-path", dest="fast_path", action="store_false",
-                   help="always use the general integrator, even where the scene qualifies for the compiled "
-                        "path vertex (stats 'fast_path' says whether it ran and why not)")
-    p.add_argument("--estimator", action="append", metavar="[/Light=|*=]TOKEN",
-                   help="direct-lighting estimator: TOKEN is the default for lights whose illum:estimator is "
-                        "not authored (overrides RenderSettings illum:estimator), *=TOKEN forces every light, "
-                        "/Path=TOKEN one light (repeatable); tokens: mis, lightSampling, bsdfSampling, "
-                        "controlVariate, ratio, auto")
-    p.add_argument("--cv-alpha", action="append", metavar="[/Light=]TOKEN")
-    p.add_argument("--light-samples", action="append", metavar="[/Light=]N")
-    p.add_argument("--purpose", action="append", help="purposes to render (default: RenderSettings includedPurposes)")
-
-
-def options_from_args(a) -> "RenderOptions":
-    from .render import RenderOptions
-
-    samples = {}
-    for k, v in _overrides(a.light_samples, "light-samples").items():
-        try:
-            samples[k] = int(v)
-        except ValueError:
-            raise SettingsError(f"expected an integer, got {v!r}", attribute="light-samples")
-    estimator, default_estimator = _estimator_flags(a.estimator)
-    return RenderOptions(
-        spp=a.spp,
-        time_budget=a.time_budget,
-        resolution=tuple(a.res) if a.res else None,
-        camera=a.camera,
-        settings=a.settings,
-        frame=a.frame,
-        purposes=tuple(a.purpose) if a.purpose else None,
-        seed=a.seed,
-        threads=getattr(a, "threads", None),
-        max_depth=a.max_depth,
-        light_sampler=a.light_sampler,
-        emitter_samples=a.emitter_samples,
-        fast_path=a.fast_path,
-        estimator=estimator,
-        default_estimator=default_estimator,
-        cv_alpha=_overrides(a.cv_alpha, "cv-alpha"),
-        light_samples=samples,
-    )
+    return from_args(a, route)
 
 
 class _Progress:
@@ -185,8 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render a USD stage to EXR")
     r.add_argument("stage", help=".usda/.usdc/.usdz stage")
     r.add_argument("-o", "--output", help="output EXR (default: the RenderProduct's productName, else STAGE.exr)")
-    add_render_flags(r)
-    r.add_argument("--threads", type=_positive_int("threads"), help="worker threads (default: all cores)")
+    add_render_flags(r, "render")
     r.add_argument("--preview", metavar="OUT.png", help="also write an sRGB PNG preview")
     r.add_argument("--stats", metavar="OUT.json", help="write render statistics as JSON")
     r.add_argument("--quiet", action="store_true")

@@ -13,7 +13,7 @@ import math
 import os
 import platform
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 import numpy as np
@@ -21,6 +21,7 @@ import numpy as np
 from .allocator import tune_allocator
 from .errors import SettingsError
 from .film import Film, write_exr, write_png
+from .options import make_options_class
 
 __all__ = ["RenderOptions", "RenderResult", "render", "write_outputs", "VERSION"]
 
@@ -28,60 +29,18 @@ VERSION = "0.1.0"
 DEFAULT_SPP = 64
 
 
-@dataclass
-class RenderOptions:
+# One field per option declared in renderer/options.py (the CLI flags and the service's request
+# model come from the same declaration); validate() checks each against its declaration.
+RenderOptions = make_options_class(__name__, "RenderOptions", doc=(
     """What the user asked for; None means "use the stage's RenderSettings or our default".
 
+    The fields, their defaults and bounds are declared in renderer/options.py (OPTIONS).
     resolution: (width, height) override. time_budget: seconds of rendering (load and build
     excluded). spp: samples per pixel; with a time budget and no spp the budget alone decides.
-    """
-
-    spp: Optional[int] = None
-    time_budget: Optional[float] = None
-    resolution: Optional[tuple[int, int]] = None
-    camera: Optional[str] = None
-    settings: Optional[str] = None
-    frame: Optional[float] = None
-    purposes: Optional[tuple[str, ...]] = None
-    seed: int = 0
-    threads: Optional[int] = None
-    max_depth: int = 8
-    rr_depth: int = 3
-    light_sampler: str = "auto"
-    emitter_samples: int = 0                            # camera samples of emitters seen directly; 0 = auto
-    fast_path: bool = True                              # compiled path vertex where the scene qualifies
-    estimator: dict = field(default_factory=dict)       # {"": token} for all lights or {path: token}
-    default_estimator: Optional[str] = None             # for lights whose illum:estimator is unauthored
-    cv_alpha: dict = field(default_factory=dict)
-    light_samples: dict = field(default_factory=dict)
-
-    def validate(self) -> None:
-        def bad(name, msg):
-            raise SettingsError(msg, attribute=name)
-
-        if self.spp is not None and (not isinstance(self.spp, (int, np.integer)) or self.spp < 1):
-            bad("spp", f"must be a positive integer, got {self.spp!r}")
-        if self.spp is not None and self.spp > 1_000_000:
-            bad("spp", f"{self.spp} exceeds the limit of 1000000")
-        if self.time_budget is not None and not (math.isfinite(self.time_budget) and self.time_budget > 0):
-            bad("time_budget", f"must be a positive number of seconds, got {self.time_budget!r}")
-        if not isinstance(self.max_depth, (int, np.integer)) or not (0 <= self.max_depth <= 1024):
-            bad("max_depth", f"must be an integer in [0, 1024], got {self.max_depth!r}")
-        if not isinstance(self.emitter_samples, (int, np.integer)) or not (0 <= self.emitter_samples <= 64):
-            bad("emitter_samples", f"must be an integer in [0, 64] (0 = auto), got {self.emitter_samples!r}")
-        if self.threads is not None and not (1 <= self.threads <= 256):
-            bad("threads", f"must be in [1, 256], got {self.threads!r}")
-        if self.default_estimator is not None:
-            from .estimators import TOKENS
-
-            if self.default_estimator not in TOKENS:
-                bad("estimator", f"{self.default_estimator!r} is not one of {', '.join(TOKENS)}")
-        if self.frame is not None and not math.isfinite(self.frame):
-            bad("frame", f"must be finite, got {self.frame!r}")
-        if self.resolution is not None:
-            from .camera import check_resolution
-
-            check_resolution(int(self.resolution[0]), int(self.resolution[1]), "resolution")
+    estimator / cv_alpha / light_samples: {"": value} for all lights or {light path: value}.
+    default_estimator: the estimator of lights whose illum:estimator is unauthored (None: the
+    stage's IllumRenderSettingsAPI illum:estimator, else mis).
+    """))
 
 
 @dataclass
@@ -216,6 +175,9 @@ def render(
         "passes_this_run": passes,
         "seed": opt.seed,
         "threads": threads,
+        # What render() was asked for, every declared option (tests/service/test_options.py checks
+        # that each reaches it through `illum render`, `illum submit` and the HTTP API).
+        "options": opt.as_json(),
         "max_depth": opt.max_depth,
         "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
         # What lights without an authored illum:estimator use (--estimator TOKEN, else

@@ -65,7 +65,7 @@ def register_cli(subparsers) -> None:
     sub.add_argument("--wait", action="store_true", help="follow the job with a progress bar until it ends")
     sub.add_argument("-o", "--output", default=None, help="download the final image here (.exr or .png; implies --wait)")
     sub.add_argument("--quiet", action="store_true")
-    add_render_flags(sub)
+    add_render_flags(sub, "submit")
     sub.set_defaults(func=cmd_submit)
 
     j = subparsers.add_parser("jobs", help="list a render service's jobs (or show, cancel, delete one)")
@@ -214,7 +214,7 @@ def cmd_submit(a) -> int:
     from .models import settings_from_options
 
     if a.kind == "render":
-        settings = settings_from_options(options_from_args(a))
+        settings = settings_from_options(options_from_args(a, "submit"))
     else:
         settings = {k: v for k, v in (("size", a.size), ("method", a.method)) if v is not None}
     with _client(a) as client:

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
-import re
-from typing import Annotated, Literal, Optional, Union
+from typing import Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, StringConstraints, ValidationError, field_validator
+from pydantic import (BaseModel, ConfigDict, Field, StrictBool, StrictInt, ValidationError, ValidationInfo,
+                      create_model, field_validator)
+
+from renderer import options
 
 from .config import Limits
 from .paths import InputError
@@ -23,105 +24,64 @@ __all__ = ["JobCreate", "RenderSettings", "PreconvolveSettings", "validate_setti
            "request_hash", "DEFAULT_SPP"]
 
 DEFAULT_SPP = 64
-_LIGHT_KEY = "a light prim path starting with '/', or '' for all lights"
-MAX_PER_LIGHT_ENTRIES = 4096
-# A prim path: starts with '/', no control characters (a NUL would cut the path short in C++).
-PRIM_PATH = r"^/[^\x00-\x1f\x7f]*$"
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
 
-def _per_light(value, field: str, check) -> dict:
-    """`TOKEN` (all lights) or {"/Light": TOKEN, "": TOKEN} -> dict, each value checked."""
-    table = value if isinstance(value, dict) else {"": value}
-    if len(table) > MAX_PER_LIGHT_ENTRIES:
-        raise ValueError(f"has {len(table)} entries, more than the limit of {MAX_PER_LIGHT_ENTRIES}")
-    out = {}
-    for key, v in table.items():
-        if (not isinstance(key, str) or (key and not key.startswith("/")) or len(key) > 1024
-                or _CONTROL.search(key)):
-            raise ValueError(f"key {key!r} must be {_LIGHT_KEY}")
-        out[key] = check(v)
-    return out
+def _annotation(o):
+    """The pydantic type of option ``o``'s request value (strict: JSON "4" is not an integer)."""
+    one = {"int": StrictInt, "float": float, "bool": StrictBool, "str": str}
+    if o.kind == "int_pair":
+        t = list[StrictInt]  # the check wants two; a list, as the job stores it (JSON)
+    elif o.kind == "str_list":
+        t = list[str]
+    elif o.kind == "per_light":
+        t = Union[one[o.item], dict[str, one[o.item]]]
+    else:
+        t = one[o.kind]
+    return Optional[t] if o.default is None else t
 
 
-class RenderSettings(BaseModel):
-    """Settings of a ``render`` job; each maps onto the ``illum render`` flag of the same name."""
+def _schema(o) -> dict:
+    """Bounds and allowed values for the OpenAPI page (the check itself is the declaration's)."""
+    extra: dict = {}
+    if o.lo is not None:
+        extra["exclusiveMinimum" if o.lo_open else "minimum"] = o.lo
+    if o.hi is not None and o.kind not in ("str_list",):
+        extra["maximum"] = o.hi
+    if o.choices is not None:
+        extra["enum"] = list(o.choices())
+    if o.example is not None:
+        extra["examples"] = [options.to_json(o, o.example)]
+    return extra
 
-    model_config = ConfigDict(extra="forbid")
 
-    spp: Optional[StrictInt] = Field(None, ge=1, description="samples per pixel (default 64 unless time_budget is given)")
-    time_budget: Optional[float] = Field(None, gt=0, description="seconds of rendering (load and BVH build excluded)")
-    resolution: Optional[tuple[StrictInt, StrictInt]] = Field(None, description="[width, height] override")
-    camera: Optional[str] = Field(None, max_length=1024, pattern=PRIM_PATH, description="camera prim path")
-    settings_prim: Optional[str] = Field(None, max_length=1024, pattern=PRIM_PATH,
-                                         description="RenderSettings prim path")
-    frame: Optional[float] = Field(None, description="time code")
-    purposes: Optional[list[Annotated[str, StringConstraints(max_length=64, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]]] = \
-        Field(None, max_length=16, description="included purposes (tokens such as default, render, proxy)")
-    seed: StrictInt = Field(0, ge=0, le=2**31 - 1)
-    max_depth: StrictInt = Field(8, ge=0, le=256)
-    rr_depth: StrictInt = Field(3, ge=0, le=256)
-    light_sampler: str = Field("auto", max_length=64, description="auto, or a lighting service the renderer has "
-                                                                  "(renderer.light_samplers.SAMPLERS)")
-    estimator: Union[str, dict[str, str]] = Field(default_factory=dict,
-                                                  description="token for all lights, or {light path: token}")
-    cv_alpha: Union[str, dict[str, str]] = Field(default_factory=dict)
-    light_samples: Union[StrictInt, dict[str, StrictInt]] = Field(default_factory=dict)
+def _check_option(cls, v, info: ValidationInfo):
+    """Every field: normalise as RenderOptions holds it, check against the declaration, and
+    return the JSON form the job stores."""
+    o = options.BY_API[info.field_name]
+    value = options.normalise(o, v)
+    options.check(o, value)  # ValueError -> 422 naming settings.<field>
+    return options.to_json(o, value)
 
-    @field_validator("frame", "time_budget")
-    @classmethod
-    def _finite(cls, v):
-        if v is not None and not math.isfinite(v):
-            raise ValueError("must be finite")
-        return v
 
-    @field_validator("resolution")
-    @classmethod
-    def _positive(cls, v):
-        if v is not None and (v[0] < 1 or v[1] < 1):
-            raise ValueError("width and height must be positive")
-        return v
+def _request_model():
+    """The ``render`` job settings model: one field per option renderer/options.py offers on the
+    HTTP API, named as the declaration's ``api`` name."""
+    api = [o for o in options.OPTIONS if "api" in o.routes and o.api_name]
+    fields = {}
+    for o in api:
+        default = Field(default_factory=o.default_value) if isinstance(o.default, dict) else Field(o.default)
+        default.description = o.help
+        default.json_schema_extra = _schema(o)
+        fields[o.api_name] = (_annotation(o), default)
+    validator = field_validator(*(o.api_name for o in api))(_check_option)
+    model = create_model("RenderSettings", __config__=ConfigDict(extra="forbid"), __module__=__name__,
+                         __validators__={"_check_option": validator}, **fields)
+    model.__doc__ = ("Settings of a ``render`` job; each is a render option declared in renderer/options.py, "
+                     "the same as an ``illum render`` flag.")
+    return model
 
-    @field_validator("light_sampler")
-    @classmethod
-    def _sampler(cls, v):
-        from renderer.light_samplers import SAMPLERS
 
-        names = ("auto", *sorted(SAMPLERS))
-        if v not in names:
-            raise ValueError(f"{v!r} is not one of {', '.join(names)}")
-        return v
-
-    @field_validator("estimator")
-    @classmethod
-    def _estimator(cls, v):
-        from renderer.estimators import TOKENS
-
-        def check(t):
-            if t not in TOKENS:
-                raise ValueError(f"{t!r} is not one of {', '.join(TOKENS)}")
-            return t
-        return _per_light(v, "estimator", check)
-
-    @field_validator("cv_alpha")
-    @classmethod
-    def _alpha(cls, v):
-        from renderer.estimators import ALPHAS
-
-        def check(t):
-            if t not in ALPHAS:
-                raise ValueError(f"{t!r} is not one of {', '.join(ALPHAS)}")
-            return t
-        return _per_light(v, "cv_alpha", check)
-
-    @field_validator("light_samples")
-    @classmethod
-    def _samples(cls, v):
-        def check(n):
-            if not isinstance(n, int) or not 1 <= n <= 4096:
-                raise ValueError(f"{n!r} must be an integer in [1, 4096]")
-            return n
-        return _per_light(v, "light_samples", check)
+RenderSettings = _request_model()
 
 
 class PreconvolveSettings(BaseModel):
@@ -164,7 +124,8 @@ class JobCreate(BaseModel):
 def _validation_error(prefix: str, err: ValidationError) -> InputError:
     e = err.errors()[0]
     loc = ".".join(str(p) for p in (prefix, *e["loc"]))
-    msg = e["msg"]
+    # A declaration's check (renderer/options.py) says the same words as on the command line.
+    msg = e["msg"].removeprefix("Value error, ")
     return InputError(422, loc, msg)
 
 
@@ -192,7 +153,6 @@ def validate_settings(kind: str, settings: dict, limits: Limits) -> dict:
         out = s.model_dump()
         if out["spp"] is None and out["time_budget"] is None:
             out["spp"] = DEFAULT_SPP
-        out["resolution"] = list(out["resolution"]) if out["resolution"] else None
         return out
     if kind == "preconvolve":
         try:
@@ -214,60 +174,26 @@ def request_hash(kind: str, stage_name: str, settings: dict, priority: int, max_
 
 def render_options(settings: dict, *, threads: int | None = None, max_time: float | None = None):
     """Stored (normalised) settings -> RenderOptions. ``max_time`` caps the time budget, so a
-    job with only an spp target still cannot run forever."""
+    job with only an spp target still cannot run forever. A setting a stored job lacks (one from
+    before the option existed) takes the declaration's default."""
     from renderer.render import RenderOptions
 
-    budget = settings.get("time_budget")
+    kw = {o.name: options.normalise(o, settings.get(o.api_name)) for o in options.OPTIONS
+          if "api" in o.routes and o.api_name}
+    budget = kw.get("time_budget")
     if max_time is not None:
-        budget = min(budget, max_time) if budget is not None else max_time
-    res = settings.get("resolution")
-    return RenderOptions(
-        spp=settings.get("spp"),
-        time_budget=budget,
-        resolution=(int(res[0]), int(res[1])) if res else None,
-        camera=settings.get("camera"),
-        settings=settings.get("settings_prim"),
-        frame=settings.get("frame"),
-        purposes=tuple(settings["purposes"]) if settings.get("purposes") else None,
-        seed=int(settings.get("seed", 0)),
-        threads=threads,
-        max_depth=int(settings.get("max_depth", 8)),
-        rr_depth=int(settings.get("rr_depth", 3)),
-        light_sampler=settings.get("light_sampler", "auto"),
-        estimator=dict(settings.get("estimator") or {}),
-        cv_alpha=dict(settings.get("cv_alpha") or {}),
-        light_samples={k: int(v) for k, v in (settings.get("light_samples") or {}).items()},
-    )
+        kw["time_budget"] = min(budget, max_time) if budget is not None else max_time
+    return RenderOptions(threads=threads, **kw)
 
 
 def settings_from_options(opt) -> dict:
     """RenderOptions (e.g. from ``illum submit`` flags) -> a settings dict for POST /jobs,
     leaving out what equals the default so the server's defaults apply."""
     out: dict = {}
-    if opt.spp is not None:
-        out["spp"] = int(opt.spp)
-    if opt.time_budget is not None:
-        out["time_budget"] = float(opt.time_budget)
-    if opt.resolution is not None:
-        out["resolution"] = [int(opt.resolution[0]), int(opt.resolution[1])]
-    if opt.camera:
-        out["camera"] = opt.camera
-    if opt.settings:
-        out["settings_prim"] = opt.settings
-    if opt.frame is not None:
-        out["frame"] = float(opt.frame)
-    if opt.purposes:
-        out["purposes"] = list(opt.purposes)
-    if opt.seed:
-        out["seed"] = int(opt.seed)
-    if opt.max_depth != 8:
-        out["max_depth"] = int(opt.max_depth)
-    if opt.rr_depth != 3:
-        out["rr_depth"] = int(opt.rr_depth)
-    if opt.light_sampler and opt.light_sampler != "auto":
-        out["light_sampler"] = opt.light_sampler
-    for name in ("estimator", "cv_alpha", "light_samples"):
-        table = getattr(opt, name)
-        if table:
-            out[name] = dict(table)
+    for o in options.OPTIONS:
+        if "api" not in o.routes or not o.api_name:
+            continue
+        v = getattr(opt, o.name)
+        if v != o.default_value():
+            out[o.api_name] = options.to_json(o, v)
     return out

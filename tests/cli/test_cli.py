@@ -142,9 +142,12 @@ def test_absurd_resolution(tmp_path, res):
 def test_unknown_estimator_token(tmp_path):
     stage = tmp_path / "q.usda"
     quad_light_stage(stage)
-    # The plain token is the stage-wide default: refused as a flag value before the stage loads.
-    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "estimator", "magic")
-    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "*=magic"), "/World/Light", "illum:estimator")
+    # Refused before the stage is read: the flag's value is checked against the declaration. The
+    # plain token is the stage-wide default; *=TOKEN forces every light.
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "magic"), "default_estimator",
+           "must be one of mis", "got 'magic'")
+    _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "*=magic"),
+           "estimator: all lights: must be one of mis", "got 'magic'")
     _error(illum("render", stage, "-o", tmp_path / "o.exr", "--estimator", "/World/Nope=mis"), "/World/Nope")
 
 

@@ -90,8 +90,12 @@ def test_submit_errors_are_one_line(server, illum, tmp_path):
     r = illum("submit", "../etc/passwd.usda", "--server", server.url)
     assert r.returncode == 2
     assert r.stderr.startswith("illum: error: stage: ") and "outside the stage root" in r.stderr
+    # within the option's own bound but beyond this server's --max-spp (65536): the server refuses it
+    r = illum("submit", "cornell_box.usda", "--server", server.url, "--spp", "100000")
+    assert r.returncode == 2 and "settings.spp" in r.stderr and "server limit" in r.stderr
+    # beyond the option's bound: refused before anything is sent
     r = illum("submit", "cornell_box.usda", "--server", server.url, "--spp", "99999999")
-    assert r.returncode == 2 and "settings.spp" in r.stderr
+    assert r.returncode == 2 and r.stderr == "illum: error: spp: must be an integer in [1, 1000000], got 99999999\n"
     bad = tmp_path / "bad.usda"
     bad.write_text("#usda 1.0\n(((\n")
     r = illum("submit", str(bad), "--upload", "--server", server.url, "--wait")
