@@ -72,6 +72,14 @@ def add_render_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cv-alpha", action="append", metavar="[/Light=]TOKEN")
     p.add_argument("--light-samples", action="append", metavar="[/Light=]N")
     p.add_argument("--purpose", action="append", help="purposes to render (default: RenderSettings includedPurposes)")
+    p.add_argument("--pixel-filter", metavar="NAME",
+                   help="pixel filter: gaussian (default, sigma = width / 3), box, blackman-harris "
+                        "(default: RenderSettings illum:pixelFilter)")
+    p.add_argument("--pixel-filter-width", type=_float("pixel-filter-width"), metavar="PX",
+                   help="pixel filter radius in pixels, in [0.5, 8] (default 1.5; 0.5 for box)")
+    p.add_argument("--pixel-filter-mode", metavar="MODE",
+                   help="splat (default: each sample adds filter-weighted into every pixel it covers) or "
+                        "importance (filter importance sampling: a sample drawn from the filter, weight 1)")
 
 
 def options_from_args(a) -> "RenderOptions":
@@ -100,6 +108,9 @@ def options_from_args(a) -> "RenderOptions":
         estimator=_overrides(a.estimator, "estimator"),
         cv_alpha=_overrides(a.cv_alpha, "cv-alpha"),
         light_samples=samples,
+        pixel_filter=a.pixel_filter,
+        pixel_filter_width=a.pixel_filter_width,
+        pixel_filter_mode=a.pixel_filter_mode,
     )
 
 

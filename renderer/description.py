@@ -153,6 +153,9 @@ class RenderSettingsDesc:
     data_window_ndc: (xmin, ymin, xmax, ymax), (0,0) bottom-left.
     product_name: default output path ('' when none).
     light_sampler: from IllumRenderSettingsAPI ('' when unauthored: the renderer picks by light count).
+    pixel_filter, pixel_filter_width, pixel_filter_mode: IllumRenderSettingsAPI's illum:pixelFilter
+    (token), illum:pixelFilter:width (radius in pixels) and illum:pixelFilter:mode (token); ''
+    or 0.0 when unauthored (renderer/pixel_filter.py's defaults apply).
     """
 
     path: str = ""
@@ -165,6 +168,9 @@ class RenderSettingsDesc:
     material_binding_purposes: tuple = ("full", "")
     product_name: str = ""
     light_sampler: str = ""
+    pixel_filter: str = ""
+    pixel_filter_width: float = 0.0
+    pixel_filter_mode: str = ""
 
 
 # --------------------------------------------------------------------------------------
