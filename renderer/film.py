@@ -77,6 +77,17 @@ def _add_kernel(rows, L, flat_sum, flat_sq, flat_n):
     return dropped, negative
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _profile_row(s, j0, j1, values, scale, out):
+    """out[j - j0] = f1(|s - (j + 0.5)|) for pixels j0..j1 of one axis, lerped in values (V,)
+    (f1 at evenly spaced |x| in [0, radius], scale = (V - 1) / radius); 0 from the radius on."""
+    last = values.shape[0] - 1
+    for j in range(j0, j1 + 1):
+        t = abs(s - (j + 0.5)) * scale
+        q = int(t)
+        out[j - j0] = values[q] + (t - q) * (values[q + 1] - values[q]) if q < last else 0.0
+
+
 @njit(cache=True, nogil=True)
 def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, flat_sq, flat_w2x, flat_weight,
                   flat_n):
@@ -94,7 +105,6 @@ def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, fla
         if rows[i] < 0 or rows[i] >= m:
             return -1, -1
     scale = (values.shape[0] - 1) / radius
-    last = values.shape[0] - 1
     span = int(math.ceil(2.0 * radius)) + 1
     wx = np.empty(span)
     wy = np.empty(span)
@@ -121,14 +131,8 @@ def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, fla
         jx1 = min(int(math.ceil(sx - 0.5 + radius)) - 1, width - 1)
         jy0 = max(int(math.floor(sy - 0.5 - radius)) + 1, 0)
         jy1 = min(int(math.ceil(sy - 0.5 + radius)) - 1, height - 1)
-        for j in range(jx0, jx1 + 1):
-            t = abs(sx - (j + 0.5)) * scale
-            q = int(t)
-            wx[j - jx0] = values[q] + (t - q) * (values[q + 1] - values[q]) if q < last else 0.0
-        for j in range(jy0, jy1 + 1):
-            t = abs(sy - (j + 0.5)) * scale
-            q = int(t)
-            wy[j - jy0] = values[q] + (t - q) * (values[q + 1] - values[q]) if q < last else 0.0
+        _profile_row(sx, jx0, jx1, values, scale, wx)
+        _profile_row(sy, jy0, jy1, values, scale, wy)
         for y in range(jy0, jy1 + 1):
             for x in range(jx0, jx1 + 1):
                 w = wy[y - jy0] * wx[x - jx0]

@@ -155,15 +155,6 @@ def test_variance_estimate_is_unbiased_for_a_known_variance(mode):
         assert Dp.mean() / (Dp.std(ddof=1) / math.sqrt(Dp.size)) > 4.0
 
 
-def test_importance_variance_is_the_sample_variance_over_n():
-    rng = np.random.default_rng(1)
-    film = Film(3, 2)
-    xs = rng.random((50, 6, 3))
-    for k in range(50):
-        film.add(np.arange(6), xs[k])
-    np.testing.assert_allclose(film.variance_of_mean().reshape(6, 3), xs.var(axis=0, ddof=1) / 50, rtol=1e-9)
-
-
 def test_splat_of_a_constant_is_exact_everywhere_and_drops_nonfinite():
     """A constant image stays constant to rounding, the window's edge pixels included (their
     footprint is weighed over the part inside the window); NaN/Inf samples are dropped."""
