@@ -155,6 +155,9 @@ class RenderSettingsDesc:
     light_sampler: from IllumRenderSettingsAPI ('' when unauthored: the renderer picks by light count).
     estimator: IllumRenderSettingsAPI's stage-wide default estimator for lights whose own
         illum:estimator is unauthored ('' when unauthored: the schema fallback, mis).
+    pixel_filter, pixel_filter_width, pixel_filter_mode: IllumRenderSettingsAPI's illum:pixelFilter
+    (token), illum:pixelFilter:width (radius in pixels) and illum:pixelFilter:mode (token); ''
+    or 0.0 when unauthored (renderer/pixel_filter.py's defaults apply).
     """
 
     path: str = ""
@@ -168,6 +171,9 @@ class RenderSettingsDesc:
     product_name: str = ""
     light_sampler: str = ""
     estimator: str = ""
+    pixel_filter: str = ""
+    pixel_filter_width: float = 0.0
+    pixel_filter_mode: str = ""
 
 
 # --------------------------------------------------------------------------------------

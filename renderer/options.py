@@ -70,6 +70,18 @@ def _light_samplers() -> tuple[str, ...]:
     return ("auto", *sorted(SAMPLERS))
 
 
+def _pixel_filters() -> tuple[str, ...]:
+    from .pixel_filter import FILTERS
+
+    return FILTERS
+
+
+def _pixel_filter_modes() -> tuple[str, ...]:
+    from .pixel_filter import MODES
+
+    return MODES
+
+
 def _resolution_limits(v) -> None:
     """The renderer's own limits on image size (renderer.camera.check_resolution)."""
     from .camera import check_resolution
@@ -196,6 +208,17 @@ OPTIONS: tuple[Option, ...] = (
     Option("cv_alpha", "per_light", {}, "the control variate's alpha for all lights, or /Light=TOKEN for one "
            "(repeatable)", flags=("--cv-alpha",), metavar="[/Light=|*=]TOKEN", choices=_alpha_tokens,
            max_length=64, example={"": "one"}),
+    Option("pixel_filter", "str", None, "pixel reconstruction filter (default: RenderSettings illum:pixelFilter, "
+           "else gaussian)", flags=("--pixel-filter",), metavar="NAME", choices=_pixel_filters, max_length=64,
+           example="blackman-harris"),
+    # Bounds: renderer/pixel_filter.py MIN_RADIUS, MAX_RADIUS.
+    Option("pixel_filter_width", "float", None, "pixel filter radius in pixels (default: the filter's own, 1.5 for "
+           "gaussian and blackman-harris, 0.5 for box)", flags=("--pixel-filter-width",), metavar="PX", lo=0.5,
+           hi=8.0, example=2.0),
+    Option("pixel_filter_mode", "str", None, "splat: each sample adds filter-weighted radiance to every pixel under "
+           "the filter; importance: samples drawn from the filter add to their own pixel (default: RenderSettings "
+           "illum:pixelFilter:mode, else splat)", flags=("--pixel-filter-mode",), metavar="MODE",
+           choices=_pixel_filter_modes, max_length=64, example="importance"),
     Option("light_samples", "per_light", {}, "light samples per shading point for all lights, or /Light=N for "
            "one (repeatable)", flags=("--light-samples",), metavar="[/Light=|*=]N", item="int", lo=1, hi=4096,
            example={"": 2}),

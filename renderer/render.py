@@ -22,6 +22,7 @@ from .allocator import tune_allocator
 from .errors import SettingsError
 from .film import Film, write_exr, write_png
 from .options import make_options_class
+from .pixel_filter import jitter
 
 __all__ = ["RenderOptions", "RenderResult", "render", "write_outputs", "VERSION"]
 
@@ -40,6 +41,8 @@ RenderOptions = make_options_class(__name__, "RenderOptions", doc=(
     estimator / cv_alpha / light_samples: {"": value} for all lights or {light path: value}.
     default_estimator: the estimator of lights whose illum:estimator is unauthored (None: the
     stage's IllumRenderSettingsAPI illum:estimator, else mis).
+    pixel_filter, pixel_filter_width, pixel_filter_mode: None means the RenderSettings'
+    illum:pixelFilter attributes, else renderer/pixel_filter.py's defaults.
     """))
 
 
@@ -110,11 +113,18 @@ def render(
     settings = desc.settings
     width, height = opt.resolution or settings.resolution
     width, height = int(width), int(height)
-    camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy)
+    pixel_filter, mode = _pixel_filter(opt, settings)
+    splat = pixel_filter if mode == "splat" else None
+    camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy,
+                    sample_filter=jitter() if splat is not None else pixel_filter)
     window = _data_window(settings.data_window_ndc, width, height)
-    film = resume if resume is not None else Film(width, height, window)
+    film = resume if resume is not None else Film(width, height, window, splat)
     if resume is not None and (resume.width, resume.height, resume.window) != (width, height, window):
         raise SettingsError("checkpoint does not match the requested resolution/data window", attribute="resume")
+    if resume is not None and (resume.mode, repr(resume.splat)) != (mode, repr(splat)):
+        raise SettingsError(f"checkpoint was rendered with pixel filter mode {resume.mode} "
+                            f"({resume.splat or 'filter importance sampling'}), not {mode} ({pixel_filter})",
+                            attribute="resume")
 
     # The light and BSDF kernels release the GIL, so shading threads scale too, if not fully: the
     # numpy glue between kernels holds it (Cornell box 512^2, depth 8, quiet machine: 590-614k
@@ -184,6 +194,7 @@ def render(
         # IllumRenderSettingsAPI illum:estimator, else the schema fallback).
         "default_estimator": opt.default_estimator or settings.estimator or "mis",
         "emitter_samples": integrator.emitter_samples,
+        "pixel_filter": {"name": pixel_filter.name, "radius": pixel_filter.radius, "mode": mode},
         # The compiled path vertex (integrators/fast_path.py): "on", or why the scene needs the
         # general path.
         "fast_path": "on" if integrator.fast is not None else integrator.fast_path_reason,
@@ -214,10 +225,28 @@ def render(
         "illum:camera": desc.camera.path,
         "illum:estimators": {li["path"]: li["estimator"] for li in light_info},
         "illum:lightSampler": stats["light_sampler"],
+        "illum:pixelFilter": f"{pixel_filter.name} {pixel_filter.radius:g} {mode}",
         "worldToCamera": camera.world_to_camera(),
         "worldToScreen": camera.projection_matrix() @ camera.world_to_camera(),
     }
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings))
+
+
+def _pixel_filter(opt: RenderOptions, settings) -> tuple:
+    """(PixelFilter, mode) of a render: each of filter, radius and mode from the options where
+    given, else from IllumRenderSettingsAPI where authored, else the defaults
+    (renderer/pixel_filter.py). A width given without a filter applies to the stage's filter."""
+    from .pixel_filter import DEFAULT_FILTER, DEFAULT_MODE, PixelFilter, check_filter
+
+    name = opt.pixel_filter or settings.pixel_filter or DEFAULT_FILTER
+    if opt.pixel_filter_width is not None:
+        radius = opt.pixel_filter_width
+    elif settings.pixel_filter_width and name == (settings.pixel_filter or DEFAULT_FILTER):
+        radius = settings.pixel_filter_width   # the stage's width belongs to the stage's filter
+    else:
+        radius = None
+    name, radius = check_filter(name, radius)
+    return PixelFilter(name, radius), opt.pixel_filter_mode or settings.pixel_filter_mode or DEFAULT_MODE
 
 
 def _exactness_notes(lights, light_info: list[dict]) -> list[str]:

@@ -250,8 +250,7 @@ class RayPool:
                     blocks_run += 1
                     if film is None:
                         # Arrays from the object store are read-only views: own them to accumulate.
-                        film = bfilm
-                        film.sum, film.sum_sq, film.count = film.sum.copy(), film.sum_sq.copy(), film.count.copy()
+                        film = bfilm.copy()
                     else:
                         film.merge(bfilm)
                     blocks_done.add(b)

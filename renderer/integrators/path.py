@@ -273,26 +273,45 @@ class PathIntegrator:
 
     # ---------------------------------------------------------------------- passes
     def render_pass(self, film: Film, pass_index: int) -> None:
-        """Add one sample to every pixel of the film's data window."""
+        """Add one sample to every pixel of the film's data window (a splatting film: one
+        camera sample taken in every pixel, spread over the pixels its filter covers)."""
         px, py = film.pixel_coords()
         n = px.size
         chunks = [(c, s, min(n, s + PIXELS_PER_CHUNK)) for c, s in enumerate(range(0, n, PIXELS_PER_CHUNK))]
+        splat = film.splat is not None
+        if splat and (self.camera.filter.name, self.camera.filter.radius) != ("box", 0.5):
+            # The offsets below are u - 0.5: the camera must jitter uniformly (pixel_filter.jitter).
+            raise ValueError("a splatting film needs a camera whose samples are uniform in the pixel")
+        # The camera's exposure scales the image (UsdGeomCamera exposure, 2^exposure).
+        exposure = self.camera.desc.exposure_scale
 
         def work(job):
             c, a, b = job
             rng = np.random.default_rng([self.opt.seed, pass_index, c])
-            L = self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width)
-            # The camera's exposure scales the image (UsdGeomCamera exposure, 2^exposure).
-            return a, b, L * self.camera.desc.exposure_scale
+            if not splat:
+                return a, b, self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width) * exposure
+            # With K emitter samples, camera ray k's own L_k is splatted at its own position as
+            # K L_k (ray 0 carries the path, weighted 1 / K in trace_paths): a sample (w_k, K L_k)
+            # each, so sum(w K L) / sum(w) estimates the filtered pixel as the K-ray sum does
+            # with filter importance sampling.
+            K = self.emitter_samples
+            return a, b, [(u - 0.5, L * (K * exposure))
+                          for u, L in self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width, split=True)]
 
         results = self.pool.map(work, chunks) if self.pool is not None and len(chunks) > 1 else map(work, chunks)
         for a, b, L in results:
-            film.add(np.arange(a, b), L)
+            rows = np.arange(a, b)
+            if not splat:
+                film.add(rows, L)
+                continue
+            for k, (offsets, L_k) in enumerate(L):
+                film.add(rows, L_k, offsets=offsets, count=k == 0)
 
     # ---------------------------------------------------------------------- paths
     def trace_paths(self, px: np.ndarray, py: np.ndarray, rng: np.random.Generator, pass_index: int | None = None,
-                    width: int = 0) -> np.ndarray:
-        """Radiance estimates (m, 3) for one path through each pixel (px, py).
+                    width: int = 0, split: bool = False):
+        """Radiance estimates (m, 3) for one path through each pixel (px, py); with split, a
+        list of (u_filter (m, 2), L_k (m, 3)) for each camera ray k, summing to that estimate.
 
         With pass_index, the filter samples are that pass's point of each pixel's own
         low-discrepancy sequence (sampling.pixel_sequence); without, independent uniforms.
@@ -319,14 +338,18 @@ class PathIntegrator:
         # Near clip: start the ray at the near plane.
         o, tmax = rays.at_near_plane()
         L = self.trace(o, rays.d, tmax, rng, emit0=1.0 / K)
+        parts = [(u_filter, L)] if split else None
         for k in range(1, K):
-            rays = self.camera.generate(px, py, pixel_sequence(self.opt.seed, pixel, pass_index * K + k),
-                                        rng.random((m, 2)) if thin_lens else u_lens)
+            u_k = pixel_sequence(self.opt.seed, pixel, pass_index * K + k)
+            rays = self.camera.generate(px, py, u_k, rng.random((m, 2)) if thin_lens else u_lens)
             self.rays.add(camera=m)
             o, tmax = rays.at_near_plane()
-            L += self.trace(o, rays.d, tmax, rng,
-                            emit0=1.0 / K, max_depth=0)
-        return L
+            L_k = self.trace(o, rays.d, tmax, rng, emit0=1.0 / K, max_depth=0)
+            if split:
+                parts.append((u_k, L_k))
+            else:
+                L += L_k
+        return parts if split else L
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               emit0: float = 1.0, max_depth: int | None = None) -> np.ndarray:

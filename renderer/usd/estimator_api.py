@@ -10,6 +10,8 @@ from __future__ import annotations
 from pxr import Usd, UsdLux
 
 from renderer.description import EstimatorSettings
+from renderer.errors import SettingsError
+from renderer.pixel_filter import DEFAULT_FILTER, DEFAULT_MODE, FILTERS, MODES, check_filter
 
 from .common import ReadContext
 
@@ -23,6 +25,7 @@ __all__ = [
     "read_estimator_settings",
     "read_light_sampler",
     "read_default_estimator",
+    "read_pixel_filter",
     "has_light_api",
     "check_light_api_target",
 ]
@@ -41,6 +44,9 @@ _MIS_HEURISTIC = ("illum:mis:heuristic", "power", MIS_HEURISTICS)
 _SAMPLES = "illum:samples"
 _DOME_IRRADIANCE = "illum:dome:irradiance"
 _LIGHT_SAMPLER = ("illum:lightSampler", "auto", LIGHT_SAMPLERS)
+_PIXEL_FILTER = ("illum:pixelFilter", DEFAULT_FILTER, FILTERS)
+_PIXEL_FILTER_MODE = ("illum:pixelFilter:mode", DEFAULT_MODE, MODES)
+_PIXEL_FILTER_WIDTH = "illum:pixelFilter:width"
 
 
 def _authored(prim: Usd.Prim, name: str, ctx: ReadContext):
@@ -129,3 +135,17 @@ def read_default_estimator(prim: Usd.Prim, ctx: ReadContext) -> str:
     estimator is unauthored: '' when unauthored (the schema fallback), else the validated token."""
     value, authored = _token(prim, ctx, _ESTIMATOR)
     return value if authored else ""
+def read_pixel_filter(prim: Usd.Prim, ctx: ReadContext) -> tuple[str, float, str]:
+    """IllumRenderSettingsAPI ``illum:pixelFilter``, ``illum:pixelFilter:width`` and
+    ``illum:pixelFilter:mode``: (filter, radius in pixels, mode), '' / 0.0 where unauthored (the
+    renderer's defaults, renderer/pixel_filter.py, apply), else validated."""
+    name, named = _token(prim, ctx, _PIXEL_FILTER)
+    mode, moded = _token(prim, ctx, _PIXEL_FILTER_MODE)
+    width = 0.0
+    raw = _authored(prim, _PIXEL_FILTER_WIDTH, ctx)
+    if raw is not None:
+        try:
+            _, width = check_filter(name, raw)
+        except SettingsError as e:
+            raise ctx.error(e.message, prim, _PIXEL_FILTER_WIDTH) from None
+    return (name if named else ""), width, (mode if moded else "")

@@ -8,7 +8,7 @@ from renderer.description import RenderSettingsDesc
 from renderer.errors import SettingsError
 
 from .common import ReadContext
-from .estimator_api import read_default_estimator, read_light_sampler
+from .estimator_api import read_default_estimator, read_light_sampler, read_pixel_filter
 
 __all__ = ["find_settings_prim", "read_render_settings", "MAX_SIDE", "MAX_PIXELS"]
 
@@ -138,6 +138,7 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
         ctx.warn("rendering-color-space", f"{settings.GetPath()}: renderingColorSpace '{space.Get()}' is "
                                           "ignored; illum renders linear Rec.709")
 
+    pixel_filter, pixel_filter_width, pixel_filter_mode = read_pixel_filter(settings, ctx)
     desc = RenderSettingsDesc(
         path=str(settings.GetPath()),
         resolution=(w, h),
@@ -150,6 +151,9 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
         product_name=product_name,
         light_sampler=read_light_sampler(settings, ctx),
         estimator=read_default_estimator(settings, ctx),
+        pixel_filter=pixel_filter,
+        pixel_filter_width=pixel_filter_width,
+        pixel_filter_mode=pixel_filter_mode,
     )
     return desc, bool(dof_off)
 

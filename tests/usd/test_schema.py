@@ -75,7 +75,10 @@ def test_registered_schema_matches_the_reader_fallbacks():
     assert light["illum:dome:irradiance"][2] == "asset"
     rs = got["IllumRenderSettingsAPI"]
     assert rs == {"illum:lightSampler": ["auto", list(estimator_api.LIGHT_SAMPLERS), "token"],
-                  "illum:estimator": ["mis", list(estimator_api.ESTIMATORS), "token"]}
+                  "illum:estimator": ["mis", list(estimator_api.ESTIMATORS), "token"],
+                  "illum:pixelFilter": ["gaussian", ["gaussian", "box", "blackman-harris"], "token"],
+                  "illum:pixelFilter:width": ["None", [], "float"],
+                  "illum:pixelFilter:mode": ["splat", ["splat", "importance"], "token"]}
     assert got["can_apply"] == [True, False]
     assert "IllumIllumLightAPI" in got["tftype"]
 
