@@ -80,6 +80,9 @@ _BUFFER_TYPE_VERTEX = 1
 _FORMAT_UINT3 = 0x5003
 _FORMAT_FLOAT3 = 0x9003
 _DEVICE_PROPERTY_VERSION = 0
+# Watertight triangle tests (no rays slipping between triangles sharing an edge); embreex sets it
+# too, so both routes build and intersect alike.
+_SCENE_FLAG_ROBUST = 1 << 2
 
 
 class _EmbreeLib:
@@ -103,6 +106,7 @@ class _EmbreeLib:
         self.new_scene = bind("rtcNewScene", vp, vp)
         self.commit_scene = bind("rtcCommitScene", None, vp)
         self.release_scene = bind("rtcReleaseScene", None, vp)
+        self.set_scene_flags = bind("rtcSetSceneFlags", None, vp, i32)
         self.new_geometry = bind("rtcNewGeometry", vp, vp, i32)
         # (geometry, buffer type, slot, format, ptr, byte offset, byte stride, item count)
         self.set_shared_buffer = bind("rtcSetSharedGeometryBuffer", None, vp, i32, u32, i32, vp, sz, sz, sz)
@@ -173,6 +177,7 @@ class _NativeScene:
         self.indices = np.arange(3 * n, dtype=np.uint32).reshape(n, 3)
         lib.retain_device(lib.device)
         scene = lib.new_scene(lib.device)
+        lib.set_scene_flags(scene, _SCENE_FLAG_ROBUST)
         geom = lib.new_geometry(lib.device, _GEOMETRY_TYPE_TRIANGLE)
         lib.set_shared_buffer(geom, _BUFFER_TYPE_VERTEX, 0, _FORMAT_FLOAT3, self.vertices.ctypes.data, 0, 12, 3 * n)
         lib.set_shared_buffer(geom, _BUFFER_TYPE_INDEX, 0, _FORMAT_UINT3, self.indices.ctypes.data, 0, 12, n)
