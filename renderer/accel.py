@@ -107,6 +107,9 @@ class _EmbreeLib:
         self.commit_scene = bind("rtcCommitScene", None, vp)
         self.release_scene = bind("rtcReleaseScene", None, vp)
         self.set_scene_flags = bind("rtcSetSceneFlags", None, vp, i32)
+        self.scene_flags = bind("rtcGetSceneFlags", i32, vp)
+        self.get_geometry = bind("rtcGetGeometry", vp, vp, u32)
+        self.geometry_buffer_data = bind("rtcGetGeometryBufferData", vp, vp, i32, u32)
         self.new_geometry = bind("rtcNewGeometry", vp, vp, i32)
         # (geometry, buffer type, slot, format, ptr, byte offset, byte stride, item count)
         self.set_shared_buffer = bind("rtcSetSharedGeometryBuffer", None, vp, i32, u32, i32, vp, sz, sz, sz)
@@ -192,6 +195,11 @@ class _NativeScene:
     @property
     def alive(self) -> bool:
         return self._finalizer.alive
+
+    def buffer_address(self, index: bool) -> int:
+        """The address Embree reads the vertex (index False) or index buffer from."""
+        geom = self.lib.get_geometry(self.scene, 0)
+        return int(self.lib.geometry_buffer_data(geom, _BUFFER_TYPE_INDEX if index else _BUFFER_TYPE_VERTEX, 0))
 
     def release(self) -> None:
         self._finalizer()  # a no-op after the first call
@@ -290,6 +298,26 @@ def _far(tmax, use_tmax, i):
     return np.float32(1e37) if t > 1e37 else np.float32(t)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _fill_packet(rec, rec_i, valid, width, o, d, tmax, use_tmax, s, m):
+    # Rays s..s+m-1 into the record's lanes; lanes past m repeat the last ray and are switched
+    # off in `valid` (Embree skips them).
+    for j in range(width):
+        i = s + min(j, m - 1)
+        set_ray(rec, rec_i, j, width, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], 0.0,
+                _far(tmax, use_tmax, i), -1)
+        valid[j] = -1 if j < m else 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _trace(fn, scene, width, rec, valid):
+    # rtcIntersect1/rtcOccluded1 (scene, record, NULL) or the W-wide (valid, scene, record, NULL).
+    if width == 1:
+        _call3(fn, scene, rec.ctypes.data, 0)
+    else:
+        _call4(fn, valid.ctypes.data, scene, rec.ctypes.data, 0)
+
+
 @njit(cache=True, nogil=True)
 def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u, v, inf_on_miss):
     """Closest hits of rays a..b-1 in groups of `width` (1: rtcIntersect1, else rtcIntersect<W>
@@ -298,18 +326,10 @@ def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u
     rec = aligned_record(max(RAYHIT_FIELDS * width, RAYHIT_WORDS), 4 * max(width, 4))
     rec_i = rec.view(np.int32)
     valid = aligned_record(width, 4 * max(width, 4)).view(np.int32)
-    addr = rec.ctypes.data
     for s in range(a, b, width):
         m = min(width, b - s)
-        for j in range(width):
-            i = s + min(j, m - 1)  # lanes past the end repeat the last ray and are switched off
-            set_ray(rec, rec_i, j, width, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], 0.0,
-                    _far(tmax, use_tmax, i), -1)
-            valid[j] = -1 if j < m else 0
-        if width == 1:
-            _call3(fn, scene, addr, 0)
-        else:
-            _call4(fn, valid.ctypes.data, scene, addr, 0)
+        _fill_packet(rec, rec_i, valid, width, o, d, tmax, use_tmax, s, m)
+        _trace(fn, scene, width, rec, valid)
         for j in range(m):
             i = s + j
             if rec_i[HIT_GEOM * width + j] != INVALID_ID:
@@ -326,22 +346,15 @@ def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u
 
 @njit(cache=True, nogil=True)
 def _occluded_rows(fn, scene, width, o, d, tmax, a, b, out):
-    """out[i] = is ray i (a <= i < b) blocked before tmax[i]; rtcOccluded1 or rtcOccluded<W>."""
+    """out[i] = is ray i (a <= i < b) blocked before tmax[i]; rtcOccluded1 or rtcOccluded<W>
+    (which set tfar = -inf where blocked)."""
     rec = aligned_record(RAY_WORDS * width, 4 * max(width, 4))
     rec_i = rec.view(np.int32)
     valid = aligned_record(width, 4 * max(width, 4)).view(np.int32)
-    addr = rec.ctypes.data
     for s in range(a, b, width):
         m = min(width, b - s)
-        for j in range(width):
-            i = s + min(j, m - 1)
-            set_ray(rec, rec_i, j, width, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2], 0.0,
-                    _far(tmax, True, i), -1)
-            valid[j] = -1 if j < m else 0
-        if width == 1:
-            _call3(fn, scene, addr, 0)
-        else:
-            _call4(fn, valid.ctypes.data, scene, addr, 0)
+        _fill_packet(rec, rec_i, valid, width, o, d, tmax, True, s, m)
+        _trace(fn, scene, width, rec, valid)
         for j in range(m):
             out[s + j] = rec[RAY_TFAR * width + j] == -np.inf
 
