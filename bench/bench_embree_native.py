@@ -102,7 +102,7 @@ def bench_stage(stage: str, rays: int, rounds: int, threads: list[int]) -> list[
     tris, b64, b32 = stage_batches(stage, rays)
     rows = []
     for th in threads:
-        acc = {"native": Accel(tris, threads=th, backend="native"), "embreex": Accel(tris, threads=th, backend="embreex")}
+        acc = {be: Accel(tris, threads=th, backend=be) for be in ("native", "embreex")}
         try:
             for kind, (o32, d32, t32) in b32.items():
                 n = o32.shape[0]
@@ -179,7 +179,8 @@ def write_md(rows: list[dict], path: str, cmd: str) -> None:
         scale = ""
         if th != 1:
             one = {(r["stage"], r["batch"]): r for r in rows if r["threads"] == 1}
-            sc = [r["native-1"] / one[(r["stage"], r["batch"])]["native-1"] for r in rs if (r["stage"], r["batch"]) in one]
+            sc = [r["native-1"] / one[(r["stage"], r["batch"])]["native-1"] for r in rs
+                  if (r["stage"], r["batch"]) in one]
             scale = f"{gm(sc):.2f}"
         lines.append(f"| {th} | {gm([r['native-1'] / r['embreex'] for r in rs]):.2f} | "
                      f"{gm([r['native-8'] / r['embreex'] for r in rs]):.2f} | "

@@ -9,9 +9,11 @@ on a thread pool: the tracing releases the GIL, so threads scale.
 Two routes trace the same BVH build:
 * native (the default): ctypes bindings to the Embree 4 library the embreex wheel ships
   (``embreex.libs/libembree4*.so.4``), called from numba ``nogil`` kernels through the functions'
-  addresses (``rtc_intersect1`` / ``rtc_occluded1`` below). Kernels elsewhere can trace the same
-  way with ``Accel.native_handles()``; bench/bench_embree_native.py measured it faster than
-  embreex's batches on every stage (bench/results/embree_native/results.md).
+  addresses. The batch calls trace packets of BATCH_WIDTH rays (rtcIntersect8 / rtcOccluded8);
+  kernels elsewhere can trace single rays themselves with ``Accel.native_handles()``,
+  ``set_ray`` and ``rtc_intersect1`` / ``rtc_occluded1``. Same BVH flags as embreex (robust), so
+  the hits are identical; bench/bench_embree_native.py measures the routes on every stage
+  (bench/results/embree_native/results.md).
 * embreex's batch calls: the fallback when the native library cannot be loaded (one warning).
 """
 
@@ -73,6 +75,11 @@ INVALID_ID = -1  # RTC_INVALID_GEOMETRY_ID (0xFFFFFFFF) read as an int32 word
 # for 4 bytes past its last 12-byte element (rtcSetSharedGeometryBuffer).
 VERTEX_PAD_FLOATS = 1
 PACKET_WIDTHS = (1, 4, 8, 16)
+# Rays per native call in the batch routes: packets of 8 traced 1.3x the single-ray rate (and
+# the embreex batches' rate) over the stages' camera, bounce and shadow rays, with identical
+# answers (bench/results/embree_native/results.md). Kernels that trace one path at a time use
+# rtc_intersect1 / rtc_occluded1.
+BATCH_WIDTH = 8
 # rtcore enums used here (rtcore_common.h, rtcore_geometry.h, rtcore_buffer.h, rtcore_device.h).
 _GEOMETRY_TYPE_TRIANGLE = 0
 _BUFFER_TYPE_INDEX = 0
@@ -247,7 +254,8 @@ def _call4(typingctx, fn, a, b, c, d):
 
 @njit(cache=True, nogil=True)
 def aligned_record(words, align):
-    """(words,) float32 zeros starting at a multiple of align bytes (Embree's ray records)."""
+    """(words,) float32 zeros starting at a multiple of align bytes (Embree's ray records: 16 for
+    RTCRayHit, 4 W for a W-ray packet; 64, a cache line, satisfies every width)."""
     buf = np.zeros(words + align // 4, dtype=np.float32)
     skip = (align - buf.ctypes.data % align) % align
     return buf[skip // 4: skip // 4 + words]
@@ -323,7 +331,7 @@ def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u
     """Closest hits of rays a..b-1 in groups of `width` (1: rtcIntersect1, else rtcIntersect<W>
     at address fn). o, d: (n, 3); tmax: (n,) (ignored unless use_tmax). Writes t_out (inf on a
     miss when inf_on_miss, else tmax's float32), prim (-1 on a miss), u, v (0 on a miss)."""
-    rec = aligned_record(max(RAYHIT_FIELDS * width, RAYHIT_WORDS), 4 * max(width, 4))
+    rec = aligned_record(max(RAYHIT_FIELDS * width, RAYHIT_WORDS), 64)
     rec_i = rec.view(np.int32)
     valid = aligned_record(width, 4 * max(width, 4)).view(np.int32)
     for s in range(a, b, width):
@@ -348,7 +356,7 @@ def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u
 def _occluded_rows(fn, scene, width, o, d, tmax, a, b, out):
     """out[i] = is ray i (a <= i < b) blocked before tmax[i]; rtcOccluded1 or rtcOccluded<W>
     (which set tfar = -inf where blocked)."""
-    rec = aligned_record(RAY_WORDS * width, 4 * max(width, 4))
+    rec = aligned_record(RAY_WORDS * width, 64)
     rec_i = rec.view(np.int32)
     valid = aligned_record(width, 4 * max(width, 4)).view(np.int32)
     for s in range(a, b, width):
@@ -535,14 +543,14 @@ class Accel:
 
 
     # ---- the native route ------------------------------------------------------------------
-    def _intersect_rows(self, o, d, tmax, use_tmax, t_out, prim, u, v, inf_on_miss, width=1):
+    def _intersect_rows(self, o, d, tmax, use_tmax, t_out, prim, u, v, inf_on_miss, width=BATCH_WIDTH):
         if width not in PACKET_WIDTHS:
             raise ValueError(f"Embree packet width must be one of {PACKET_WIDTHS}, not {width}")
         fn, scene = self._native.lib.intersect[width], self._native.scene
         self._map(lambda a, b: _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u, v,
                                                inf_on_miss), o.shape[0])
 
-    def _occluded_rows(self, o, d, tmax, out, width=1):
+    def _occluded_rows(self, o, d, tmax, out, width=BATCH_WIDTH):
         if width not in PACKET_WIDTHS:
             raise ValueError(f"Embree packet width must be one of {PACKET_WIDTHS}, not {width}")
         fn, scene = self._native.lib.occluded[width], self._native.scene
@@ -568,13 +576,13 @@ class Accel:
         return out
 
     # ---- float32 batches prepared by compiled kernels (the fast path) -------------------
-    def intersect_prepared(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray, width: int = 1):
+    def intersect_prepared(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray, width: int = BATCH_WIDTH):
         """Closest hits of rays a kernel wrote in embree's own format, without conversions.
 
         o32, d32: (n, 3) C-contiguous float32; t32: (n,) float32 far limits (<= 1e37), which
         are *overwritten* with the hit distances (unchanged where the ray missed).
         Returns prim (n,) int32 (-1 on a miss) and the barycentrics u, v (n,) float32.
-        width: rays per native Embree call (1, or a packet of 4, 8, 16; bench/bench_embree_native.py).
+        width: rays per native Embree call (1, or a packet of 4, 8, 16; BATCH_WIDTH).
         """
         n = o32.shape[0]
         self._check_open()
@@ -598,7 +606,8 @@ class Accel:
         self._map(run, n)
         return prim, u, v
 
-    def occluded_prepared(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray, width: int = 1) -> np.ndarray:
+    def occluded_prepared(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray,
+                          width: int = BATCH_WIDTH) -> np.ndarray:
         """occluded() for float32 rays in embree's format (as intersect_prepared; t32 may be
         overwritten). Returns (n,) bool, True where blocked."""
         n = o32.shape[0]
