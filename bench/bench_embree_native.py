@@ -147,14 +147,17 @@ def bench_stage(stage: str, rays: int, rounds: int, threads: list[int]) -> list[
     return rows
 
 
-def write_md(rows: list[dict], path: str, cmd: str) -> None:
+def write_md(rows: list[dict], path: str, cmd: str, load: tuple) -> None:
     from renderer.bench import machine_info
 
     info = machine_info()
     lines = ["# Native Embree from numba against embreex batches", "",
              f"Command: `{cmd}`", "",
              f"Machine: {info.get('cpu', '?')}, {os.cpu_count()} cores, shared with other agents' jobs "
-             "(the variants run alternately, round after round; ratios are measured within one run).", "",
+             "(the variants run alternately, round after round; ratios are measured within one run). "
+             f"1-minute load average {load[0]:.1f} at the start and {load[1]:.1f} at the end: with more runnable "
+             "jobs than cores, a second thread finds no free core, so the 2-thread rows measure the route's cost "
+             "under contention, not its scaling.", "",
              "Mrays/s (median of the rounds). `native-W`: numba nogil loop calling rtcIntersectW / rtcOccludedW "
              "(W = 1: single rays) on float32 batches; `embreex`: its batch call on the same float32 rays; "
              "`api-*`: the float64 `Accel.intersect` / `occluded` the integrators call. Ratios are to `embreex` "
@@ -201,10 +204,11 @@ def main() -> None:
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "embree_native"))
     a = ap.parse_args()
     rows = []
+    load0 = os.getloadavg()[0]
     for st in a.stages:
         rows += bench_stage(st, a.rays, a.rounds, a.threads)
     cmd = "PYTHONPATH=. .venv/bin/python bench/bench_embree_native.py " + " ".join(sys.argv[1:])
-    write_md(rows, os.path.join(a.out, "results.md"), cmd.strip())
+    write_md(rows, os.path.join(a.out, "results.md"), cmd.strip(), (load0, os.getloadavg()[0]))
     print(f"wrote {os.path.join(a.out, 'results.md')}")
 
 

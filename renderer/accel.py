@@ -307,6 +307,14 @@ def _far(tmax, use_tmax, i):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _packet_record(words, width):
+    # A record of `words` (float32 and int32 views of one cache-line-aligned buffer) and the
+    # valid mask of a `width`-ray packet (aligned to 4 W bytes, as rtcIntersect<W> requires).
+    rec = aligned_record(words, 64)
+    return rec, rec.view(np.int32), aligned_record(width, 4 * max(width, 4)).view(np.int32)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _fill_packet(rec, rec_i, valid, width, o, d, tmax, use_tmax, s, m):
     # Rays s..s+m-1 into the record's lanes; lanes past m repeat the last ray and are switched
     # off in `valid` (Embree skips them).
@@ -331,9 +339,7 @@ def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u
     """Closest hits of rays a..b-1 in groups of `width` (1: rtcIntersect1, else rtcIntersect<W>
     at address fn). o, d: (n, 3); tmax: (n,) (ignored unless use_tmax). Writes t_out (inf on a
     miss when inf_on_miss, else tmax's float32), prim (-1 on a miss), u, v (0 on a miss)."""
-    rec = aligned_record(max(RAYHIT_FIELDS * width, RAYHIT_WORDS), 64)
-    rec_i = rec.view(np.int32)
-    valid = aligned_record(width, 4 * max(width, 4)).view(np.int32)
+    rec, rec_i, valid = _packet_record(max(RAYHIT_FIELDS * width, RAYHIT_WORDS), width)
     for s in range(a, b, width):
         m = min(width, b - s)
         _fill_packet(rec, rec_i, valid, width, o, d, tmax, use_tmax, s, m)
@@ -356,9 +362,7 @@ def _intersect_rows(fn, scene, width, o, d, tmax, use_tmax, a, b, t_out, prim, u
 def _occluded_rows(fn, scene, width, o, d, tmax, a, b, out):
     """out[i] = is ray i (a <= i < b) blocked before tmax[i]; rtcOccluded1 or rtcOccluded<W>
     (which set tfar = -inf where blocked)."""
-    rec = aligned_record(RAY_WORDS * width, 64)
-    rec_i = rec.view(np.int32)
-    valid = aligned_record(width, 4 * max(width, 4)).view(np.int32)
+    rec, rec_i, valid = _packet_record(RAY_WORDS * width, width)
     for s in range(a, b, width):
         m = min(width, b - s)
         _fill_packet(rec, rec_i, valid, width, o, d, tmax, True, s, m)
