@@ -188,12 +188,14 @@ class _NativeScene:
         lib.retain_device(lib.device)
         scene = lib.new_scene(lib.device)
         lib.set_scene_flags(scene, _SCENE_FLAG_ROBUST)
-        geom = lib.new_geometry(lib.device, _GEOMETRY_TYPE_TRIANGLE)
-        lib.set_shared_buffer(geom, _BUFFER_TYPE_VERTEX, 0, _FORMAT_FLOAT3, self.vertices.ctypes.data, 0, 12, 3 * n)
-        lib.set_shared_buffer(geom, _BUFFER_TYPE_INDEX, 0, _FORMAT_UINT3, self.indices.ctypes.data, 0, 12, n)
-        lib.commit_geometry(geom)
-        lib.attach_geometry(scene, geom)
-        lib.release_geometry(geom)  # the scene holds it now
+        if n:  # an empty scene stays a valid handle that every ray misses
+            geom = lib.new_geometry(lib.device, _GEOMETRY_TYPE_TRIANGLE)
+            lib.set_shared_buffer(geom, _BUFFER_TYPE_VERTEX, 0, _FORMAT_FLOAT3, self.vertices.ctypes.data, 0, 12,
+                                  3 * n)
+            lib.set_shared_buffer(geom, _BUFFER_TYPE_INDEX, 0, _FORMAT_UINT3, self.indices.ctypes.data, 0, 12, n)
+            lib.commit_geometry(geom)
+            lib.attach_geometry(scene, geom)
+            lib.release_geometry(geom)  # the scene holds it now
         lib.commit_scene(scene)
         self.lib, self.scene = lib, int(scene)
         self._finalizer = weakref.finalize(self, _release_native, lib, self.scene, (self.vertices, self.indices))
@@ -435,7 +437,7 @@ class Accel:
         self._scene = None
         self._native = None
         self._closed = False
-        if self.count and lib is not None:
+        if lib is not None:  # even without triangles: kernels get a valid (empty) scene handle
             self._native = _NativeScene(lib, np.ascontiguousarray(tri, dtype=np.float32))
         elif self.count:
             self._scene = rtcs.EmbreeScene()
@@ -458,7 +460,7 @@ class Accel:
         (rtc_intersect1 / rtc_occluded1); valid until close()."""
         self._check_open()
         if self._native is None:
-            raise RuntimeError("this Accel has no native Embree scene (embreex backend or no triangles)")
+            raise RuntimeError("this Accel traces through embreex: no native Embree scene")
         lib = self._native.lib
         return NativeHandles(self._native.scene, lib.intersect[1], lib.occluded[1])
 

@@ -264,3 +264,14 @@ def test_packets_answer_as_single_rays(width):
     with pytest.raises(ValueError, match="packet width"):
         acc.intersect_prepared(o32, d32, t32.copy(), width=3)
     acc.close()
+
+
+def test_an_empty_scene_is_a_valid_handle_that_every_ray_misses():
+    acc = Accel(np.zeros((0, 3, 3)), threads=1, backend="native")
+    f, i, _ = _one(acc, tfar=4.0)
+    assert i[HIT_GEOM] == -1 and f[RAY_TFAR] == np.float32(4.0)
+    f, _, _ = _one(acc, occluded=True, tfar=4.0)
+    assert f[RAY_TFAR] == np.float32(4.0)
+    o, d = np.zeros((20, 3)), np.tile([0.0, 0.0, 1.0], (20, 1))
+    assert np.all(acc.intersect(o, d).prim == -1) and not acc.occluded(o, d, np.full(20, 9.0)).any()
+    acc.close()
