@@ -4,7 +4,8 @@
    (bench/make_big_stage.py; nothing large is committed). Each phase runs in a fresh process
    so the peak RSS belongs to that phase alone.
 2. Camera-ray throughput: our path (Camera.generate + Accel.intersect, float64 in and out)
-   against raw embreex on the very same float32 rays, as a ratio measured in one run.
+   against raw embree (Accel's own route, native or embreex) on the very same float32 rays,
+   as a ratio measured in one run.
 
     .venv/bin/python bench/bench_foundation.py [--triangles 1000000] [--res 1024 1024] [--threads 1 2]
 """
@@ -91,7 +92,7 @@ def main() -> None:
     for th in a.threads:
         c = camera_throughput(stage, tuple(a.res), th)
         print(f"camera rays {a.res[0]}x{a.res[1]} ({c['hit_fraction']:.0%} hit), {th} thread(s): "
-              f"ours {c['ours_mrays_s']:.2f} Mrays/s, raw embreex {c['raw_mrays_s']:.2f} Mrays/s, "
+              f"ours {c['ours_mrays_s']:.2f} Mrays/s, raw embree {c['raw_mrays_s']:.2f} Mrays/s, "
               f"ratio {c['ratio_ours_over_raw']:.2f}")
 
 
