@@ -16,6 +16,10 @@ Per job:
   any other exception requeues it until ``max_attempts``, then fails it with the error text;
 * SIGTERM (server shutdown) checkpoints the running job and requeues it without counting the
   attempt.
+
+Before its first job a worker warms up (renderer/warmup.py): it renders every route once at a
+tiny size, so numba's kernels are compiled into the on-disk cache (a cold cache) or loaded from
+it, and no job pays the compile. With the Ray backend the pool's actors do the same.
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ class WorkerContext:
     resolution_cache: dict = field(default_factory=dict)
     shutdown: threading.Event = field(default_factory=threading.Event)
     ray_pool: object = None
+    warmup: bool = True                                   # warm the kernels before the first job
     current_stop: Optional[threading.Event] = None       # the running job's stop flag (for SIGTERM)
 
     def job_dir(self, job_id: str) -> str:
@@ -492,9 +497,34 @@ def _set_parent_death_signal() -> None:
             pass
 
 
+def _warm_up(ctx: WorkerContext) -> None:
+    """Compile or load every kernel before the first job (the module docstring). A failure is
+    logged, never fatal: a job then compiles what it needs, outside its time budget."""
+    from renderer.warmup import warmup
+
+    t0 = time.perf_counter()
+    try:
+        if ctx.backend == "ray":
+            from .ray_backend import get_pool
+
+            ready = get_pool(ctx).wait_ready(timeout=900.0)  # actors warm up as they start
+            log.info("warmup: Ray pool %s after %.1f s", "ready" if ready else "still starting",
+                     time.perf_counter() - t0)
+            return
+        res = warmup(report=lambda line: log.info("warmup: %s", line), threads=ctx.threads,
+                     cancel=ctx.shutdown.is_set)
+    except Exception as e:  # noqa: BLE001 (the worker must serve jobs anyway)
+        log.warning("warmup failed (%s: %s); jobs compile kernels as they need them", type(e).__name__, e)
+        return
+    log.info("warmup: %d kernels ready, %d compiled (%.1f s), %.1f s in all", res["kernels_ready"],
+             res["kernels_compiled"], res["compile_seconds"], time.perf_counter() - t0)
+
+
 def serve_forever(ctx: WorkerContext, poll_interval: float = 0.2, max_jobs: int | None = None) -> int:
     """Claim and run jobs until SIGTERM/SIGINT (or ``max_jobs``). Returns an exit code."""
     ctx.store.register_worker(ctx.worker_id, os.getpid(), ctx.backend)
+    if ctx.warmup:
+        _warm_up(ctx)  # registered first: the server sees the worker while it warms
     done = 0
     last_beat = 0.0
     try:
@@ -552,6 +582,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the server's stage root: render jobs may read files only below it "
                         "(default: the one the server recorded in jobs.db)")
     p.add_argument("--supervised", action="store_true", help="exit when the spawning process dies")
+    p.add_argument("--no-warmup", dest="warmup", action="store_false",
+                   help="skip compiling the kernels before the first job (renderer/warmup.py)")
     p.add_argument("--max-jobs", type=int, default=None, help=argparse.SUPPRESS)
     return p
 
@@ -565,7 +597,7 @@ def main(argv: list[str] | None = None) -> int:
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,
                         backend=a.backend, ray_address=a.ray_address, ray_actors=a.ray_actors,
-                        ray_drivers=a.ray_drivers, stage_root=a.stage_root,
+                        ray_drivers=a.ray_drivers, stage_root=a.stage_root, warmup=a.warmup,
                         parent_pid=os.getppid() if a.supervised else None)
     def on_term(signum, frame):
         # Graceful: stop the render between passes, checkpoint, requeue (see _stopped).
