@@ -9,11 +9,11 @@ that a user's first render (or a service job) compiles nothing:
 * it renders the repository's example stages (``stages/``) at a tiny resolution with the
   options that steer each route: the fast path and the general path, every light kind (rect,
   disk, sphere, distant, dome constant and textured, cylinder, mesh lights, portals, ShapingAPI
-  and IES, ShadowAPI), every estimator token, every light sampler, direct lighting only, several
+  and IES, ShadowAPI), every estimator token, the light BVH, direct lighting only, several
   emitter samples, depth of field, textured materials;
 * the dome irradiance table (renderer/preconvolve.py) is computed afresh, into a temporary
   ``$ILLUM_CACHE_DIR``, so its kernels compile too (a render that finds the table cached
-  needs none of them).
+  needs none of them), and ``illum preconvolve`` runs on a small map with each method.
 
 ``CompileWatch`` listens to numba's ``numba:compile`` event, which numba fires only when it
 really compiles (a signature neither in memory nor in the disk cache): a warm render triggers
@@ -34,7 +34,8 @@ from typing import Callable, Optional
 
 from numba.core import event
 
-__all__ = ["CompileWatch", "COMPILES", "CompileNotice", "ROUTES", "warmup", "kernel_coverage", "cache_location"]
+__all__ = ["CompileWatch", "COMPILES", "CompileNotice", "ROUTES", "warmup", "is_warm", "kernel_coverage",
+           "cache_location"]
 
 # The repository root: the example stages live in <root>/stages (as guard_cache's sources do).
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -174,8 +175,8 @@ ROUTES: tuple[Route, ...] = (
     Route("cornell_box.usda", (("emitter_samples", 2),), "emitter samples"),
     *(Route("instanced.usda", (("fast_path", False), ("estimator", {"": e})), f"{e}: disk and sphere lights")
       for e in _ESTIMATORS),
-    *(Route("instanced.usda", (("light_sampler", s),), f"{s} light sampler")
-      for s in ("exhaustive", "uniform", "power", "bvh")),
+    # The uniform, power and exhaustive samplers are numpy (compiled nothing here on a cold cache).
+    Route("instanced.usda", (("light_sampler", "bvh"),), "light BVH"),
     Route("instanced.usda", (), "auto estimator, instancing"),
     Route("textured.usda", (), "textured materials, meshes with primvars"),
     Route("textured.usda", (("fast_path", False),), "textured materials, general path"),
@@ -208,6 +209,55 @@ def cache_location() -> str:
     return config.CACHE_DIR or os.path.join(os.path.dirname(os.path.abspath(__file__)), "**", "__pycache__")
 
 
+def _stamp_path() -> str:
+    """The file that records a finished warm-up, beside the kernels it warmed."""
+    from numba.core import config
+
+    base = config.CACHE_DIR or os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    return os.path.join(base, "illum-warmup.stamp")
+
+
+def _stamp_key() -> str:
+    """What numba's cached code depends on: numba's version, the CPU and its feature string
+    (renderer/__init__.py may set it), and every renderer source file's size and mtime (numba
+    invalidates a module's cache when its file changes) and ROUTES."""
+    import hashlib
+
+    import numba
+    from numba.core import config
+
+    h = hashlib.sha256()
+    h.update(f"{numba.__version__}|{config.CPU_NAME}|{config.CPU_FEATURES}|{ROUTES!r}|".encode())
+    pkg = os.path.dirname(os.path.abspath(__file__))
+    for d, dirs, files in sorted(os.walk(pkg)):
+        dirs.sort()
+        for f in sorted(files):
+            if f.endswith(".py"):
+                st = os.stat(os.path.join(d, f))
+                h.update(f"{os.path.relpath(os.path.join(d, f), pkg)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def is_warm() -> bool:
+    """True when a finished warm-up is recorded for this numba, CPU and source tree (a stamp
+    file beside the cache): a cheap check, no kernel is loaded."""
+    try:
+        with open(_stamp_path()) as fh:
+            return fh.read().strip() == _stamp_key()
+    except OSError:
+        return False
+
+
+def _write_stamp() -> None:
+    path = _stamp_path()
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, "w") as fh:
+            fh.write(_stamp_key())
+    except OSError:
+        pass  # a read-only cache: every warm-up runs in full, still correct
+
+
 @contextlib.contextmanager
 def _fresh_irradiance_cache():
     """A temporary $ILLUM_CACHE_DIR, so the dome irradiance tables compute (and their kernels
@@ -225,15 +275,21 @@ def _fresh_irradiance_cache():
 
 
 def warmup(report: Optional[Callable[[str], None]] = None, threads: Optional[int] = None,
-           routes: tuple[Route, ...] = ROUTES, cancel: Optional[Callable[[], bool]] = None) -> dict:
+           routes: tuple[Route, ...] = ROUTES, cancel: Optional[Callable[[], bool]] = None,
+           if_needed: bool = False) -> dict:
     """Render every route once (``ROUTES``: WARMUP_RES pixels, WARMUP_SPP samples) so that each
     kernel is compiled into numba's on-disk cache. ``report`` gets one line per route; ``cancel``
-    is asked before each route (a worker told to stop while it warms).
+    is asked before each route (a worker told to stop while it warms). if_needed: return at once
+    (``{"skipped": True}``) when ``is_warm()``; a finished warm-up of ROUTES records that.
 
     Returns {"seconds", "kernels_compiled", "compile_seconds", "routes", "not_exercised"}: the
     wall time, the number of compiles (0 on a warm cache), and the dispatchers of the renderer's
-    modules that no route called (kernel_coverage)."""
+    modules that no route called (kernel_coverage; meaningful on a cold cache only: a kernel
+    loaded from the cache does not load the helpers compiled into it)."""
     from .errors import SettingsError
+
+    if if_needed and is_warm():
+        return {"skipped": True}
     from .render import RenderOptions, render
 
     missing = [r.stage for r in routes if not os.path.exists(os.path.join(_STAGES, r.stage))]
@@ -241,6 +297,14 @@ def warmup(report: Optional[Callable[[str], None]] = None, threads: Optional[int
         raise SettingsError(f"warm-up stages not found under {_STAGES}: {', '.join(sorted(set(missing)))} "
                             f"(illum warmup needs the source checkout's stages/)", attribute="warmup")
     say = report or (lambda line: None)
+
+    @contextlib.contextmanager
+    def step(name: str, what: str):
+        t0, k0, c0 = time.perf_counter(), COMPILES.kernels, COMPILES.seconds()
+        yield
+        say(f"{name:34s} {what:52s} {time.perf_counter() - t0:6.1f} s, "
+            f"{COMPILES.kernels - k0:3d} compiled ({COMPILES.seconds() - c0:.1f} s)")
+
     t_start = time.perf_counter()
     caches: dict[str, dict] = {}
     k_start, c_start = COMPILES.kernels, COMPILES.seconds()
@@ -249,18 +313,26 @@ def warmup(report: Optional[Callable[[str], None]] = None, threads: Optional[int
             if cancel is not None and cancel():
                 say("stopped")
                 break
-            t0, k0, c0 = time.perf_counter(), COMPILES.kernels, COMPILES.seconds()
             opts = RenderOptions(resolution=WARMUP_RES, spp=WARMUP_SPP, threads=threads, **dict(r.options))
             path = os.path.join(_STAGES, r.stage)
-            cache = caches.setdefault(path, {})
-            render(path, opts, scene_cache=cache)
-            say(f"{r.stage:34s} {r.what:52s} {time.perf_counter() - t0:6.1f} s, "
-                f"{COMPILES.kernels - k0:3d} compiled ({COMPILES.seconds() - c0:.1f} s)")
+            with step(r.stage, r.what):
+                render(path, opts, scene_cache=caches.setdefault(path, {}))
         for cache in caches.values():
             for desc, scene in cache.values():
                 scene.close()
+    if cancel is None or not cancel():
+        # `illum preconvolve` (its streamed scan of the source) with each method, at 16x8.
+        from .preconvolve import METHODS, preconvolve
+
+        with step("illum preconvolve", f"{', '.join(METHODS)} methods"), \
+                tempfile.TemporaryDirectory(prefix="illum-warmup-") as d:
+            for m in METHODS:
+                preconvolve(os.path.join(_STAGES, "textures", "sky_latlong.exr"), os.path.join(d, f"{m}.exr"),
+                            size=16, method=m)
     compiled, missed = kernel_coverage()
-    return {"seconds": time.perf_counter() - t_start, "kernels_compiled": COMPILES.kernels - k_start,
+    if routes is ROUTES and (cancel is None or not cancel()):
+        _write_stamp()
+    return {"skipped": False, "seconds": time.perf_counter() - t_start, "kernels_compiled": COMPILES.kernels - k_start,
             "compile_seconds": COMPILES.seconds() - c_start, "routes": len(routes), "kernels_ready": compiled,
             "not_exercised": missed}
 
@@ -268,7 +340,8 @@ def warmup(report: Optional[Callable[[str], None]] = None, threads: Optional[int
 def kernel_coverage() -> tuple[int, list[str]]:
     """(the number of renderer kernels with a compiled signature in this process, the names of
     those without one). Imports every renderer module first, so a kernel no route reached shows
-    up as not exercised."""
+    up as not exercised. Kernels inlined into their callers (``inline="always"``) have no code of
+    their own and are left out."""
     import importlib
     import pkgutil
 
@@ -283,7 +356,8 @@ def kernel_coverage() -> tuple[int, list[str]]:
         if not name.startswith("renderer.") or mod is None:
             continue
         for attr, v in vars(mod).items():
-            if isinstance(v, CPUDispatcher) and v.py_func.__module__ == name:
+            if (isinstance(v, CPUDispatcher) and v.py_func.__module__ == name
+                    and v.targetoptions.get("inline") != "always"):
                 if v.signatures:
                     ready += 1
                 else:
@@ -297,20 +371,28 @@ def register_cli(sub) -> None:
     p.add_argument("--threads", type=int, default=None, help="render threads (default: all cores)")
     p.add_argument("--verbose", action="store_true", help="also list the kernels no warm-up route calls")
     p.add_argument("--quiet", action="store_true", help="print only the summary line")
+    p.add_argument("--if-needed", action="store_true",
+                   help="do nothing if a warm-up already finished for this numba, CPU and source tree")
     p.set_defaults(func=cmd_warmup)
 
 
 def cmd_warmup(a) -> int:
     out = sys.stderr
-    t_import = time.perf_counter()
+    t_start = time.perf_counter()
+    if a.if_needed and is_warm():
+        print(f"illum warmup: the kernel cache is warm ({_stamp_path()})", file=out)
+        return 0
     if not a.quiet:
         print(f"illum warmup: rendering {len(ROUTES)} routes at {WARMUP_RES[0]}x{WARMUP_RES[1]}, "
               f"{WARMUP_SPP} spp; kernel cache: {cache_location()}", file=out, flush=True)
     res = warmup(report=None if a.quiet else (lambda line: print(f"  {line}", file=out, flush=True)),
                  threads=a.threads)
     print(f"illum warmup: {res['kernels_ready']} kernels ready, {res['kernels_compiled']} compiled now "
-          f"({res['compile_seconds']:.1f} s), {time.perf_counter() - t_import:.1f} s in all", file=out)
-    if a.verbose and res["not_exercised"]:
+          f"({res['compile_seconds']:.1f} s), {time.perf_counter() - t_start:.1f} s in all", file=out)
+    if a.verbose and res["not_exercised"] and res["kernels_compiled"] == 0:
+        print("illum warmup: the cache was warm; with a fresh NUMBA_CACHE_DIR --verbose lists the kernels "
+              "no route calls", file=out)
+    elif a.verbose and res["not_exercised"]:
         print(f"illum warmup: {len(res['not_exercised'])} kernels no route calls (tests and tools only):", file=out)
         for name in res["not_exercised"]:
             print(f"  {name}", file=out)

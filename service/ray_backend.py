@@ -75,7 +75,7 @@ def _actor_class():
             try:
                 from renderer.warmup import warmup
 
-                warmup(threads=1)
+                warmup(threads=1, if_needed=True)
             except Exception as e:  # noqa: BLE001
                 import logging
 

@@ -512,7 +512,10 @@ def _warm_up(ctx: WorkerContext) -> None:
                      time.perf_counter() - t0)
             return
         res = warmup(report=lambda line: log.info("warmup: %s", line), threads=ctx.threads,
-                     cancel=ctx.shutdown.is_set)
+                     cancel=ctx.shutdown.is_set, if_needed=True)
+        if res["skipped"]:
+            log.info("warmup: the kernel cache is warm (%.1f s)", time.perf_counter() - t0)
+            return
     except Exception as e:  # noqa: BLE001 (the worker must serve jobs anyway)
         log.warning("warmup failed (%s: %s); jobs compile kernels as they need them", type(e).__name__, e)
         return
