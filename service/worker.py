@@ -498,8 +498,28 @@ def _set_parent_death_signal() -> None:
 
 
 def _warm_up(ctx: WorkerContext) -> None:
-    """Compile or load every kernel before the first job (the module docstring). A failure is
+    """Compile or load every kernel before the first job (the module docstring), heartbeating
+    meanwhile so the reaper keeps the worker's row (a cold compile takes minutes). A failure is
     logged, never fatal: a job then compiles what it needs, outside its time budget."""
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(ctx.heartbeat_interval):
+            try:
+                ctx.store.worker_heartbeat(ctx.worker_id)
+            except sqlite3.Error as e:
+                log.warning("heartbeat failed: %s", e)
+
+    beater = threading.Thread(target=beat, name="warmup-heartbeat", daemon=True)
+    beater.start()
+    try:
+        _warm_up_kernels(ctx)
+    finally:
+        stop.set()
+        beater.join()
+
+
+def _warm_up_kernels(ctx: WorkerContext) -> None:
     from renderer.warmup import warmup
 
     t0 = time.perf_counter()
