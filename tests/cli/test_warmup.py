@@ -64,6 +64,31 @@ def test_compile_notice_only_when_something_compiles():
     assert warm.getvalue() == ""
 
 
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_compile_notice_on_a_terminal_rewrites_one_line():
+    @njit(cache=False)
+    def inner(x):
+        return x * 3.0
+
+    @njit(cache=False)
+    def outer(x):
+        return inner(x) - 1.0
+
+    term = _Terminal()
+    with CompileNotice(term):
+        outer(1.0)
+    text = term.getvalue()
+    # Two progress states on one line (carriage return + erase), then the summary on its own.
+    assert text.count("\r\x1b[K") == 3 and text.count("\n") == 1
+    assert "compiling kernels, first run only: 2 kernels" in text
+    final = text.rsplit("\r\x1b[K", 1)[-1]
+    assert final.startswith("illum: compiled 2 kernels in ") and final.endswith("later runs load them)\n")
+
+
 def _illum(*args, env):
     return subprocess.run([sys.executable, "-m", "renderer.cli", *map(str, args)], capture_output=True,
                           text=True, cwd=ROOT, env=env, timeout=3600)
