@@ -125,6 +125,8 @@ class CompileNotice:
         group = _group(dispatcher)
         first = watch.kernels == 1
         if self.tty:
+            if self.done:
+                return  # finish() handed the line to the render's progress bar
             self._write(f"\r\x1b[K{self.prefix}{self.HEADER}: {watch.kernels} kernels, "
                         f"{watch.seconds():.0f} s ({group})")
             self.open_line = True
