@@ -18,9 +18,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 STAGES = os.path.join(ROOT, "stages")
 
 
-def test_compile_watch_counts_real_compiles_once():
-    # Fresh dispatchers (no cache), so they must compile here: the outer kernel's typing
-    # compiles the inner one inside its own compile event.
+def _fresh_kernel():
+    """A new dispatcher (no cache) calling another new one, so both compile on the first call:
+    the outer kernel's typing compiles the inner one inside its own compile event."""
+
     @njit(cache=False)
     def inner(x):
         return x * 2.0
@@ -29,6 +30,11 @@ def test_compile_watch_counts_real_compiles_once():
     def outer(x):
         return inner(x) + 1.0
 
+    return outer
+
+
+def test_compile_watch_counts_real_compiles_once():
+    outer = _fresh_kernel()
     with CompileWatch() as watch:
         t0 = time.perf_counter()
         assert outer(1.0) == 3.0
@@ -46,17 +52,15 @@ def test_compile_watch_counts_real_compiles_once():
 
 
 def test_compile_notice_only_when_something_compiles():
-    @njit(cache=False)
-    def kernel(x):
-        return x + 1.0
-
+    kernel = _fresh_kernel()
     out = io.StringIO()
     with CompileNotice(out):
         kernel(1.0)
     text = out.getvalue()
     assert text.startswith("illum: compiling kernels, first run only")
-    assert "compiling tests.cli.test_warmup (1 kernels so far" in text  # the kernel's group
-    assert text.splitlines()[-1].startswith("illum: compiled 1 kernels in ")
+    assert "compiling tests.cli.test_warmup (1 kernels so far" in text  # the kernel's group, once
+    assert text.count("compiling tests.cli.test_warmup") == 1
+    assert text.splitlines()[-1].startswith("illum: compiled 2 kernels in ")
 
     warm = io.StringIO()
     with CompileNotice(warm):
@@ -70,14 +74,7 @@ class _Terminal(io.StringIO):
 
 
 def test_compile_notice_on_a_terminal_rewrites_one_line():
-    @njit(cache=False)
-    def inner(x):
-        return x * 3.0
-
-    @njit(cache=False)
-    def outer(x):
-        return inner(x) - 1.0
-
+    outer = _fresh_kernel()
     term = _Terminal()
     with CompileNotice(term):
         outer(1.0)
