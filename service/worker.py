@@ -539,7 +539,7 @@ def _warm_up_kernels(ctx: WorkerContext) -> None:
     except Exception as e:  # noqa: BLE001 (the worker must serve jobs anyway)
         log.warning("warmup failed (%s: %s); jobs compile kernels as they need them", type(e).__name__, e)
         return
-    log.info("warmup: %d kernels ready, %d compiled (%.1f s), %.1f s in all", res["kernels_ready"],
+    log.info("warmup: %d routes rendered, %d kernels compiled (%.1f s), %.1f s in all", res["routes"],
              res["kernels_compiled"], res["compile_seconds"], time.perf_counter() - t0)
 
 

@@ -110,7 +110,7 @@ def test_cold_render_says_so_and_warmup_leaves_nothing_to_compile(tmp_path):
 
     w = _illum("warmup", env=env)
     assert w.returncode == 0, w.stderr
-    assert "kernels ready" in w.stderr
+    assert "routes rendered" in w.stderr and "illum preconvolve" in w.stderr
 
     # Warm: the routes of the warm-up (fast and general path, estimators, light kinds, the
     # irradiance table's kernels in a fresh ILLUM_CACHE_DIR) compile nothing and print nothing
