@@ -442,6 +442,9 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     if opts.spp is not None and result.stats["spp"] < opts.spp:
         jlog(f"warning: stopped at {result.stats['spp']} of {opts.spp} spp by the time budget")
     s = result.stats
+    if s.get("kernels_compiled"):  # the warm-up missed a route (renderer/warmup.py ROUTES)
+        jlog(f"compiled {s['kernels_compiled']} kernels in {s['seconds'].get('compile', 0.0):.1f} s "
+             f"(a cold kernel cache; not counted in the time budget)")
     return {"spp": int(s["spp"]), "resolution": s["resolution"], "render_seconds": render_seconds,
             "samples_per_second": float(s["samples_per_second"]), "warnings": [_clean(w, job) for w in result.warnings],
             "files": [FINAL_EXR, FINAL_PNG, STATS_JSON], "resumed_from_spp": start_spp}
