@@ -2,6 +2,9 @@
 #   make demo   creates .venv, installs illum with its test extras, renders stages/cornell_box.usda
 #   make test   prepares .venv the same way and runs the test suite
 # Both are idempotent: the install step re-runs only when pyproject.toml changes.
+# The install step and `make demo` run `illum warmup` (demo: only if no warm-up finished for this
+# source tree): numba compiles the kernels once into its cache (__pycache__, or $NUMBA_CACHE_DIR),
+# so no render pays that on its first run.
 
 PYTHON ?= python3
 VENV   := .venv
@@ -9,7 +12,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    := out
 
-.PHONY: demo test stress bench clean
+.PHONY: demo test stress bench clean warmup
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -17,9 +20,14 @@ $(BIN)/python:
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/illum warmup --quiet
 	@touch $(STAMP)
 
+warmup: $(STAMP)
+	$(BIN)/illum warmup
+
 demo: $(STAMP)
+	$(BIN)/illum warmup --if-needed --quiet
 	@mkdir -p $(OUT)
 	$(BIN)/illum render stages/cornell_box.usda -o $(OUT)/cornell_box.exr --preview $(OUT)/cornell_box.png \
 		--spp 16 --stats $(OUT)/cornell_box.json

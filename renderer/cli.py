@@ -32,8 +32,9 @@ def options_from_args(a, route: str = "render") -> "RenderOptions":
 class _Progress:
     """A tqdm bar on a TTY; `ALF_PROGRESS nn%` lines otherwise (the render-farm convention)."""
 
-    def __init__(self, quiet: bool):
+    def __init__(self, quiet: bool, before_bar=None):
         self.quiet = quiet
+        self.before_bar = before_bar  # ends a compile notice's line before the bar takes over
         self.tty = sys.stderr.isatty()
         self.bar = None
         self.last = -1
@@ -46,6 +47,8 @@ class _Progress:
             if self.bar is None:
                 from tqdm import tqdm
 
+                if self.before_bar is not None:
+                    self.before_bar()
                 self.bar = tqdm(total=100, unit="%", desc="render", file=sys.stderr)
             self.bar.n = pct
             self.bar.set_postfix(spp=done)
@@ -60,12 +63,18 @@ class _Progress:
 
 
 def cmd_render(a) -> int:
+    from contextlib import nullcontext
+
     from .render import render, write_outputs
+    from .warmup import CompileNotice
 
     opts = options_from_args(a)
-    prog = _Progress(a.quiet)
+    # Says "compiling kernels, first run only" with progress if the kernel cache is cold.
+    notice = nullcontext() if a.quiet else CompileNotice(sys.stderr)
+    prog = _Progress(a.quiet, before_bar=getattr(notice, "finish", None))
     try:
-        result = render(a.stage, opts, progress=prog)
+        with notice:
+            result = render(a.stage, opts, progress=prog)
     finally:
         prog.close()
     out = a.output or result.stats.get("product_name") or None
@@ -85,7 +94,7 @@ def cmd_render(a) -> int:
 
 
 # Modules exposing register_cli(subparsers): each adds its subcommand(s) with set_defaults(func=...).
-_SUBCOMMAND_MODULES = ("renderer.preconvolve", "renderer.bench", "service.cli")
+_SUBCOMMAND_MODULES = ("renderer.preconvolve", "renderer.bench", "renderer.warmup", "service.cli")
 
 
 def build_parser() -> argparse.ArgumentParser:

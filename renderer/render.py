@@ -36,8 +36,9 @@ RenderOptions = make_options_class(__name__, "RenderOptions", doc=(
     """What the user asked for; None means "use the stage's RenderSettings or our default".
 
     The fields, their defaults and bounds are declared in renderer/options.py (OPTIONS).
-    resolution: (width, height) override. time_budget: seconds of rendering (load and build
-    excluded). spp: samples per pixel; with a time budget and no spp the budget alone decides.
+    resolution: (width, height) override. time_budget: seconds of rendering (load, build and
+    kernel compilation excluded: a cold first run renders as many samples as a warm one). spp:
+    samples per pixel; with a time budget and no spp the budget alone decides.
     estimator / cv_alpha / light_samples: {"": value} for all lights or {light path: value}.
     default_estimator: the estimator of lights whose illum:estimator is unauthored (None: the
     stage's IllumRenderSettingsAPI illum:estimator, else mis).
@@ -82,6 +83,7 @@ def render(
     from .integrators.path import IntegratorOptions, PathIntegrator
     from .scene import build_scene
     from .usd import load_stage
+    from .warmup import COMPILES
 
     opt = options or RenderOptions()
     opt.validate()
@@ -89,6 +91,9 @@ def render(
     threads = opt.threads or default_threads()
     phases = {}
     t_start = time.perf_counter()
+    # numba compiles a kernel on its first call when its cache is cold (renderer/warmup.py): the
+    # seconds that takes are kept out of the time budget and of the "render" phase.
+    k_start, c_start = COMPILES.kernels, COMPILES.seconds()
 
     # ---- load + build (cached for resident workers) --------------------------------------
     key = (os.path.abspath(stage_path), os.path.getmtime(stage_path) if os.path.exists(stage_path) else 0,
@@ -138,13 +143,19 @@ def render(
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
     t0 = time.perf_counter()
+    c0 = COMPILES.seconds()
     last_snapshot = t0
     passes = 0
+
+    def rendering(now: float) -> float:
+        """Seconds of the pass loop so far, without its compiles."""
+        return now - t0 - (COMPILES.seconds() - c0)
+
     try:
         while True:
             if target is not None and done >= target:
                 break
-            elapsed = time.perf_counter() - t0
+            elapsed = rendering(time.perf_counter())
             if opt.time_budget is not None and elapsed >= opt.time_budget and passes > 0:
                 break
             if cancel is not None and cancel():
@@ -158,7 +169,7 @@ def render(
                 if target is not None:
                     fr.append(done / target)
                 if opt.time_budget is not None:
-                    fr.append((now - t0) / opt.time_budget)
+                    fr.append(rendering(now) / opt.time_budget)
                 progress(done, target, min(1.0, max(fr) if fr else 0.0))
             if snapshot is not None and now - last_snapshot >= snapshot_interval:
                 snapshot(film, done)
@@ -167,7 +178,8 @@ def render(
         integrator.close()
         if scene_cache is None:
             scene.close()
-    phases["render"] = time.perf_counter() - t0
+    phases["render"] = rendering(time.perf_counter())
+    phases["compile"] = COMPILES.seconds() - c_start
 
     rays = integrator.rays.as_dict()
     total_rays = rays["camera"] + rays["extension"] + rays["shadow"]
@@ -199,6 +211,8 @@ def render(
         # general path.
         "fast_path": "on" if integrator.fast is not None else integrator.fast_path_reason,
         "wall_seconds": time.perf_counter() - t_start,
+        # numba compiles during this call (0 when the kernel cache is warm: `illum warmup`).
+        "kernels_compiled": COMPILES.kernels - k_start,
         "seconds": phases,
         "rays": rays,
         "mrays_per_second": total_rays / r_sec / 1e6,

@@ -69,6 +69,17 @@ def _actor_class():
                 numba.set_num_threads(1)
             except (ImportError, ValueError):
                 pass
+            # Compile or load every kernel before the first block (renderer/warmup.py), so no
+            # job's time budget pays numba's first-run compile. Never fatal: a block compiles
+            # what it needs, outside its budget.
+            try:
+                from renderer.warmup import warmup
+
+                warmup(threads=1, if_needed=True)
+            except Exception as e:  # noqa: BLE001
+                import logging
+
+                logging.getLogger("illum.ray").warning("actor warmup failed: %s: %s", type(e).__name__, e)
 
         def ping(self) -> dict:
             import socket
@@ -136,6 +147,15 @@ class RayPool:
 
     def _new_actor(self):
         return PassActor().options(scheduling_strategy="SPREAD").remote()
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait until every actor has started (and warmed up: PassActor's constructor); False
+        if some had not after ``timeout`` seconds (they keep starting; blocks queue behind)."""
+        try:
+            self.ray.get([a.ping.remote() for a in self.actors], timeout=timeout)
+            return True
+        except self.ray.exceptions.GetTimeoutError:
+            return False
 
     def close(self) -> None:
         for a in self.actors:

@@ -16,6 +16,10 @@ Per job:
   any other exception requeues it until ``max_attempts``, then fails it with the error text;
 * SIGTERM (server shutdown) checkpoints the running job and requeues it without counting the
   attempt.
+
+Before its first job a worker warms up (renderer/warmup.py): it renders every route once at a
+tiny size, so numba's kernels are compiled into the on-disk cache (a cold cache) or loaded from
+it, and no job pays the compile. With the Ray backend the pool's actors do the same.
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ class WorkerContext:
     resolution_cache: dict = field(default_factory=dict)
     shutdown: threading.Event = field(default_factory=threading.Event)
     ray_pool: object = None
+    warmup: bool = True                                   # warm the kernels before the first job
     current_stop: Optional[threading.Event] = None       # the running job's stop flag (for SIGTERM)
 
     def job_dir(self, job_id: str) -> str:
@@ -437,6 +442,9 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     if opts.spp is not None and result.stats["spp"] < opts.spp:
         jlog(f"warning: stopped at {result.stats['spp']} of {opts.spp} spp by the time budget")
     s = result.stats
+    if s.get("kernels_compiled"):  # the warm-up missed a route (renderer/warmup.py ROUTES)
+        jlog(f"compiled {s['kernels_compiled']} kernels in {s['seconds'].get('compile', 0.0):.1f} s "
+             f"(a cold kernel cache; not counted in the time budget)")
     return {"spp": int(s["spp"]), "resolution": s["resolution"], "render_seconds": render_seconds,
             "samples_per_second": float(s["samples_per_second"]), "warnings": [_clean(w, job) for w in result.warnings],
             "files": [FINAL_EXR, FINAL_PNG, STATS_JSON], "resumed_from_spp": start_spp}
@@ -492,9 +500,57 @@ def _set_parent_death_signal() -> None:
             pass
 
 
+def _warm_up(ctx: WorkerContext) -> None:
+    """Compile or load every kernel before the first job (the module docstring), heartbeating
+    meanwhile so the reaper keeps the worker's row (a cold compile takes minutes). A failure is
+    logged, never fatal: a job then compiles what it needs, outside its time budget."""
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(ctx.heartbeat_interval):
+            try:
+                ctx.store.worker_heartbeat(ctx.worker_id)
+            except sqlite3.Error as e:
+                log.warning("heartbeat failed: %s", e)
+
+    beater = threading.Thread(target=beat, name="warmup-heartbeat", daemon=True)
+    beater.start()
+    try:
+        _warm_up_kernels(ctx)
+    finally:
+        stop.set()
+        beater.join()
+
+
+def _warm_up_kernels(ctx: WorkerContext) -> None:
+    from renderer.warmup import warmup
+
+    t0 = time.perf_counter()
+    try:
+        if ctx.backend == "ray":
+            from .ray_backend import get_pool
+
+            ready = get_pool(ctx).wait_ready(timeout=900.0)  # actors warm up as they start
+            log.info("warmup: Ray pool %s after %.1f s", "ready" if ready else "still starting",
+                     time.perf_counter() - t0)
+            return
+        res = warmup(report=lambda line: log.info("warmup: %s", line), threads=ctx.threads,
+                     cancel=ctx.shutdown.is_set, if_needed=True)
+        if res["skipped"]:
+            log.info("warmup: the kernel cache is warm (%.1f s)", time.perf_counter() - t0)
+            return
+    except Exception as e:  # noqa: BLE001 (the worker must serve jobs anyway)
+        log.warning("warmup failed (%s: %s); jobs compile kernels as they need them", type(e).__name__, e)
+        return
+    log.info("warmup: %d routes rendered, %d kernels compiled (%.1f s), %.1f s in all", res["routes"],
+             res["kernels_compiled"], res["compile_seconds"], time.perf_counter() - t0)
+
+
 def serve_forever(ctx: WorkerContext, poll_interval: float = 0.2, max_jobs: int | None = None) -> int:
     """Claim and run jobs until SIGTERM/SIGINT (or ``max_jobs``). Returns an exit code."""
     ctx.store.register_worker(ctx.worker_id, os.getpid(), ctx.backend)
+    if ctx.warmup:
+        _warm_up(ctx)  # registered first: the server sees the worker while it warms
     done = 0
     last_beat = 0.0
     try:
@@ -552,6 +608,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the server's stage root: render jobs may read files only below it "
                         "(default: the one the server recorded in jobs.db)")
     p.add_argument("--supervised", action="store_true", help="exit when the spawning process dies")
+    p.add_argument("--no-warmup", dest="warmup", action="store_false",
+                   help="skip compiling the kernels before the first job (renderer/warmup.py)")
     p.add_argument("--max-jobs", type=int, default=None, help=argparse.SUPPRESS)
     return p
 
@@ -565,7 +623,7 @@ def main(argv: list[str] | None = None) -> int:
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,
                         backend=a.backend, ray_address=a.ray_address, ray_actors=a.ray_actors,
-                        ray_drivers=a.ray_drivers, stage_root=a.stage_root,
+                        ray_drivers=a.ray_drivers, stage_root=a.stage_root, warmup=a.warmup,
                         parent_pid=os.getppid() if a.supervised else None)
     def on_term(signum, frame):
         # Graceful: stop the render between passes, checkpoint, requeue (see _stopped).
