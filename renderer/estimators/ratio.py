@@ -2,7 +2,8 @@
 Stochastic Shadows"): F · Σ(f_i v_i / p_i) / Σ(f_i / p_i) for the diffuse lobe.
 
 Biased (the ratio of two means) but consistent, and noise-free where the light is fully visible
-or fully hidden. Specular lobes use MIS; lights without an exact F fall back to MIS.
+or fully hidden, however many of the samples fall below the horizon (they carry f = 0 and weigh
+nothing in either sum). Specular lobes use MIS; lights without an exact F fall back to MIS.
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ class RatioEstimator:
         g = safe_div(ls.fd.reshape(-1, 3), p).reshape(ls.fd.shape)
         num = (g * ls.v[:, :, None]).sum(axis=1)
         den = g.sum(axis=1)
-        frac = np.divide(num, den, out=np.zeros_like(num), where=den > 0.0)
+        # No sample fell where F integrates (all below the horizon, say): nothing is known of the
+        # visibility there, and 0 would darken a fully lit point whenever that happens (1 in 16
+        # points under a dome with N = 4); take it as visible, as the control variate's α does.
+        frac = np.divide(num, den, out=np.ones_like(num), where=den > 0.0)
         diffuse = F * frac
         spec, full, rays_s = specular_and_fallback(q, lights, trace, N, u, heuristic, exact, ls)
         Ld = np.where(exact[:, None], diffuse + spec, full)

@@ -131,6 +131,14 @@ def test_convex_object_under_a_constant_dome_has_zero_variance(alpha):
     np.testing.assert_allclose(Ld, RHO * s.L_DOME, rtol=1e-9)
 
 
+def test_ratio_estimator_is_exact_on_a_convex_object_under_a_constant_dome():
+    """With N = 4 about one point in 16 has every sample below its horizon: the ratio must not
+    read that as a shadow."""
+    s = DomeOverSphere()
+    Ld = s.estimate("ratio", 4, seed=4)
+    np.testing.assert_allclose(Ld, RHO * s.L_DOME, rtol=1e-9)
+
+
 @pytest.mark.parametrize("alpha,N", [("one", 4), ("averageVisibilityUnbiased", 2), ("averageVisibilityUnbiased", 4)])
 def test_dome_control_variate_expectation_unchanged(alpha, N):
     """With a floor under the sphere some points are in a penumbra: the control variate's mean
