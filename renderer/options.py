@@ -251,6 +251,7 @@ def _check_one(o: Option, kind: str, v) -> None:
     elif kind == "str":
         if not isinstance(v, str):
             raise ValueError(f"must be a string, got {v!r}")
+        _check_text(v)
         if o.choices is not None:
             if v not in o.choices():
                 raise ValueError(f"must be {o.bounds_text()}, got {v!r}")
@@ -265,6 +266,15 @@ def _check_one(o: Option, kind: str, v) -> None:
         if too_low or (o.hi is not None and v > o.hi):
             raise ValueError(f"must be {'an integer' if kind == 'int' else 'a number'} {o.bounds_text()}, "
                              f"got {v!r}")
+
+
+def _check_text(v: str) -> None:
+    """A string must be UTF-8 text: a lone surrogate (JSON "\\ud800") can become neither a file
+    name, a prim path nor a database string."""
+    try:
+        v.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError("must be valid UTF-8 text (it holds a lone surrogate)") from None
 
 
 def check(o: Option, v) -> None:
@@ -295,6 +305,7 @@ def check(o: Option, v) -> None:
             if (not isinstance(key, str) or (key and not key.startswith("/")) or len(key) > 1024
                     or _CONTROL.search(key)):
                 raise ValueError(f"key {key!r} must be a light prim path starting with '/', or '' for all lights")
+            _check_text(key)
             try:
                 _check_one(o, o.item, x)
             except ValueError as e:

@@ -30,8 +30,8 @@ def test_absurd_numbers_in_queries_are_refused(client):
 @pytest.mark.parametrize("settings, field", [
     ({"camera": "/World/Cam\x00era"}, "settings.camera"),
     ({"settings_prim": "/Render/\nSettings"}, "settings.settings_prim"),
-    ({"purposes": ["render", "x" * 100]}, "settings.purposes.1"),
-    ({"purposes": ["render; rm -rf /"]}, "settings.purposes.0"),
+    ({"purposes": ["render", "x" * 100]}, "settings.purposes"),
+    ({"purposes": ["render; rm -rf /"]}, "settings.purposes"),
     ({"estimator": {"/Light\x00": "mis"}}, "settings.estimator"),
     ({"light_samples": {f"/L{i}": 1 for i in range(5000)}}, "settings.light_samples"),
     ({"spp": 10**40}, "settings.spp"),
@@ -95,7 +95,7 @@ def test_made_up_methods_do_not_grow_the_metrics(client):
 
 def test_refused_requests_change_nothing(client):
     before = client.get("/jobs", params={"limit": 1000}).json()["total"]
-    for body in ({"stage": "cornell_box.usda", "settings": {"camera": "bad"}},
+    for body in ({"stage": "cornell_box.usda", "settings": {"camera": "not a prim"}},
                  {"stage": "../outside.usda"}, {"stage": "cornell_box.usda", "priority": 101},
                  {"stage": "cornell_box.usda", "upload": "0123456789abcdef-x.usda"}):
         assert client.post("/jobs", json=body).status_code in (400, 422)

@@ -59,9 +59,11 @@ def test_alpha_one_negative_samples_are_kept_and_counted(tmp_path):
     film = r.film
     assert film.negative_samples > 0 and r.stats["negative_samples"] == film.negative_samples
     img = film.mean()
-    # Kept, not clamped: some pixel means are negative, and the mean is the plain average.
+    # Kept, not clamped: some pixel means are negative, and the mean is the plain weighted
+    # average sum(w L) / sum(w) of the splatting film.
     assert (img < 0.0).any()
-    np.testing.assert_allclose(img, (film.sum / np.maximum(film.count, 1)[..., None]).astype(np.float32))
+    W1 = film.weight[:, :, 0:1]
+    np.testing.assert_allclose(img, (film.sum / np.where(W1 > 0.0, W1, 1.0)).astype(np.float32), rtol=1e-6)
     note("alpha = 1 negative samples counted", 0.0, f"{film.negative_samples} negative samples")
 
 
