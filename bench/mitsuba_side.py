@@ -42,7 +42,10 @@ Tasks
 * {"kind": "lightmask", "name": ...}: pixels whose centre ray hits an emitter shape.
 * {"kind": "render", "spp": N, "seed": s, "max_depth": ..., "rr_depth": ..., "repeat": R, "name": ...}:
   ``mi.render`` with Mitsuba's own film and ``gaussian`` rfilter (stddev 0.5, radius 2), timed;
-  the first call is a warm-up (kernel compilation) and is reported separately.
+  the first call is a warm-up (kernel compilation) and is reported separately ("warmup": false skips it).
+
+Serve mode ({"serve": true} in JOB.json, no "tasks"): ``render`` tasks read one per stdin line,
+each answered "ok OUT.npz" (``serve``); bench/bench_film_mitsuba.py alternates them with illum's.
 """
 
 from __future__ import annotations
