@@ -42,7 +42,10 @@ Tasks
 * {"kind": "lightmask", "name": ...}: pixels whose centre ray hits an emitter shape.
 * {"kind": "render", "spp": N, "seed": s, "max_depth": ..., "rr_depth": ..., "repeat": R, "name": ...}:
   ``mi.render`` with Mitsuba's own film and ``gaussian`` rfilter (stddev 0.5, radius 2), timed;
-  the first call is a warm-up (kernel compilation) and is reported separately.
+  the first call is a warm-up (kernel compilation) and is reported separately ("warmup": false skips it).
+
+Serve mode ({"serve": true} in JOB.json, no "tasks"): ``render`` tasks read one per stdin line,
+each answered "ok OUT.npz" (``serve``); bench/bench_film_mitsuba.py alternates them with illum's.
 """
 
 from __future__ import annotations
@@ -288,16 +291,23 @@ def lightmask(mi, dr, scene, arrays, task, tmpdir):
     return {"mask": hit.reshape(H, W)}
 
 
-def render(mi, dr, scene, arrays, task, tmpdir):
-    """mi.render with Mitsuba's own film and Gaussian filter; time each call."""
-    sc = mi.load_dict(build_scene_dict(mi, scene, arrays, tmpdir, task["max_depth"], task["rr_depth"]))
+def render(mi, dr, scene, arrays, task, tmpdir, cache=None):
+    """mi.render with Mitsuba's own film and Gaussian filter; time each call. With a ``cache`` dict
+    (serve mode) the loaded scene is kept per (max_depth, rr_depth)."""
+    key = (task["max_depth"], task["rr_depth"])
+    sc = cache.get(key) if cache is not None else None
+    if sc is None:
+        sc = mi.load_dict(build_scene_dict(mi, scene, arrays, tmpdir, task["max_depth"], task["rr_depth"]))
+        if cache is not None:
+            cache[key] = sc
     out = {}
     spp = int(task["spp"])
     seed = int(task["seed"])
     expo = float(scene["camera"]["exposure_scale"])
-    t0 = time.perf_counter()
-    img = np.array(mi.render(sc, spp=spp, seed=seed + 99991), dtype=np.float64)  # warm-up: compiles kernels
-    out["warmup_seconds"] = time.perf_counter() - t0
+    if task.get("warmup", True):
+        t0 = time.perf_counter()
+        img = np.array(mi.render(sc, spp=spp, seed=seed + 99991), dtype=np.float64)  # warm-up: compiles kernels
+        out["warmup_seconds"] = time.perf_counter() - t0
     times, cpu = [], []
     acc = None
     for r in range(int(task.get("repeat", 1))):
@@ -315,6 +325,22 @@ def render(mi, dr, scene, arrays, task, tmpdir):
     return out
 
 
+def serve(mi, dr, scene, arrays, tmpdir) -> int:
+    """Serve mode ({"serve": true} in JOB.json): one ``render`` task per stdin line (JSON, with an
+    "out" npz path), answered by one stdout line "ok <out>", so a driver can alternate Mitsuba's
+    runs with another renderer's while the loaded scene and Dr.Jit's compiled kernels stay warm."""
+    cache: dict = {}
+    print("ready", mi.__version__, dr.__version__, mi.variant(), flush=True)
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        task = json.loads(line)
+        res = render(mi, dr, scene, arrays, task, tmpdir, cache)
+        np.savez(task["out"], **{k: np.asarray(v) for k, v in res.items()})
+        print("ok", task["out"], flush=True)
+    return 0
+
+
 def main() -> int:
     job = json.load(open(sys.argv[1]))
     import drjit as dr
@@ -329,6 +355,8 @@ def main() -> int:
     results = {"mitsuba_version": np.array(mi.__version__), "drjit_version": np.array(dr.__version__),
                "variant": np.array(mi.variant())}
     with tempfile.TemporaryDirectory() as tmpdir:
+        if job.get("serve"):
+            return serve(mi, dr, scene, arrays, tmpdir)
         for task in job["tasks"]:
             fn = {"crosscheck": crosscheck, "lightmask": lightmask, "render": render}[task["kind"]]
             res = fn(mi, dr, scene, arrays, task, tmpdir)
