@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..accel import serial_tracing
 from ..camera import Camera
 from ..film import Film
 from ..geometry import (coordinate_frame, dot, offset_origin, perturb_normals, surface_interaction, to_local,
@@ -62,7 +63,19 @@ HEURISTIC_TOKENS = HEURISTICS
 TOKEN_CV = ESTIMATOR_TOKENS.index("controlVariate")
 ALPHA_ONE = ALPHA_TOKENS.index("one")
 
+# Pixels per chunk of a pass: each chunk is traced by one thread with its own random stream
+# (seeded by the chunk index), so the split depends on the pixel count only, never on the thread
+# count. Large frames take PIXELS_PER_CHUNK (the per-bounce Python work amortised: 4096-pixel
+# chunks cost a single thread ~10 % at 128x128); smaller ones are cut into MIN_CHUNKS chunks of
+# at least MIN_CHUNK_PIXELS, so that a 128x128 frame still has work for several threads.
 PIXELS_PER_CHUNK = 16384
+MIN_CHUNKS = 4
+MIN_CHUNK_PIXELS = 2048
+
+
+def chunk_size(n: int) -> int:
+    """Pixels per chunk for a pass over n pixels (see PIXELS_PER_CHUNK)."""
+    return min(PIXELS_PER_CHUNK, max(MIN_CHUNK_PIXELS, -(-n // MIN_CHUNKS)))
 
 
 @dataclass
@@ -277,7 +290,8 @@ class PathIntegrator:
         camera sample taken in every pixel, spread over the pixels its filter covers)."""
         px, py = film.pixel_coords()
         n = px.size
-        chunks = [(c, s, min(n, s + PIXELS_PER_CHUNK)) for c, s in enumerate(range(0, n, PIXELS_PER_CHUNK))]
+        size = chunk_size(n)
+        chunks = [(c, s, min(n, s + size)) for c, s in enumerate(range(0, n, size))]
         splat = film.splat is not None
         if splat and (self.camera.filter.name, self.camera.filter.radius) != ("box", 0.5):
             # The offsets below are u - 0.5: the camera must jitter uniformly (pixel_filter.jitter).
@@ -298,7 +312,15 @@ class PathIntegrator:
             return a, b, [(u - 0.5, L * (K * exposure))
                           for u, L in self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width, split=True)]
 
-        results = self.pool.map(work, chunks) if self.pool is not None and len(chunks) > 1 else map(work, chunks)
+        if self.pool is not None and len(chunks) > 1:
+            # The chunks run in parallel, so each traces its rays in its own thread.
+            def work_serial(job):
+                with serial_tracing():
+                    return work(job)
+
+            results = self.pool.map(work_serial, chunks)
+        else:
+            results = map(work, chunks)
         for a, b, L in results:
             rows = np.arange(a, b)
             if not splat:
