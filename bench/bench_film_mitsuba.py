@@ -207,7 +207,7 @@ def write_md(a, results: list[dict], cmd: str) -> str:
           f"segment); Russian roulette from depth {a.rr_depth} in both; {a.threads} threads each; illum Gaussian radius "
           f"{a.filter_width:g} px (sigma {a.filter_width / 3:g} px), Mitsuba `gaussian` (stddev 0.5 px, radius 2 px). "
           f"{a.seeds} seeds per budget, renderers alternated. Machine: {platform.platform()}, {os.cpu_count()} CPUs, "
-          "**shared with the lead's test suite and other sessions' benchmarks (heavily loaded)**; CPU seconds are "
+          "**shared with other jobs (load averages below)**; CPU seconds are "
           "given beside wall seconds.", ""]
     for res in results:
         md += [f"## {res['stage']}", "",
