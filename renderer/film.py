@@ -42,6 +42,15 @@ from .pixel_filter import PixelFilter
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sample_kind(r, g, b) -> int:
+    """The film's policy for one sample's RGB (module docstring): -1 when a channel is not
+    finite (dropped), 1 when one is negative (kept, counted), else 0."""
+    if not (np.isfinite(r) and np.isfinite(g) and np.isfinite(b)):
+        return -1
+    return 1 if (r < 0.0 or g < 0.0 or b < 0.0) else 0
+
+
 @njit(cache=True, nogil=True)
 def _add_kernel(rows, L, flat_sum, flat_sq, flat_n):
     """Film.add in one pass (conventions: renderer/kernels/__init__.py): rows (n,) flat pixel
@@ -59,11 +68,11 @@ def _add_kernel(rows, L, flat_sum, flat_sq, flat_n):
         r = L[i, 0]
         g = L[i, 1]
         b = L[i, 2]
-        if not (np.isfinite(r) and np.isfinite(g) and np.isfinite(b)):
+        kind = _sample_kind(r, g, b)
+        if kind < 0:
             dropped += 1
             continue
-        if r < 0.0 or g < 0.0 or b < 0.0:
-            negative += 1
+        negative += kind
         k = rows[i]
         if k < 0:
             k += m
@@ -116,11 +125,11 @@ def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, fla
         b = L[i, 2]
         ox = off[i, 0]
         oy = off[i, 1]
-        if not (np.isfinite(r) and np.isfinite(g) and np.isfinite(b) and np.isfinite(ox) and np.isfinite(oy)):
+        kind = _sample_kind(r, g, b)
+        if kind < 0 or not (np.isfinite(ox) and np.isfinite(oy)):
             dropped += 1
             continue
-        if r < 0.0 or g < 0.0 or b < 0.0:
-            negative += 1
+        negative += kind
         k = rows[i]
         if count_rows:
             flat_n[k] += 1
