@@ -81,3 +81,27 @@ def test_reference_key_depends_on_every_input():
     assert base == reference_key("abc", (16, 12), 1, {"spp": 64})
     assert len({base, reference_key("abd", (16, 12), 1, {"spp": 64}), reference_key("abc", (16, 13), 1, {"spp": 64}),
                 reference_key("abc", (16, 12), 2, {"spp": 64}), reference_key("abc", (16, 12), 1, {"spp": 65})}) == 5
+
+
+def test_split_half_floor_measures_the_reference_error():
+    """Two independent halves of heavy-tailed noise: on average the floor equals the merged
+    reference's actual relMSE against the truth (z-test over many synthetic references), and a
+    floor 20 % off is caught."""
+    import numpy as np
+
+    from renderer.bench import split_half_floor
+    from tests.stats import SIGNIFICANCE, z_test
+
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(1.0, 2.0, (16, 16, 3))
+    floors, actual = [], []
+    for _ in range(400):
+        # Student-t noise with 3 degrees of freedom: mostly small, sometimes large.
+        a = truth + rng.standard_t(3, truth.shape) * 0.05
+        b = truth + rng.standard_t(3, truth.shape) * 0.05
+        ref = (a + b) / 2.0
+        actual.append(float(np.mean((ref - truth) ** 2 / (ref * ref + 0.01))))
+        floors.append(split_half_floor(a, b, ref))
+    floors, actual = np.array(floors), np.array(actual)
+    assert z_test(floors - actual, 0.0) > SIGNIFICANCE, (floors.mean(), actual.mean())
+    assert z_test(1.2 * floors - actual, 0.0) < SIGNIFICANCE
