@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, make_dataclass
 from typing import Any, Callable, Optional
 
 from .errors import SettingsError
+from .pixel_filter import MAX_RADIUS, MIN_RADIUS
 
 __all__ = ["Option", "OPTIONS", "BY_NAME", "ROUTES", "make_options_class", "add_flags", "options_from_args",
            "check", "normalise", "to_json", "MAX_PER_LIGHT_ENTRIES"]
@@ -211,10 +212,9 @@ OPTIONS: tuple[Option, ...] = (
     Option("pixel_filter", "str", None, "pixel reconstruction filter (default: RenderSettings illum:pixelFilter, "
            "else gaussian)", flags=("--pixel-filter",), metavar="NAME", choices=_pixel_filters, max_length=64,
            example="blackman-harris"),
-    # Bounds: renderer/pixel_filter.py MIN_RADIUS, MAX_RADIUS.
     Option("pixel_filter_width", "float", None, "pixel filter radius in pixels (default: the filter's own, 1.5 for "
-           "gaussian and blackman-harris, 0.5 for box)", flags=("--pixel-filter-width",), metavar="PX", lo=0.5,
-           hi=8.0, example=2.0),
+           "gaussian and blackman-harris, 0.5 for box)", flags=("--pixel-filter-width",), metavar="PX",
+           lo=MIN_RADIUS, hi=MAX_RADIUS, example=2.0),
     Option("pixel_filter_mode", "str", None, "splat: each sample adds filter-weighted radiance to every pixel under "
            "the filter; importance: samples drawn from the filter add to their own pixel (default: RenderSettings "
            "illum:pixelFilter:mode, else splat)", flags=("--pixel-filter-mode",), metavar="MODE",

@@ -11,7 +11,7 @@ centre, and zero for |dx| or |dy| >= radius:
   f1(x) = a0 + a1 cos(pi x / r) + a2 cos(2 pi x / r) + a3 cos(3 pi x / r) (Cycles' default filter;
   default r = 1.5 px, the Gaussian's footprint).
 
-Modes (``--pixel-filter-mode``, ``illum:pixelFilterMode``; renderer/film.py):
+Modes (``--pixel-filter-mode``, ``illum:pixelFilter:mode``; renderer/film.py):
 
 * ``splat``: each camera sample is taken at a uniformly jittered point of its pixel and adds
   w = f(dx, dy) times its radiance into every pixel whose footprint covers it; a pixel is

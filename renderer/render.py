@@ -131,6 +131,9 @@ def render(
                             f"({resume.splat or 'filter importance sampling'}), not {mode} ({pixel_filter})",
                             attribute="resume")
 
+    # What lights without an authored illum:estimator use: --estimator TOKEN (or
+    # --default-estimator), else IllumRenderSettingsAPI illum:estimator, else the schema fallback.
+    default_estimator = opt.default_estimator or settings.estimator or "mis"
     # The light and BSDF kernels release the GIL, so shading threads scale too, if not fully: the
     # numpy glue between kernels holds it (Cornell box 512^2, depth 8, quiet machine: 590-614k
     # samples/s on 2 threads against 409-426k on 1).
@@ -138,7 +141,7 @@ def render(
     integrator = PathIntegrator(scene, camera, IntegratorOptions(
         max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed, threads=shading_threads,
         estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples),
-        default_estimator=opt.default_estimator or settings.estimator,
+        default_estimator=default_estimator,
         emitter_samples=int(opt.emitter_samples), fast_path=bool(opt.fast_path)))
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
@@ -202,9 +205,7 @@ def render(
         "options": opt.as_json(),
         "max_depth": opt.max_depth,
         "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
-        # What lights without an authored illum:estimator use (--estimator TOKEN, else
-        # IllumRenderSettingsAPI illum:estimator, else the schema fallback).
-        "default_estimator": opt.default_estimator or settings.estimator or "mis",
+        "default_estimator": default_estimator,
         "emitter_samples": integrator.emitter_samples,
         "pixel_filter": {"name": pixel_filter.name, "radius": pixel_filter.radius, "mode": mode},
         # The compiled path vertex (integrators/fast_path.py): "on", or why the scene needs the
@@ -250,7 +251,7 @@ def _pixel_filter(opt: RenderOptions, settings) -> tuple:
     """(PixelFilter, mode) of a render: each of filter, radius and mode from the options where
     given, else from IllumRenderSettingsAPI where authored, else the defaults
     (renderer/pixel_filter.py). A width given without a filter applies to the stage's filter."""
-    from .pixel_filter import DEFAULT_FILTER, DEFAULT_MODE, PixelFilter, check_filter
+    from .pixel_filter import DEFAULT_FILTER, DEFAULT_MODE, PixelFilter
 
     name = opt.pixel_filter or settings.pixel_filter or DEFAULT_FILTER
     if opt.pixel_filter_width is not None:
@@ -259,7 +260,7 @@ def _pixel_filter(opt: RenderOptions, settings) -> tuple:
         radius = settings.pixel_filter_width   # the stage's width belongs to the stage's filter
     else:
         radius = None
-    name, radius = check_filter(name, radius)
+    # PixelFilter validates name and radius (SettingsError naming the attribute).
     return PixelFilter(name, radius), opt.pixel_filter_mode or settings.pixel_filter_mode or DEFAULT_MODE
 
 
