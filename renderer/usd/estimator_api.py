@@ -123,29 +123,32 @@ def read_estimator_settings(prim: Usd.Prim, ctx: ReadContext, *, is_dome: bool) 
                              mis_heuristic=heuristic, dome_irradiance=irradiance)
 
 
+def _authored_token(prim: Usd.Prim, ctx: ReadContext, spec: tuple[str, str, tuple[str, ...]]) -> str:
+    """The validated token where authored, else '' (the renderer applies the schema fallback)."""
+    value, authored = _token(prim, ctx, spec)
+    return value if authored else ""
+
+
 def read_light_sampler(prim: Usd.Prim, ctx: ReadContext) -> str:
     """IllumRenderSettingsAPI ``illum:lightSampler``: '' when unauthored (the renderer chooses,
     as the schema fallback 'auto' says), else the validated token."""
-    value, authored = _token(prim, ctx, _LIGHT_SAMPLER)
-    return value if authored else ""
+    return _authored_token(prim, ctx, _LIGHT_SAMPLER)
 
 
 def read_default_estimator(prim: Usd.Prim, ctx: ReadContext) -> str:
     """IllumRenderSettingsAPI ``illum:estimator``, the stage-wide default for lights whose own
     estimator is unauthored: '' when unauthored (the schema fallback), else the validated token."""
-    value, authored = _token(prim, ctx, _ESTIMATOR)
-    return value if authored else ""
+    return _authored_token(prim, ctx, _ESTIMATOR)
 def read_pixel_filter(prim: Usd.Prim, ctx: ReadContext) -> tuple[str, float, str]:
     """IllumRenderSettingsAPI ``illum:pixelFilter``, ``illum:pixelFilter:width`` and
     ``illum:pixelFilter:mode``: (filter, radius in pixels, mode), '' / 0.0 where unauthored (the
     renderer's defaults, renderer/pixel_filter.py, apply), else validated."""
-    name, named = _token(prim, ctx, _PIXEL_FILTER)
-    mode, moded = _token(prim, ctx, _PIXEL_FILTER_MODE)
+    name = _authored_token(prim, ctx, _PIXEL_FILTER)
     width = 0.0
     raw = _authored(prim, _PIXEL_FILTER_WIDTH, ctx)
     if raw is not None:
         try:
-            _, width = check_filter(name, raw)
+            _, width = check_filter(name or DEFAULT_FILTER, raw)
         except SettingsError as e:
             raise ctx.error(e.message, prim, _PIXEL_FILTER_WIDTH) from None
-    return (name if named else ""), width, (mode if moded else "")
+    return name, width, _authored_token(prim, ctx, _PIXEL_FILTER_MODE)
