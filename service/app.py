@@ -346,12 +346,16 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     # ---------------------------------------------------------------- jobs
     @app.post("/jobs", status_code=201, dependencies=auth, summary="Create a job",
               responses={200: {"description": "idempotent replay: the job created earlier with this key"},
-                         400: {"description": "bad stage path or upload id"},
+                         400: {"description": "bad stage path or upload id, or an idempotency key in the body "
+                                               "that differs from the Idempotency-Key header"},
                          409: {"description": "idempotency key reused with a different request"},
                          413: {"description": "body too large"},
                          422: {"description": "invalid or over-limit settings (the field is named)"}})
     def create_job(body: JobCreate, response: Response,
                    idempotency_key: Optional[str] = Header(None, alias="Idempotency-Key", max_length=255)):
+        if body.idempotency_key is not None and idempotency_key is not None and body.idempotency_key != idempotency_key:
+            raise InputError(400, "idempotency_key", "the body's idempotency_key differs from the Idempotency-Key "
+                             "header; send one, or the same key in both")
         key = body.idempotency_key or idempotency_key
         if (body.stage is None) == (body.upload is None):
             raise InputError(422, "stage", "give exactly one of 'stage' (a path under the stage root) and 'upload'")

@@ -264,13 +264,17 @@ class JobStore:
         return Job.from_row(row)
 
     def delete(self, job_id: str, grace: float) -> bool:
-        """Hide a job at once (canceling it if active); ``collect_deleted`` removes it later."""
+        """Hide a job at once (canceling it if active); ``collect_deleted`` removes it later.
+
+        The job's idempotency key is released in the same transaction: a key replayed after a
+        DELETE creates a new job, at once and ever after, rather than answering with a job id
+        that then 404s (the hidden row stays until collected)."""
         now = time.time()
         with self.transaction() as db:
             row = db.execute("SELECT state FROM jobs WHERE id=? AND deleted_at IS NULL", (job_id,)).fetchone()
             if row is None:
                 return False
-            db.execute("""UPDATE jobs SET deleted_at=?, updated_at=?,
+            db.execute("""UPDATE jobs SET deleted_at=?, updated_at=?, idempotency_key=NULL,
                           state=CASE WHEN state IN ('queued','running') THEN 'canceled' ELSE state END,
                           finished_at=COALESCE(finished_at, ?) WHERE id=?""", (now, now, now, job_id))
             db.execute("UPDATE workers SET stop_deadline=? WHERE job_id=?", (now + grace, job_id))

@@ -109,6 +109,22 @@ def test_idempotency_key(client):
     h1 = client.post("/jobs", json={"stage": "cornell_box.usda", "settings": dict(TINY)}, headers=hdr)
     h2 = client.post("/jobs", json={"stage": "cornell_box.usda", "settings": dict(TINY)}, headers=hdr)
     assert h1.json()["id"] == h2.json()["id"]
+    both = client.post("/jobs", json={**body, "idempotency_key": key + "-b"}, headers={"Idempotency-Key": key + "-c"})
+    assert both.status_code == 400 and both.json()["message"].startswith("idempotency_key:")
+    same = client.post("/jobs", json={**body, "idempotency_key": key + "-s"}, headers={"Idempotency-Key": key + "-s"})
+    assert same.status_code == 201
+
+
+def test_key_replayed_after_delete_gives_a_live_job(client):
+    key = f"shot020-{time.monotonic_ns()}"
+    body = {"stage": "cornell_box.usda", "settings": dict(TINY), "idempotency_key": key}
+    first = client.post("/jobs", json=body).json()
+    assert client.delete(f"/jobs/{first['id']}").status_code == 204
+    again = client.post("/jobs", json=body)
+    assert again.status_code == 201 and again.json()["id"] != first["id"]
+    assert client.get(f"/jobs/{again.json()['id']}").status_code == 200
+    replay = client.post("/jobs", json=body)
+    assert replay.status_code == 200 and replay.json()["id"] == again.json()["id"]
 
 
 def test_cancel_running_job_stops_within_two_seconds(server, client):

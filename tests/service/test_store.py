@@ -115,6 +115,21 @@ def test_idempotency(store):
     assert store.list_jobs()[1] == 1
 
 
+def test_key_replayed_after_delete_creates_a_new_job(store):
+    """A DELETE releases the job's idempotency key: a replay creates a new job, both while the
+    hidden row waits for collection and after it is gone, never the id of the deleted job."""
+    a, _ = _new(store, key="k-del", h="same")
+    assert store.delete(a.id, grace=1.0)
+    b, created = _new(store, key="k-del", h="same")
+    assert created and b.id != a.id and store.get(b.id) is not None
+    c, created_c = _new(store, key="k-del", h="same")
+    assert not created_c and c.id == b.id
+    assert store.collect_deleted() == [a.id]
+    assert store.delete(b.id, grace=1.0) and store.collect_deleted() == [b.id]
+    d, created_d = _new(store, key="k-del", h="different")
+    assert created_d and d.id not in (a.id, b.id)
+
+
 def test_delete_hides_then_collects(store):
     job, _ = _new(store)
     store.register_worker("w", 1, "local")
