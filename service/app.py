@@ -28,7 +28,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from . import API_VERSION
-from .assets import AssetChecker
+from .assets import AssetChecker, CheckQueue
 from .config import ServiceConfig
 from .models import JobCreate, request_hash, validate_settings
 from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
@@ -122,16 +122,25 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     store.set_meta("stage_root", os.path.realpath(config.stage_root))  # for workers started by hand
     supervisor = Supervisor(config, store)
     assets = AssetChecker(config.stage_root, config.uploads_dir, timeout=config.asset_check_timeout)
+
+    def refused(job: Job, message: str) -> None:
+        d = os.path.join(config.jobs_dir, job.id)
+        os.makedirs(d, exist_ok=True)
+        append_job_log(d, f"[api] refused by the asset check: {message}")
+
+    checks = CheckQueue(store, assets, on_refused=refused)
     counters: Counter = Counter()
     started = time.time()
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
+        checks.start()
         if start_workers:
             supervisor.start()
         try:
             yield
         finally:
+            await run_in_threadpool(checks.stop)
             if start_workers:
                 await run_in_threadpool(supervisor.stop)
 
@@ -367,20 +376,20 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             exts = STAGE_EXTENSIONS if body.kind == "render" else IMAGE_EXTENSIONS
             path, name = resolve_in_root(config.stage_root, body.stage, exts)
         settings = validate_settings(body.kind, body.settings, config.limits)
-        if body.kind == "render":
-            # Files the stage would read outside the stage root (layers, references, textures, IES
-            # files...): refused here, naming layer, prim, attribute and path. The worker checks again.
-            verdict = assets.check(path, upload=body.upload is not None)
-            if verdict.error:
-                raise InputError(400, "upload" if body.upload is not None else "stage", verdict.error)
         max_attempts = body.max_attempts or config.max_attempts
         digest = request_hash(body.kind, name, settings, body.priority, max_attempts)
         try:
             job, created = store.create(kind=body.kind, stage=path, stage_name=name, settings=settings,
                                         priority=body.priority, max_attempts=max_attempts,
-                                        idempotency_key=key, request_hash=digest)
+                                        idempotency_key=key, request_hash=digest,
+                                        check_pending=body.kind == "render")
         except IdempotencyConflict as e:
             raise HTTPException(409, str(e)) from None
+        if created and body.kind == "render":
+            # Files the stage would read outside the stage root (layers, references, textures, IES
+            # files...) are looked for by the checker threads, off this request thread; a refused
+            # job fails naming layer, prim, attribute and path. The worker checks again.
+            checks.notify()
         response.headers["Location"] = f"/jobs/{job.id}"
         if not created:
             response.status_code = 200

@@ -4,12 +4,17 @@
 The check is ``renderer.usd.confine.find_escapes`` (layers, composition arcs, value clips,
 asset-valued attributes; see there). It runs twice:
 
-* **at submission**, so ``POST /jobs`` answers 400 naming the layer, prim, attribute and path.
+* **after submission, off the request path**: ``POST /jobs`` queues the job with its check
+  pending and answers at once; ``CheckQueue``'s ``MAX_PARALLEL`` long-lived threads run the
+  checks, and a refused job fails with the message naming the layer, prim, attribute and path
+  (no worker ever claims it). A slow check of a huge stage therefore never holds a request
+  thread: ``/health`` and ``GET /jobs`` stay fast under a flood of uploads.
   The server never imports USD: the check runs in a child process (``python -m service.assets``)
-  with a memory cap and a timeout, so a hostile stage can crash, hang or bloat only that child.
-  At most ``MAX_PARALLEL`` children run at once, and a verdict is reused while every layer the
-  stage uses keeps its real path, size, mtime and inode and every asset its real path, for at
-  most ``CACHE_TTL`` seconds.
+  with a memory cap and a timeout, so a hostile stage can crash, hang or bloat only that child,
+  and the child dies with the server (``procs.die_with_parent``). A verdict is reused while
+  every layer the stage uses keeps its real path, size, mtime and inode and every asset its
+  real path, for at most ``CACHE_TTL`` seconds; so is a check that timed out, while the stage
+  file is unchanged.
 * **in the worker, before rendering** (in-process: the worker is disposable), so a stage whose
   layers changed after submission, or one whose submission check could not finish, is still
   never rendered unchecked.
@@ -31,7 +36,7 @@ import time
 from dataclasses import dataclass
 from typing import Optional
 
-__all__ = ["AssetChecker", "Verdict", "check_in_process", "allowed_roots", "display_name"]
+__all__ = ["AssetChecker", "CheckQueue", "Verdict", "check_in_process", "allowed_roots", "display_name"]
 
 log = logging.getLogger("illum.assets")
 
@@ -120,14 +125,22 @@ class AssetChecker:
         with key_lock:  # concurrent submissions of one stage wait for one check
             hit = self._cached(key)
             if hit is not None:
+                if "error" not in hit:
+                    return Verdict(None, False, hit.get("reason", "unknown"))
                 return Verdict(hit.get("error"), True)
             result = self._run_child(stage_path, upload)
             if "error" not in result:
-                return Verdict(None, False, result.get("reason", "unknown"))
+                if not result.get("timed_out"):
+                    return Verdict(None, False, result.get("reason", "unknown"))
+                # A timeout is cached too (keyed on the stage file itself): resubmitting the same
+                # huge stage must not cost another full timeout of a checking slot each time.
+                result = {**result, "layers": [stage_path], "assets": []}
             with self._lock:
                 if len(self._cache) >= CACHE_SIZE:
                     self._cache.pop(next(iter(self._cache)))
                 self._cache[key] = (_signature(result), result, time.monotonic())
+            if "error" not in result:
+                return Verdict(None, False, result["reason"])
             return Verdict(result["error"], True)
 
     def _cached(self, key) -> Optional[dict]:
@@ -143,7 +156,7 @@ class AssetChecker:
         return result
 
     def _run_child(self, stage_path: str, upload: bool) -> dict:
-        cmd = [sys.executable, "-m", "service.assets", "--stage-root", self.stage_root,
+        cmd = [sys.executable, "-m", "service.assets", "--parent-pid", str(os.getpid()), "--stage-root", self.stage_root,
                "--uploads", self.uploads_dir, "--memory-mb", str(self.memory_mb),
                "--cpu-seconds", str(int(self.timeout) + 5)]
         if upload:
@@ -162,7 +175,7 @@ class AssetChecker:
             except subprocess.TimeoutExpired:
                 log.warning("asset check of %s timed out after %g s; the worker will check it", stage_path,
                             self.timeout)
-                return {"reason": f"timed out after {self.timeout:g} s"}
+                return {"reason": f"timed out after {self.timeout:g} s", "timed_out": True}
             except OSError as e:
                 log.warning("asset check of %s could not start: %s", stage_path, e)
                 return {"reason": f"could not start: {e}"}
@@ -176,6 +189,82 @@ class AssetChecker:
             log.warning("asset check of %s failed (exit %s): %s", stage_path, proc.returncode, tail[0][:300])
             return {"reason": f"the checking process exited with {proc.returncode}"}
         return result
+
+
+class CheckQueue:
+    """The server's asset checks, off the request path (module docstring).
+
+    ``threads`` long-lived threads take the store's pending checks oldest first, run
+    ``checker.check`` and record the verdict with ``store.check_done``; ``on_refused(job,
+    message)`` is called for each job the check failed. ``notify`` wakes them for a new job; they
+    also rescan every ``rescan`` seconds, so jobs left pending by a previous server (or queued
+    by another process) are checked too. The threads are long-lived on purpose: a checking
+    child's parent-death signal follows the thread that spawned it.
+    """
+
+    def __init__(self, store, checker: AssetChecker, *, threads: int = MAX_PARALLEL, rescan: float = 5.0,
+                 on_refused=None):
+        self.store = store
+        self.checker = checker
+        self.rescan = float(rescan)
+        self.on_refused = on_refused
+        self._cond = threading.Condition()
+        self._taken: set = set()
+        self._stopping = False
+        self._threads = [threading.Thread(target=self._run, name=f"asset-check-{i}", daemon=True)
+                         for i in range(max(1, int(threads)))]
+
+    def start(self) -> None:
+        for t in self._threads:
+            t.start()
+
+    def notify(self) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        for t in self._threads:
+            if t.is_alive():
+                t.join(timeout)
+
+    def _next(self):
+        with self._cond:
+            while not self._stopping:
+                try:
+                    pending = self.store.pending_checks()
+                except Exception:  # the database is busy or gone for a moment: retry later
+                    log.exception("listing pending asset checks failed")
+                    pending = []
+                for job in pending:
+                    if job.id not in self._taken:
+                        self._taken.add(job.id)
+                        return job
+                self._cond.wait(self.rescan)
+        return None
+
+    def _run(self) -> None:
+        while (job := self._next()) is not None:
+            try:
+                verdict = self.checker.check(job.stage, upload=job.stage_name.startswith("upload:"))
+                if not verdict.checked:
+                    log.info("asset check of %s could not finish (%s); the worker checks it", job.stage_name,
+                             verdict.reason)
+                if self.store.check_done(job.id, verdict.error) and verdict.error and self.on_refused:
+                    self.on_refused(job, verdict.error)
+            except Exception:
+                # The worker checks again before rendering, so an unexpected failure here lets
+                # the job through rather than leaving it pending forever.
+                log.exception("asset check of job %s failed", job.id)
+                try:
+                    self.store.check_done(job.id, None)
+                except Exception:
+                    log.exception("recording the asset check of job %s failed", job.id)
+            finally:
+                with self._cond:
+                    self._taken.discard(job.id)
 
 
 def _limit_resources(memory_mb: int, cpu_seconds: int) -> None:
@@ -200,8 +289,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--upload", action="store_true")
     p.add_argument("--memory-mb", type=int, default=DEFAULT_MEMORY_MB)
     p.add_argument("--cpu-seconds", type=int, default=0)
+    p.add_argument("--parent-pid", type=int, default=None, help="exit when this process (the server) dies")
     p.add_argument("stage")
     a = p.parse_args(argv)
+    if a.parent_pid is not None:
+        from .procs import die_with_parent
+
+        die_with_parent(a.parent_pid)
     _limit_resources(a.memory_mb, a.cpu_seconds)
     from renderer.errors import IllumError
 

@@ -10,6 +10,13 @@ State machine::
       ▲                  │
       └──── reaper ──────┘   (stale heartbeat and attempts < max_attempts)
 
+    queued (asset_check 'pending') ──check refused──► failed   (never claimed, never retried)
+
+* A render job is created with its asset check ``pending``: the server's checker threads run the
+  check off the request path (service/assets.py) and either fail the job with the checker's
+  message (``check_done``) or mark it ``done``; ``claim`` takes only checked jobs. Pending
+  checks live in the table, so a restarted server picks them up again.
+
 * ``claim`` is one ``UPDATE … WHERE id = (SELECT … ORDER BY priority DESC, seq) RETURNING``, so
   two workers can never take the same job.
 * Workers heartbeat with ``UPDATE … WHERE id=? AND worker=? AND state='running'``. A rowcount of
@@ -37,7 +44,7 @@ __all__ = ["JobStore", "Job", "STATES", "TERMINAL_STATES", "KINDS"]
 STATES = ("queued", "running", "succeeded", "failed", "canceled")
 TERMINAL_STATES = ("succeeded", "failed", "canceled")
 KINDS = ("render", "preconvolve")
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -69,7 +76,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     error               TEXT,
     result              TEXT,               -- JSON summary written on success
     cancel_requested_at REAL,
-    deleted_at          REAL
+    deleted_at          REAL,
+    asset_check         TEXT NOT NULL DEFAULT 'done' CHECK (asset_check IN ('pending', 'done'))
 );
 CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, priority DESC, seq);
 CREATE TABLE IF NOT EXISTS workers (
@@ -88,7 +96,7 @@ CREATE TABLE IF NOT EXISTS workers (
 _PUBLIC = ("id", "kind", "state", "priority", "stage_name", "settings", "idempotency_key", "created_at",
            "updated_at", "started_at", "finished_at", "worker", "heartbeat_at", "attempts", "max_attempts",
            "progress", "spp_done", "spp_target", "samples_per_second", "eta_seconds", "render_seconds",
-           "error", "result", "cancel_requested_at")
+           "error", "result", "cancel_requested_at", "asset_check")
 
 # Columns a worker may set while it owns a job (names are interpolated into SQL: keep this closed).
 _PROGRESS_FIELDS = frozenset({"progress", "spp_done", "spp_target", "samples_per_second", "eta_seconds",
@@ -155,6 +163,13 @@ class JobStore:
                 raise RuntimeError(f"{self.path}: SQLite refused WAL mode (got {mode!r}); "
                                    "is the data directory on a network filesystem?")
             db.executescript(_SCHEMA)
+            # Version 1 databases lack the asset_check column: their jobs were all checked at
+            # submission, which the column's default says.
+            columns = {r[1] for r in db.execute("PRAGMA table_info(jobs)")}
+            if "asset_check" not in columns:
+                db.execute("ALTER TABLE jobs ADD COLUMN asset_check TEXT NOT NULL DEFAULT 'done' "
+                           "CHECK (asset_check IN ('pending', 'done'))")
+                db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),))
             db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
     # ------------------------------------------------------------------ connections
@@ -190,10 +205,10 @@ class JobStore:
     # ------------------------------------------------------------------ submission
     def create(self, *, kind: str, stage: str, stage_name: str, settings: dict, priority: int,
                max_attempts: int, idempotency_key: str | None = None,
-               request_hash: str | None = None) -> tuple[Job, bool]:
+               request_hash: str | None = None, check_pending: bool = False) -> tuple[Job, bool]:
         """Insert a queued job. Returns (job, created): with an idempotency key already used for
         the same request, the existing job and False; for a different request it raises
-        IdempotencyConflict."""
+        IdempotencyConflict. check_pending: no worker may claim the job until ``check_done``."""
         now = time.time()
         job_id = uuid.uuid4().hex[:16]
         with self.transaction() as db:
@@ -206,10 +221,11 @@ class JobStore:
                     return job, False
             db.execute(
                 """INSERT INTO jobs (id, kind, state, priority, stage, stage_name, settings, idempotency_key,
-                                     request_hash, created_at, updated_at, max_attempts, spp_target)
-                   VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)""",
+                                     request_hash, created_at, updated_at, max_attempts, spp_target, asset_check)
+                   VALUES (?, ?, 'queued', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)""",
                 (job_id, kind, int(priority), stage, stage_name, json.dumps(settings, sort_keys=True),
-                 idempotency_key, request_hash, now, now, int(max_attempts), settings.get("spp")))
+                 idempotency_key, request_hash, now, now, int(max_attempts), settings.get("spp"),
+                 "pending" if check_pending else "done"))
             row = db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
         return Job.from_row(row), True
 
@@ -317,21 +333,44 @@ class JobStore:
         now = time.time()
         with self.connect() as db:
             # A read first: idle workers poll often, and a read takes no write lock.
-            if db.execute("SELECT 1 FROM jobs WHERE state='queued' AND deleted_at IS NULL LIMIT 1").fetchone() is None:
+            if db.execute("SELECT 1 FROM jobs WHERE state='queued' AND asset_check='done' AND deleted_at IS NULL "
+                          "LIMIT 1").fetchone() is None:
                 return None
         with self.transaction() as db:
             row = db.execute(
                 """UPDATE jobs SET state='running', worker=?, heartbeat_at=?, updated_at=?,
                        started_at=COALESCE(started_at, ?), attempts=attempts+1, eta_seconds=NULL,
                        samples_per_second=NULL
-                   WHERE id=(SELECT id FROM jobs WHERE state='queued' AND deleted_at IS NULL
-                             ORDER BY priority DESC, seq LIMIT 1)
+                   WHERE id=(SELECT id FROM jobs WHERE state='queued' AND asset_check='done'
+                             AND deleted_at IS NULL ORDER BY priority DESC, seq LIMIT 1)
                    RETURNING *""", (worker_id, now, now, now)).fetchone()
             if row is None:
                 return None
             db.execute("UPDATE workers SET job_id=?, heartbeat_at=?, stop_deadline=NULL WHERE id=?",
                        (row["id"], now, worker_id))
         return Job.from_row(row)
+
+    def pending_checks(self) -> list[Job]:
+        """Queued, visible jobs whose asset check has not run, oldest first."""
+        with self.connect() as db:
+            rows = db.execute("""SELECT * FROM jobs WHERE asset_check='pending' AND state='queued'
+                                 AND deleted_at IS NULL ORDER BY seq""").fetchall()
+        return [Job.from_row(r) for r in rows]
+
+    def check_done(self, job_id: str, error: str | None) -> bool:
+        """Record a job's asset check: error None lets workers claim it; an error fails it at
+        once (a permanent failure: no attempt is spent, nothing retries it). False when the job
+        was canceled or deleted meanwhile."""
+        now = time.time()
+        with self.transaction() as db:
+            if error is None:
+                cur = db.execute("UPDATE jobs SET asset_check='done', updated_at=? WHERE id=? AND asset_check='pending'",
+                                 (now, job_id))
+            else:
+                cur = db.execute("""UPDATE jobs SET asset_check='done', state='failed', error=?, finished_at=?,
+                                     updated_at=? WHERE id=? AND asset_check='pending' AND state='queued'""",
+                                 (error, now, now, job_id))
+            return cur.rowcount == 1
 
     def heartbeat(self, job_id: str, worker_id: str) -> bool:
         """True while the worker still owns the running job; False means stop now."""

@@ -25,7 +25,6 @@ it, and no job pays the compile. With the Ray backend the pool's actors do the s
 from __future__ import annotations
 
 import argparse
-import ctypes
 import json
 import logging
 import os
@@ -39,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from .models import render_options
+from .procs import die_with_parent
 from .store import Job, JobStore
 
 __all__ = ["WorkerContext", "run_job", "main"]
@@ -488,18 +488,6 @@ def _run_preconvolve(ctx: WorkerContext, job: Job, jlog: JobLog) -> dict:
 
 
 # ------------------------------------------------------------------------------ main loop
-def _set_parent_death_signal() -> None:
-    """Ask Linux to SIGKILL us when the process that spawned us dies (kill -9 of the server):
-    no orphan keeps rendering. Elsewhere the heartbeat's parent-pid check does the same."""
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL("libc.so.6", use_errno=True)
-            PR_SET_PDEATHSIG = 1
-            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-        except OSError:
-            pass
-
-
 def _warm_up(ctx: WorkerContext) -> None:
     """Compile or load every kernel before the first job (the module docstring), heartbeating
     meanwhile so the reaper keeps the worker's row (a cold compile takes minutes). A failure is
@@ -618,7 +606,7 @@ def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {a.id} %(levelname)s %(message)s")
     if a.supervised:
-        _set_parent_death_signal()
+        die_with_parent()
     ctx = WorkerContext(store=JobStore(os.path.join(a.data, "jobs.db")), worker_id=a.id, data_dir=a.data,
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,

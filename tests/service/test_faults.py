@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from .conftest import read_exr_bytes, start_server, wait_for, wait_job
+from .conftest import TINY, make_stage_root, read_exr_bytes, start_server, wait_for, wait_job
 
 # Short passes, enough of them to last seconds with checkpoints in between (100 passes took only
 # ~1.5 s once the renderer got faster, leaving ~0.1 s to catch a checkpoint before the end).
@@ -171,3 +171,59 @@ def test_server_restarts_lose_no_job(tmp_path):
     finally:
         s3.stop()
     assert store.integrity() == "ok"
+
+
+def _descendant_cmdlines(pid: int) -> dict:
+    """{pid: cmdline} of every live process whose parent chain reaches ``pid`` (from /proc)."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat", encoding="utf-8", errors="replace") as fh:
+                    stat = fh.read()
+                ppid = int(stat.rsplit(")", 1)[1].split()[1])
+                with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                    parents[int(entry)] = (ppid, fh.read().replace(b"\0", b" ").decode(errors="replace"))
+            except (OSError, ValueError, IndexError):
+                continue
+    out, frontier = {}, {pid}
+    while frontier:
+        kids = {p for p, (pp, _) in parents.items() if pp in frontier and p not in out}
+        out.update({p: parents[p][1] for p in kids})
+        frontier = kids
+    return out
+
+
+def test_a_hanging_asset_check_dies_with_the_server(tmp_path):
+    """A stage whose sublayer is a FIFO makes the checking child block in open(); kill -9 of the
+    server must take that child with it (no orphan waits out its timeout). Meanwhile the request
+    that queued the job has long been answered, with the check pending."""
+    root = make_stage_root(tmp_path / "root")
+    os.mkfifo(os.path.join(root, "shots", "pipe.usda"))
+    with open(os.path.join(root, "shots", "hang.usda"), "w", encoding="utf-8") as fh:
+        fh.write("#usda 1.0\n(\n    subLayers = [@./pipe.usda@, @../cornell_box.usda@]\n)\n")
+    s = start_server(tmp_path, root, workers=0, wait_workers=False, extra=["--asset-check-timeout", "600"])
+    try:
+        with s.client() as c:
+            r = c.post("/jobs", json={"stage": "shots/hang.usda", "settings": dict(TINY)})
+            assert r.status_code == 201 and r.json()["asset_check"] == "pending"
+            child = wait_for(lambda: [p for p, cmd in _descendant_cmdlines(s.proc.pid).items()
+                                      if "service.assets" in cmd and "hang.usda" in cmd], 30,
+                             what="the checking child")
+            assert c.get("/health").status_code == 200  # the API answers while the check hangs
+            assert c.get(f"/jobs/{r.json()['id']}").json()["asset_check"] == "pending"
+    finally:
+        s.stop(signal.SIGKILL)
+
+    def gone():
+        return all(not os.path.exists(f"/proc/{p}") or _zombie(p) for p in child)
+
+    wait_for(gone, 10, what=f"the checking child {child} to die with the server")
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat", encoding="utf-8") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True

@@ -115,6 +115,51 @@ def test_idempotency(store):
     assert store.list_jobs()[1] == 1
 
 
+def test_a_pending_asset_check_holds_the_job(store):
+    """Jobs created with their asset check pending are never claimed; a passed check releases
+    them, a refused one fails them at once without spending an attempt."""
+    ok = store.create(kind="render", stage="/s.usda", stage_name="s.usda", settings={"spp": 1}, priority=90,
+                      max_attempts=3, check_pending=True)[0]
+    bad = store.create(kind="render", stage="/b.usda", stage_name="b.usda", settings={"spp": 1}, priority=90,
+                       max_attempts=3, check_pending=True)[0]
+    plain, _ = _new(store)
+    store.register_worker("w", 1, "local")
+    assert [j.id for j in store.pending_checks()] == [ok.id, bad.id]
+    assert store.claim("w").id == plain.id  # lower priority, but the only checked one
+    store.finish(plain.id, "w", "succeeded")
+    assert store.claim("w") is None
+    assert store.check_done(bad.id, "b.usda: /M.inputs:file: leads outside") and not store.check_done(bad.id, None)
+    j = store.get(bad.id)
+    assert (j.state, j.attempts, j.row["error"]) == ("failed", 0, "b.usda: /M.inputs:file: leads outside")
+    assert store.check_done(ok.id, None) and store.pending_checks() == []
+    assert store.claim("w").id == ok.id
+
+
+def test_a_version_1_database_is_migrated(tmp_path):
+    import sqlite3
+
+    path = tmp_path / "old.db"
+    db = sqlite3.connect(path)
+    db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+    db.execute("INSERT INTO meta VALUES ('schema_version', '1')")
+    db.execute("""CREATE TABLE jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, kind TEXT NOT NULL,
+                  state TEXT NOT NULL, priority INTEGER NOT NULL, stage TEXT NOT NULL, stage_name TEXT NOT NULL,
+                  settings TEXT NOT NULL, idempotency_key TEXT UNIQUE, request_hash TEXT, created_at REAL NOT NULL,
+                  updated_at REAL NOT NULL, started_at REAL, finished_at REAL, worker TEXT, heartbeat_at REAL,
+                  attempts INTEGER NOT NULL DEFAULT 0, max_attempts INTEGER NOT NULL, progress REAL NOT NULL DEFAULT 0,
+                  spp_done INTEGER NOT NULL DEFAULT 0, spp_target INTEGER, samples_per_second REAL, eta_seconds REAL,
+                  render_seconds REAL NOT NULL DEFAULT 0, error TEXT, result TEXT, cancel_requested_at REAL,
+                  deleted_at REAL)""")
+    db.execute("""INSERT INTO jobs (id, kind, state, priority, stage, stage_name, settings, created_at, updated_at,
+                  max_attempts) VALUES ('old', 'render', 'queued', 50, '/s.usda', 's.usda', '{}', 0, 0, 3)""")
+    db.commit()
+    db.close()
+    store = JobStore(str(path))
+    assert store.get_meta("schema_version") == "2"
+    store.register_worker("w", 1, "local")
+    assert store.claim("w").id == "old"  # checked at submission under version 1
+
+
 def test_key_replayed_after_delete_creates_a_new_job(store):
     """A DELETE releases the job's idempotency key: a replay creates a new job, both while the
     hidden row waits for collection and after it is gone, never the id of the deleted job."""
