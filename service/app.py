@@ -140,9 +140,11 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         try:
             yield
         finally:
-            await run_in_threadpool(checks.stop)
+            # Workers first: a running job checkpoints at once. A check still running is not
+            # waited for: its job stays pending in the store, and its child dies with the server.
             if start_workers:
                 await run_in_threadpool(supervisor.stop)
+            await run_in_threadpool(checks.stop, 0.5)
 
     app = FastAPI(
         title="illum render service",

@@ -23,3 +23,34 @@ def die_with_parent(expected_parent: int | None = None) -> None:
             pass
     if expected_parent is not None and os.getppid() != expected_parent:
         os._exit(3)
+
+
+_GUARD_FD: int | None = None
+
+
+def guard_process_group() -> None:
+    """Start a watcher that SIGKILLs this process's whole process group once this process has
+    exited, however it exited (``kill -9`` included).
+
+    For a worker the supervisor starts as the leader of its own process group: a local Ray
+    cluster the worker starts (GCS, raylet, and the raylet's DashboardAgent and RuntimeEnvAgent,
+    which outlive a killed raylet) stays in that group, so nothing the worker started survives
+    it. The watcher is ``sh`` blocked reading a pipe whose only write end is this process's (the
+    descriptor is not inheritable, so Ray's children never hold it): end of file means this
+    process is gone. Does nothing outside Linux or when this process does not lead its group."""
+    global _GUARD_FD
+    if _GUARD_FD is not None or not sys.platform.startswith("linux") or os.getpgid(0) != os.getpid():
+        return
+    import subprocess
+
+    r, w = os.pipe()
+    try:
+        subprocess.Popen(["/bin/sh", "-c", f'read -r _ <&{r}; kill -KILL -"$1"', "illum-group-guard",
+                          str(os.getpid())], pass_fds=(r,), stdin=subprocess.DEVNULL,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError:
+        os.close(w)
+        return
+    finally:
+        os.close(r)
+    _GUARD_FD = w

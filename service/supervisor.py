@@ -197,8 +197,10 @@ class Supervisor:
         env.pop("ILLUM_TOKEN", None)  # workers talk to the DB, never to the API
         log_path = os.path.join(self.workers_log_dir, f"{slot.worker_id}.log")
         with open(log_path, "ab") as out:
+            # Its own process group: whatever the worker starts (a local Ray cluster) stays in it,
+            # and the worker's group guard (procs.guard_process_group) kills it with the worker.
             slot.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                         env=env, close_fds=True)
+                                         env=env, close_fds=True, process_group=0)
         slot.started = now
         log.info("started worker %s (pid %d)", slot.worker_id, slot.proc.pid)
 

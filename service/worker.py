@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from .models import render_options
-from .procs import die_with_parent
+from .procs import die_with_parent, guard_process_group
 from .store import Job, JobStore
 
 __all__ = ["WorkerContext", "run_job", "main"]
@@ -607,6 +607,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {a.id} %(levelname)s %(message)s")
     if a.supervised:
         die_with_parent()
+        guard_process_group()
     ctx = WorkerContext(store=JobStore(os.path.join(a.data, "jobs.db")), worker_id=a.id, data_dir=a.data,
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,

@@ -123,9 +123,11 @@ def test_server_restarts_lose_no_job(tmp_path):
     try:
         with s.client() as c:
             a = c.post("/jobs", json={"stage": "cornell_box.usda", "settings": budget, "priority": 90}).json()
+            wait_for(lambda: _checkpoint_spp(s, a["id"]) >= 3, 60, what="a checkpoint")
+            # Queued behind the running job (submitted together, b's asset check could finish
+            # first); a restarted server resumes a check the shutdown interrupted.
             b = c.post("/jobs", json={"stage": "shots/a.usda", "settings": {"resolution": [16, 16], "spp": 3},
                                       "priority": 10}).json()
-            wait_for(lambda: _checkpoint_spp(s, a["id"]) >= 3, 60, what="a checkpoint")
         # uvicorn shuts down gracefully, then re-raises the signal so the exit status shows it
         assert s.stop(signal.SIGTERM) in (0, -signal.SIGTERM)
     finally:

@@ -4,6 +4,7 @@ blocks re-run; checkpoint state resumes only the missing blocks; the server's ra
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 
@@ -150,3 +151,36 @@ def test_server_ray_backend_local_cluster(tmp_path):
             assert done["state"] == "succeeded", (done, c.get(f"/jobs/{job['id']}/log").text)
     finally:
         s.stop()
+
+
+def test_ray_processes_die_with_the_server(tmp_path):
+    """kill -9 of the server takes every process it started with it: the worker, the local Ray
+    cluster the worker started (GCS, raylet, their agents such as DashboardAgent and
+    RuntimeEnvAgent) and the actors. Listed from /proc before the kill, checked after."""
+    from .test_faults import _descendant_cmdlines, _zombie
+
+    root = make_stage_root(tmp_path / "root")
+    s = start_server(tmp_path, root, workers=1, extra=["--backend", "ray", "--ray-actors", "2"])
+    try:
+        with s.client() as c:
+            job = c.post("/jobs", json={"stage": "cornell_box.usda",
+                                        "settings": {"resolution": [16, 16], "spp": 4}}).json()
+            assert wait_job(c, job["id"], timeout=180)["state"] == "succeeded"
+        started = _descendant_cmdlines(s.proc.pid)
+        assert any("raylet" in cmd for cmd in started.values()), started
+    finally:
+        s.stop(signal.SIGKILL)
+
+    def survivors():
+        return {p: cmd[:120] for p, cmd in started.items() if os.path.exists(f"/proc/{p}") and not _zombie(p)}
+
+    deadline = time.monotonic() + 30
+    while survivors() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = survivors()
+    for p in left:  # leave no orphans behind for the rest of the suite
+        try:
+            os.kill(p, signal.SIGKILL)
+        except OSError:
+            pass
+    assert not left, left
