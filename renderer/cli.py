@@ -30,12 +30,13 @@ def options_from_args(a, route: str = "render") -> "RenderOptions":
 
 
 class _Progress:
-    """A tqdm bar on a TTY; `ALF_PROGRESS nn%` lines otherwise (the render-farm convention)."""
+    """A tqdm bar on a TTY; `ALF_PROGRESS nn%` lines otherwise (the render-farm convention), or
+    always with ``alfred`` (husk's ``-V`` suffix ``a``)."""
 
-    def __init__(self, quiet: bool, before_bar=None):
+    def __init__(self, quiet: bool, before_bar=None, alfred: bool = False):
         self.quiet = quiet
         self.before_bar = before_bar  # ends a compile notice's line before the bar takes over
-        self.tty = sys.stderr.isatty()
+        self.tty = sys.stderr.isatty() and not alfred
         self.bar = None
         self.last = -1
 
@@ -62,27 +63,75 @@ class _Progress:
             self.bar.close()
 
 
+# husk's -V LEVEL: a digit, optionally followed by "a" (Alfred-style ALF_PROGRESS lines even on
+# a terminal). What each level prints (the README says it too):
+VERBOSITY = {0: "errors only (as --quiet)", 1: "warnings and one line per file written",
+             2: "and progress (the default)", 3: "and each frame's load, build, render and write seconds",
+             4: "and each frame's rays, samples/s and per-light estimators"}
+DEFAULT_VERBOSITY = 2
+
+
+def _verbosity(text: str) -> tuple[int, bool]:
+    """-V LEVEL -> (level 0..9, alfred progress)."""
+    import re
+
+    m = re.fullmatch(r"(\d)?(a)?", text or "")
+    if not text or m is None:
+        raise argparse.ArgumentTypeError(f"-V expects a level 0-9, optionally followed by 'a', got {text!r}")
+    return int(m.group(1) or DEFAULT_VERBOSITY), bool(m.group(2))
+
+
+def _check_outputs(a, paths: list[tuple[str, str, object]]) -> None:
+    """Refuse, before anything is read or rendered, every output that cannot be written
+    (renderer/output.py check_output_path): (argument, path, allowed extensions) triples."""
+    from .errors import SettingsError
+    from .output import check_output_path
+
+    probed: set = set()
+    seen: dict = {}
+    for argument, path, extensions in paths:
+        check_output_path(path, argument, extensions=extensions, inputs=(a.stage,),
+                          make_dirs=a.make_output_path, probed=probed)
+        key = os.path.realpath(path)
+        if key in seen:
+            raise SettingsError(f"{path} is also the {seen[key]} output", attribute=argument)
+        seen[key] = argument
+
+
 def cmd_render(a) -> int:
     from contextlib import nullcontext
 
+    from .output import DISPLAY_EXTENSIONS, IMAGE_EXTENSIONS
     from .render import render, write_outputs
     from .warmup import CompileNotice
 
+    level, alfred = a.verbosity if a.verbosity is not None else (DEFAULT_VERBOSITY, False)
+    if a.quiet:
+        level = 0
     opts = options_from_args(a)
+    wanted = [("--output", a.output, IMAGE_EXTENSIONS), ("--preview", a.preview, DISPLAY_EXTENSIONS),
+              ("--stats", a.stats, None)]
+    _check_outputs(a, [w for w in wanted if w[1]])
+    out = a.output
+
+    def on_loaded(desc) -> None:
+        nonlocal out
+        if out is None:  # the RenderProduct's productName, else STAGE.exr, checked before rendering
+            out = desc.settings.product_name or os.path.splitext(os.path.basename(a.stage))[0] + ".exr"
+            argument = "productName" if desc.settings.product_name else "--output"
+            _check_outputs(a, [(argument, out, IMAGE_EXTENSIONS)] + [w for w in wanted if w[1]])
+
     # Says "compiling kernels, first run only" with progress if the kernel cache is cold.
-    notice = nullcontext() if a.quiet else CompileNotice(sys.stderr)
-    prog = _Progress(a.quiet, before_bar=getattr(notice, "finish", None))
+    notice = nullcontext() if level < 2 else CompileNotice(sys.stderr)
+    prog = _Progress(level < 2, before_bar=getattr(notice, "finish", None), alfred=alfred)
     try:
         with notice:
-            result = render(a.stage, opts, progress=prog)
+            result = render(a.stage, opts, progress=prog, on_loaded=on_loaded)
     finally:
         prog.close()
-    out = a.output or result.stats.get("product_name") or None
-    if out is None:
-        base = os.path.splitext(os.path.basename(a.stage))[0]
-        out = base + ".exr"
-    write_outputs(result, exr=out, png=a.preview, stats_json=a.stats)
-    if not a.quiet:
+    write_outputs(result, exr=out, png=a.preview, stats_json=a.stats, compression=a.exr_compression,
+                  half=a.half)
+    if level >= 1:
         for w in result.warnings:
             print(f"illum: warning: {w}", file=sys.stderr)
         s = result.stats
@@ -98,17 +147,31 @@ _SUBCOMMAND_MODULES = ("renderer.preconvolve", "renderer.bench", "renderer.warmu
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .output import EXR_COMPRESSIONS
+    from .render import VERSION
+
     p = argparse.ArgumentParser(prog="illum", description="USD-native path tracer")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--version", action="version", version=f"illum {VERSION}")
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("render", help="render a USD stage to EXR")
     r.add_argument("stage", help=".usda/.usdc/.usdz stage")
     r.add_argument("-o", "--output", help="output EXR (default: the RenderProduct's productName, else STAGE.exr)")
     add_render_flags(r, "render")
-    r.add_argument("--preview", metavar="OUT.png", help="also write an sRGB PNG preview")
+    r.add_argument("--preview", metavar="OUT.png", help="also write a display-referred preview (.png, .jpg, .tif)")
     r.add_argument("--stats", metavar="OUT.json", help="write render statistics as JSON")
-    r.add_argument("--quiet", action="store_true")
+    r.add_argument("--make-output-path", action="store_true",
+                   help="create missing output directories (else a missing directory is an error)")
+    r.add_argument("--exr-compression", choices=EXR_COMPRESSIONS, default="zip",
+                   help="EXR compression (default zip; dwaa is lossy)")
+    r.add_argument("--half", action="store_true", help="write the EXR's pixels as 16-bit half floats")
+    r.add_argument("-V", "--verbose", dest="verbosity", type=_verbosity, metavar="LEVEL",
+                   help="verbosity 0-9 as husk's -V (0 errors only, 1 warnings and files written, 2 progress "
+                        "(default), 3 per-frame phase times, 4 per-frame ray and light statistics); a trailing "
+                        "'a' prints ALF_PROGRESS lines even on a terminal")
+    r.add_argument("--quiet", action="store_true", help="as -V 0")
+    r.add_argument("--version", action="version", version=f"illum {VERSION}")
     # SUPPRESS: an unset subcommand flag must not overwrite `illum --debug render ...`.
     r.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     r.set_defaults(func=cmd_render)
