@@ -85,7 +85,7 @@ def _check_outputs(a, paths: list[tuple[str, str, object]]) -> None:
     """Refuse, before anything is read or rendered, every output that cannot be written
     (renderer/output.py check_output_path): (argument, path, allowed extensions) triples."""
     from .errors import SettingsError
-    from .output import check_output_path
+    from .output import DISPLAY_EXTENSIONS, check_output_path, display_encode
 
     probed: set = set()
     seen: dict = {}
@@ -96,6 +96,10 @@ def _check_outputs(a, paths: list[tuple[str, str, object]]) -> None:
         if key in seen:
             raise SettingsError(f"{path} is also the {seen[key]} output", attribute=argument)
         seen[key] = argument
+    if os.environ.get("OCIO") and any(os.path.splitext(p)[1].lower() in DISPLAY_EXTENSIONS for _, p, _ in paths):
+        import numpy as np
+
+        display_encode(np.zeros((1, 1, 3), np.float32))  # a config OCIO cannot use fails here, not after
 
 
 def cmd_render(a) -> int:
