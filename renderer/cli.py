@@ -7,6 +7,7 @@ file, prim and attribute), 1 an internal error. Tracebacks only with --debug.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -102,48 +103,147 @@ def _check_outputs(a, paths: list[tuple[str, str, object]]) -> None:
         display_encode(np.zeros((1, 1, 3), np.float32))  # a config OCIO cannot use fails here, not after
 
 
+def _frames(a, opts) -> list:
+    """The frames to render: --frames SPEC, or --frame F with --frame-count N / --frame-inc I
+    (renderer/frames.py); [opts.frame] for one frame. A None start (no --frame) is the stage's
+    start time code, known once the first frame is read (``cmd_render``)."""
+    from .errors import SettingsError
+    from .frames import frame_range, parse_frames
+
+    if a.frames is not None:
+        if opts.frame is not None or a.frame_count is not None or a.frame_inc is not None:
+            raise SettingsError("cannot be combined with --frame, --frame-count or --frame-inc", attribute="--frames")
+        return parse_frames(a.frames)
+    if a.frame_count is None and a.frame_inc is None:
+        return [opts.frame]
+    count = 1 if a.frame_count is None else a.frame_count
+    inc = 1.0 if a.frame_inc is None else a.frame_inc
+    frames = frame_range(0.0 if opts.frame is None else opts.frame, count, inc)
+    return frames if opts.frame is not None else [None] + [(k, inc) for k in range(1, count)]
+
+
+class _Range:
+    """Progress over a frame range: the render callback's fraction of the current frame becomes
+    the range's (ALF_PROGRESS lines, or the bar on a terminal, count the whole range) and the
+    bar names the frame."""
+
+    def __init__(self, prog: _Progress, count: int):
+        self.prog, self.count, self.index, self.frame = prog, count, 0, None
+
+    def __call__(self, done: int, target, fraction: float) -> None:
+        if self.prog.bar is not None and self.count > 1:
+            self.prog.bar.set_description(f"frame {self.frame:g} [{self.index + 1}/{self.count}]")
+        self.prog(done, target, (self.index + fraction) / self.count)
+
+
 def cmd_render(a) -> int:
+    import dataclasses
     from contextlib import nullcontext
 
+    from .errors import SettingsError
+    from .frames import frame_name, has_frame_token
     from .output import DISPLAY_EXTENSIONS, IMAGE_EXTENSIONS
-    from .render import render, write_outputs
+    from .render import render, write_json, write_outputs
+    from .usd.stage_reader import open_stage
     from .warmup import CompileNotice
 
     level, alfred = a.verbosity if a.verbosity is not None else (DEFAULT_VERBOSITY, False)
     if a.quiet:
         level = 0
     opts = options_from_args(a)
-    wanted = [("--output", a.output, IMAGE_EXTENSIONS), ("--preview", a.preview, DISPLAY_EXTENSIONS),
-              ("--stats", a.stats, None)]
-    _check_outputs(a, [w for w in wanted if w[1]])
-    out = a.output
+    frames = _frames(a, opts)
+    many = len(frames) > 1
+    given = [(arg, t, ext) for arg, t, ext in (("--output", a.output, IMAGE_EXTENSIONS),
+                                               ("--preview", a.preview, DISPLAY_EXTENSIONS)) if t]
+    # One --stats file for a range without a frame token holds every frame's statistics.
+    stats_per_frame = bool(a.stats) and (not many or has_frame_token(a.stats))
+    if a.stats and stats_per_frame:
+        given.append(("--stats", a.stats, None))
+    elif a.stats:
+        _check_outputs(a, [("--stats", a.stats, None)])
+
+    def check_names(templates, known_frames) -> None:
+        """Every frame's output names, before any frame renders: writable, and distinct."""
+        for arg, template, _ in templates:
+            if many and not has_frame_token(template):
+                raise SettingsError(f"{template} names no frame ($F, $F4, ####): each of the {len(frames)} "
+                                    f"frames would overwrite it", attribute=arg)
+        _check_outputs(a, [(arg, frame_name(t, f), ext) for f in known_frames for arg, t, ext in templates])
+
+    if frames[0] is not None:
+        check_names(given, frames)
+    templates = list(given)
 
     def on_loaded(desc) -> None:
-        nonlocal out
-        if out is None:  # the RenderProduct's productName, else STAGE.exr, checked before rendering
-            out = desc.settings.product_name or os.path.splitext(os.path.basename(a.stage))[0] + ".exr"
-            argument = "productName" if desc.settings.product_name else "--output"
-            _check_outputs(a, [(argument, out, IMAGE_EXTENSIONS)] + [w for w in wanted if w[1]])
+        """First frame only: the stage's start frame, and the productName (else STAGE.exr)."""
+        nonlocal frames, templates
+        if frames[0] is None:
+            t0 = desc.time_code
+            frames = [t0] + [t0 + k * inc for k, inc in frames[1:]]
+        if not a.output:
+            product = desc.settings.product_name
+            name = product or os.path.splitext(os.path.basename(a.stage))[0] + ("_$F4" if many else "") + ".exr"
+            templates = [("productName" if product else "--output", name, IMAGE_EXTENSIONS)] + templates
+        check_names(templates, frames)
 
+    opened = open_stage(a.stage) if many else None   # composed once, read again per frame
     # Says "compiling kernels, first run only" with progress if the kernel cache is cold.
     notice = nullcontext() if level < 2 else CompileNotice(sys.stderr)
     prog = _Progress(level < 2, before_bar=getattr(notice, "finish", None), alfred=alfred)
+    progress = _Range(prog, len(frames))
+    all_stats = []
+    t_range = time.perf_counter()
     try:
-        with notice:
-            result = render(a.stage, opts, progress=prog, on_loaded=on_loaded)
+        for k in range(len(frames)):
+            progress.index = k
+            progress.frame = frames[k] if frames[k] is not None else 0.0
+            frame_opts = dataclasses.replace(opts, frame=frames[k])
+            with notice if k == 0 else nullcontext():
+                result = render(a.stage, frame_opts, progress=progress, opened=opened,
+                                on_loaded=on_loaded if k == 0 else None)
+            f = result.metadata["illum:frame"]
+            names = {arg: frame_name(t, f) for arg, t, _ in templates}
+            result.stats["frame"] = f
+            out = names.get("productName") or names["--output"]
+            write_outputs(result, exr=out, png=names.get("--preview"), stats_json=names.get("--stats"),
+                          compression=a.exr_compression, half=a.half)
+            if a.stats and not stats_per_frame:
+                all_stats.append(result.stats)
+                write_json(a.stats, {"frames": all_stats, "range": _range_summary(all_stats, t_range)})
+            _report(level, result, out, names.get("--preview"), k, len(frames), prog)
     finally:
         prog.close()
-    write_outputs(result, exr=out, png=a.preview, stats_json=a.stats, compression=a.exr_compression,
-                  half=a.half)
-    if level >= 1:
-        for w in result.warnings:
-            print(f"illum: warning: {w}", file=sys.stderr)
-        s = result.stats
-        print(f"illum: wrote {out} ({s['resolution'][0]}x{s['resolution'][1]}, {s['spp']} spp, "
-              f"{s['seconds']['render']:.1f} s, {s['samples_per_second'] / 1e3:.0f} ksamples/s)", file=sys.stderr)
-        if a.preview:
-            print(f"illum: wrote {a.preview}", file=sys.stderr)
+    if level >= 1 and many:
+        r = _range_summary(all_stats or [None] * len(frames), t_range)
+        print(f"illum: {r['frames']} frames in {r['wall_seconds']:.1f} s ({r['frames_per_minute']:.1f} frames/min)",
+              file=sys.stderr)
     return 0
+
+
+def _range_summary(stats: list, t_start: float) -> dict:
+    wall = time.perf_counter() - t_start
+    return {"frames": len(stats), "wall_seconds": wall, "frames_per_minute": 60.0 * len(stats) / max(wall, 1e-9)}
+
+
+def _report(level: int, result, out: str, preview, k: int, count: int, prog: _Progress) -> None:
+    """What -V LEVEL prints after a frame (VERBOSITY)."""
+    if level < 1:
+        return
+    lines = [f"illum: warning: {w}" for w in result.warnings] if k == 0 else []
+    s = result.stats
+    head = f"illum: frame {s['frame']:g} [{k + 1}/{count}]: " if count > 1 else "illum: "
+    lines.append(f"{head}wrote {out} ({s['resolution'][0]}x{s['resolution'][1]}, {s['spp']} spp, "
+                 f"{s['seconds']['render']:.1f} s, {s['samples_per_second'] / 1e3:.0f} ksamples/s)")
+    if preview:
+        lines.append(f"{head}wrote {preview}")
+    if level >= 3:
+        lines.append(head + ", ".join(f"{phase} {sec:.2f} s" for phase, sec in s["seconds"].items()))
+    if level >= 4:
+        lines.append(f"{head}rays {json.dumps(s['rays'])}, {s['mrays_per_second']:.2f} Mrays/s, lights " +
+                     ", ".join(f"{li['path']}={li['estimator']}" for li in s["lights"]))
+    write = prog.bar.write if prog.bar is not None else (lambda t: print(t, file=sys.stderr))
+    for line in lines:
+        write(line)
 
 
 # Modules exposing register_cli(subparsers): each adds its subcommand(s) with set_defaults(func=...).
@@ -161,8 +261,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="render a USD stage to EXR")
     r.add_argument("stage", help=".usda/.usdc/.usdz stage")
-    r.add_argument("-o", "--output", help="output EXR (default: the RenderProduct's productName, else STAGE.exr)")
+    r.add_argument("-o", "--output", help="output image: .exr, or display-referred .png/.jpg/.tif; $F, $F4, #### "
+                   "become the frame (default: the RenderProduct's productName, else STAGE.exr)")
     add_render_flags(r, "render")
+    r.add_argument("-n", "--frame-count", type=int, metavar="N", help="render N frames from --frame")
+    r.add_argument("-i", "--frame-inc", type=float, metavar="I", help="frame step of --frame-count (default 1)")
+    r.add_argument("--frames", metavar="SPEC", help="frames to render: A, A-B or A-BxSTEP, comma-separated "
+                   "(e.g. 1-100x2); the stage is loaded once")
     r.add_argument("--preview", metavar="OUT.png", help="also write a display-referred preview (.png, .jpg, .tif)")
     r.add_argument("--stats", metavar="OUT.json", help="write render statistics as JSON")
     r.add_argument("--make-output-path", action="store_true",

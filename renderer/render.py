@@ -72,6 +72,7 @@ def render(
     scene_cache: dict | None = None,
     stream_seed: int | None = None,
     on_loaded: Callable[[object], None] | None = None,
+    opened=None,
 ) -> RenderResult:
     """Render a stage progressively. See the module docstring.
 
@@ -84,12 +85,14 @@ def render(
     2^31 so that every file format's int attribute can record it).
     on_loaded: called with the stage's SceneDescription once it is read, before the film is
     allocated and any sample is taken (the CLI checks the productName's output path there).
+    opened: the stage already open (renderer.usd.stage_reader.open_stage(stage_path)): a frame
+    range opens and composes it once and reads it again at each frame's time code.
     """
     from .accel import default_threads
     from .camera import Camera
     from .integrators.path import IntegratorOptions, PathIntegrator
     from .scene import build_scene
-    from .usd import load_stage
+    from .usd import load_stage, read_stage
     from .warmup import COMPILES
 
     opt = options or RenderOptions()
@@ -108,8 +111,9 @@ def render(
     cached = scene_cache.get(key) if scene_cache is not None else None
     if cached is None:
         t0 = time.perf_counter()
-        desc = load_stage(stage_path, camera=opt.camera, settings=opt.settings, frame=opt.frame,
-                          purposes=opt.purposes)
+        where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes)
+        desc = (load_stage(stage_path, **where) if opened is None
+                else read_stage(opened, source=stage_path, **where))
         phases["load"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler)
@@ -422,9 +426,26 @@ def write_outputs(result: RenderResult, exr: str | None = None, png: str | None 
         write_s = time.perf_counter() - t0
         result.stats["seconds"]["write"] = write_s
         if stats_json:
-            with open(files.temp(stats_json), "w") as fh:
-                json.dump(result.stats, fh, indent=2, default=_json_default)
+            write_json(stats_json, result.stats, files=files)
     return {"write": write_s}
+
+
+def write_json(path: str, obj, *, files=None) -> None:
+    """``obj`` as indented JSON (numpy values as Python ones), atomically: joining ``files``
+    (renderer/output.py AtomicFiles) or renamed into place alone."""
+    from .output import AtomicFiles
+
+    own = files is None
+    files = files or AtomicFiles()
+    try:
+        with open(files.temp(path), "w") as fh:
+            json.dump(obj, fh, indent=2, default=_json_default)
+    except BaseException:
+        if own:
+            files.discard()
+        raise
+    if own:
+        files.commit()
 
 
 def _json_default(o):
