@@ -186,7 +186,8 @@ def cmd_render(a) -> int:
             templates = [("productName" if product else "--output", name, IMAGE_EXTENSIONS)] + templates
         check_names(templates, frames)
 
-    opened = open_stage(a.stage) if many else None   # composed once, read again per frame
+    # A range composes the stage once and decodes each texture once (render(shared=...)).
+    shared = {"stage": open_stage(a.stage)} if many else None
     # Says "compiling kernels, first run only" with progress if the kernel cache is cold.
     notice = nullcontext() if level < 2 else CompileNotice(sys.stderr)
     prog = _Progress(level < 2, before_bar=getattr(notice, "finish", None), alfred=alfred)
@@ -199,7 +200,7 @@ def cmd_render(a) -> int:
             progress.frame = frames[k] if frames[k] is not None else 0.0
             frame_opts = dataclasses.replace(opts, frame=frames[k])
             with notice if k == 0 else nullcontext():
-                result = render(a.stage, frame_opts, progress=progress, opened=opened,
+                result = render(a.stage, frame_opts, progress=progress, shared=shared,
                                 on_loaded=on_loaded if k == 0 else None)
             f = result.metadata["illum:frame"]
             names = {arg: frame_name(t, f) for arg, t, _ in templates}

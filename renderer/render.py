@@ -72,7 +72,7 @@ def render(
     scene_cache: dict | None = None,
     stream_seed: int | None = None,
     on_loaded: Callable[[object], None] | None = None,
-    opened=None,
+    shared: dict | None = None,
 ) -> RenderResult:
     """Render a stage progressively. See the module docstring.
 
@@ -85,8 +85,10 @@ def render(
     2^31 so that every file format's int attribute can record it).
     on_loaded: called with the stage's SceneDescription once it is read, before the film is
     allocated and any sample is taken (the CLI checks the productName's output path there).
-    opened: the stage already open (renderer.usd.stage_reader.open_stage(stage_path)): a frame
-    range opens and composes it once and reads it again at each frame's time code.
+    shared: what a frame range keeps between its frames' render() calls: under "stage" the
+    stage opened once (renderer.usd.stage_reader.open_stage), read again at each frame's time
+    code; under "textures" (filled here) the TextureCache, so each image file is decoded once.
+    Geometry, BVHs and light tables are rebuilt per frame (each frame's are its own).
     """
     from .accel import default_threads
     from .camera import Camera
@@ -112,11 +114,17 @@ def render(
     if cached is None:
         t0 = time.perf_counter()
         where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes)
+        opened = shared.get("stage") if shared is not None else None
         desc = (load_stage(stage_path, **where) if opened is None
                 else read_stage(opened, source=stage_path, **where))
         phases["load"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler)
+        textures = None
+        if shared is not None:
+            from .textures import TextureCache
+
+            textures = shared.setdefault("textures", TextureCache())
+        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
         phases["build"] = time.perf_counter() - t0
         if scene_cache is not None:
             scene_cache.clear()
