@@ -19,13 +19,14 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 
 import numpy as np
 
 from .errors import SettingsError
 
 __all__ = ["IMAGE_EXTENSIONS", "DISPLAY_EXTENSIONS", "EXR_COMPRESSIONS", "check_output_path", "file_mode",
-           "AtomicFiles", "write_image", "srgb_encode", "display_encode"]
+           "AtomicFiles", "joining", "write_image", "srgb_encode", "display_encode"]
 
 # extension -> OpenImageIO format name
 IMAGE_EXTENSIONS = {".exr": "openexr", ".png": "png", ".jpg": "jpeg", ".jpeg": "jpeg", ".tif": "tiff",
@@ -143,6 +144,17 @@ class AtomicFiles:
             self.discard()
 
 
+@contextmanager
+def joining(files: AtomicFiles | None):
+    """The AtomicFiles a writer writes into: ``files`` (whose owner commits or discards it), or
+    for None a new one, committed on success and discarded on an exception."""
+    if files is not None:
+        yield files
+        return
+    with AtomicFiles() as own:
+        yield own
+
+
 # ---------------------------------------------------------------------------------- display
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB transfer function on [0,1]-clamped linear values."""
@@ -233,10 +245,8 @@ def write_image(path: str, pixels: np.ndarray, metadata: dict | None = None, *, 
         spec.alpha_channel = 3
     for key, value in (metadata or {}).items():
         _set_attr(spec, key, value)
-    own = files is None
-    files = files or AtomicFiles()
-    try:
-        tmp = files.temp(path)
+    with joining(files) as f:
+        tmp = f.temp(path)
         out = oiio.ImageOutput.create(tmp)
         if out is None or not out.open(tmp, spec):
             raise OSError(f"cannot open {path} for writing: {oiio.geterror()}")
@@ -244,9 +254,3 @@ def write_image(path: str, pixels: np.ndarray, metadata: dict | None = None, *, 
         ok = out.close() and ok
         if not ok:
             raise OSError(f"cannot write {path}: {out.geterror()}")
-    except BaseException:
-        if own:
-            files.discard()
-        raise
-    if own:
-        files.commit()

@@ -441,19 +441,10 @@ def write_outputs(result: RenderResult, exr: str | None = None, png: str | None 
 def write_json(path: str, obj, *, files=None) -> None:
     """``obj`` as indented JSON (numpy values as Python ones), atomically: joining ``files``
     (renderer/output.py AtomicFiles) or renamed into place alone."""
-    from .output import AtomicFiles
+    from .output import joining
 
-    own = files is None
-    files = files or AtomicFiles()
-    try:
-        with open(files.temp(path), "w") as fh:
-            json.dump(obj, fh, indent=2, default=_json_default)
-    except BaseException:
-        if own:
-            files.discard()
-        raise
-    if own:
-        files.commit()
+    with joining(files) as f, open(f.temp(path), "w") as fh:
+        json.dump(obj, fh, indent=2, default=_json_default)
 
 
 def _json_default(o):
