@@ -27,7 +27,6 @@ leaves a half-written image under the final name.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import tempfile
@@ -36,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from .output import srgb_encode, write_image  # noqa: F401  (srgb_encode: re-exported)
 from .pixel_filter import PixelFilter
 
 
@@ -198,6 +198,14 @@ class Film:
         if self.splat is not None:
             self.sum_w2 = np.zeros((h, w, 3))
             self.weight = np.zeros((h, w, 3))
+
+    @staticmethod
+    def bytes_per_pixel(splat: bool) -> int:
+        """Bytes a data-window pixel takes: the arrays __post_init__ allocates (float64 RGB sums,
+        int64 count; a splatting film two more RGB sums), plus what writing it needs at once
+        (mean(): a float64 RGB quotient, a boolean mask and the float32 result)."""
+        accumulated = 2 * 3 * 8 + 8 + (2 * 3 * 8 if splat else 0)
+        return accumulated + 3 * 8 + 3 + 3 * 4
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -385,101 +393,29 @@ class Film:
 
 
 # ---------------------------------------------------------------------------------- I/O
-def _atomic_target(path: str) -> tuple[str, str]:
-    d = os.path.dirname(os.path.abspath(path)) or "."
-    os.makedirs(d, exist_ok=True)
-    base, ext = os.path.splitext(os.path.basename(path))
-    fd, tmp = tempfile.mkstemp(prefix=f".{base}.", suffix=ext, dir=d)
-    os.close(fd)
-    return tmp, path
-
-
+# Writing lives in renderer/output.py (atomic, umask modes, display encodings); these keep the
+# film's own shapes: the data window inside the display window.
 def write_rgb_exr(path: str, pixels: np.ndarray, metadata: dict | None = None, *,
-                  origin: tuple[int, int] = (0, 0), full: tuple[int, int] | None = None) -> None:
-    """Write (h, w, 3) pixels as a float32 RGB EXR, atomically (temporary name, then rename).
-
-    origin: data-window position inside the display window of size ``full`` (width, height),
-    default the image itself. metadata: str/int/float values become EXR attributes; numpy (4,4)
-    arrays become matrices; dicts/lists are stored as JSON strings.
-    """
-    import OpenImageIO as oiio
-
-    h, w = pixels.shape[:2]
-    spec = oiio.ImageSpec(w, h, 3, oiio.FLOAT)
-    spec.x, spec.y = origin
-    spec.full_x, spec.full_y = 0, 0
-    spec.full_width, spec.full_height = full or (w, h)
-    spec.channelnames = ("R", "G", "B")
-    spec.attribute("compression", "zip")
-    spec.attribute("oiio:ColorSpace", "lin_rec709")
-    for key, value in (metadata or {}).items():
-        _set_attr(spec, key, value)
-    tmp, final = _atomic_target(path)
-    try:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, spec):
-            raise OSError(f"cannot open {path} for writing: {oiio.geterror()}")
-        if not out.write_image(np.ascontiguousarray(pixels, dtype=np.float32)):
-            raise OSError(f"cannot write {path}: {out.geterror()}")
-        out.close()
-        os.replace(tmp, final)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+                  origin: tuple[int, int] = (0, 0), full: tuple[int, int] | None = None, **kw) -> None:
+    """Write (h, w, 3) pixels as a float32 RGB EXR, atomically (output.write_image)."""
+    write_image(path, pixels, metadata, origin=origin, full=full, **kw)
 
 
-def write_exr(path: str, film: Film, metadata: dict | None = None) -> None:
-    """Write the film as a float32 RGB EXR with display window = full image, data window = crop."""
+def write_exr(path: str, film: Film, metadata: dict | None = None, **kw) -> None:
+    """Write the film as an EXR (or, by extension, a display-referred PNG/JPEG/TIFF of the data
+    window) with display window = full image, data window = crop. kw: output.write_image's
+    (files, compression, half)."""
     x0, y0, x1, y1 = film.window
     pixels = film.mean()
     if not np.all(np.isfinite(pixels)):  # unreachable by construction; a guard, not a policy
         raise RuntimeError("film holds non-finite pixels")
-    write_rgb_exr(path, pixels, metadata, origin=(x0, y0), full=(film.width, film.height))
+    write_image(path, pixels, metadata, origin=(x0, y0), full=(film.width, film.height), **kw)
 
 
-def _set_attr(spec, key: str, value) -> None:
-    import OpenImageIO as oiio
-
-    if isinstance(value, np.ndarray) and value.shape == (4, 4):
-        # EXR matrices are row-vector (Imath); ours are column-vector, so store the transpose.
-        spec.attribute(key, oiio.TypeDesc("matrix"), np.ascontiguousarray(value.T, dtype=np.float32).ravel())
-    elif isinstance(value, bool):
-        spec.attribute(key, int(value))
-    elif isinstance(value, (int, np.integer)):
-        spec.attribute(key, int(value))
-    elif isinstance(value, (float, np.floating)):
-        spec.attribute(key, float(value))
-    elif isinstance(value, str):
-        spec.attribute(key, value)
-    else:
-        spec.attribute(key, json.dumps(value, sort_keys=True))
-
-
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB transfer function on [0,1]-clamped linear values."""
-    x = np.clip(linear, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-
-
-def write_png(path: str, film_or_image) -> None:
-    """8-bit sRGB preview (display only: values are clamped to [0, 1])."""
-    import OpenImageIO as oiio
-
+def write_png(path: str, film_or_image, **kw) -> None:
+    """8-bit sRGB preview of the full image (display only: values are clamped to [0, 1])."""
     img = film_or_image.image() if isinstance(film_or_image, Film) else np.asarray(film_or_image)
-    data = np.round(srgb_encode(img) * 255.0).astype(np.uint8)
-    spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, oiio.UINT8)
-    spec.attribute("oiio:ColorSpace", "srgb_rec709_scene")
-    tmp, final = _atomic_target(path)
-    try:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None or not out.open(tmp, spec):
-            raise OSError(f"cannot open {path} for writing: {oiio.geterror()}")
-        out.write_image(data)
-        out.close()
-        os.replace(tmp, final)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_image(path, img, **kw)
 
 
 def read_exr(path: str) -> tuple[np.ndarray, dict]:

@@ -180,8 +180,9 @@ OPTIONS: tuple[Option, ...] = (
     Option("purposes", "str_list", None, "purposes to render (repeatable or comma-separated; default: the "
            "RenderSettings includedPurposes)", flags=("--purpose",), metavar="PURPOSE[,PURPOSE]",
            pattern=PURPOSE_TOKEN, max_length=64, hi=16, example=("default", "render")),
-    # 64 bits: the Ray backend derives its blocks' seeds as (seed << 20) + 1 + block (service/ray_backend.py).
-    Option("seed", "int", 0, "random seed; passes continue its streams", flags=("--seed",), lo=0, hi=2**63 - 1,
+    # Below 2^31: the EXR records it as an int attribute. The Ray backend's per-block streams
+    # ((seed << 20) + 1 + block, service/ray_backend.py) reach render() as its stream_seed instead.
+    Option("seed", "int", 0, "random seed; passes continue its streams", flags=("--seed",), lo=0, hi=2**31 - 1,
            example=5),
     Option("threads", "int", None, "render threads (default: all cores)", flags=("--threads", "-j"), lo=1,
            hi=256, routes=("render",), api=None, example=1,

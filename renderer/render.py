@@ -20,7 +20,7 @@ import numpy as np
 
 from .allocator import tune_allocator
 from .errors import SettingsError
-from .film import Film, write_exr, write_png
+from .film import Film
 from .options import make_options_class
 from .pixel_filter import jitter
 
@@ -70,6 +70,9 @@ def render(
     cancel: Callable[[], bool] | None = None,
     resume: Film | None = None,
     scene_cache: dict | None = None,
+    stream_seed: int | None = None,
+    on_loaded: Callable[[object], None] | None = None,
+    shared: dict | None = None,
 ) -> RenderResult:
     """Render a stage progressively. See the module docstring.
 
@@ -77,12 +80,21 @@ def render(
     after its sample count so the random streams never repeat).
     scene_cache: optional dict reused across calls (e.g. by a service worker or a Ray actor) to
     keep the loaded scene and BVH resident for the same (stage, frame, options) key.
+    stream_seed: the integrator's random seed when it is not ``options.seed`` (the Ray backend
+    gives each block its own stream; any non-negative integer, where a user's --seed stays below
+    2^31 so that every file format's int attribute can record it).
+    on_loaded: called with the stage's SceneDescription once it is read, before the film is
+    allocated and any sample is taken (the CLI checks the productName's output path there).
+    shared: what a frame range keeps between its frames' render() calls: under "stage" the
+    stage opened once (renderer.usd.stage_reader.open_stage), read again at each frame's time
+    code; under "textures" (filled here) the TextureCache, so each image file is decoded once.
+    Geometry, BVHs and light tables are rebuilt per frame (each frame's are its own).
     """
     from .accel import default_threads
     from .camera import Camera
     from .integrators.path import IntegratorOptions, PathIntegrator
     from .scene import build_scene
-    from .usd import load_stage
+    from .usd import load_stage, read_stage
     from .warmup import COMPILES
 
     opt = options or RenderOptions()
@@ -101,11 +113,18 @@ def render(
     cached = scene_cache.get(key) if scene_cache is not None else None
     if cached is None:
         t0 = time.perf_counter()
-        desc = load_stage(stage_path, camera=opt.camera, settings=opt.settings, frame=opt.frame,
-                          purposes=opt.purposes)
+        where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes)
+        opened = shared.get("stage") if shared is not None else None
+        desc = (load_stage(stage_path, **where) if opened is None
+                else read_stage(opened, source=stage_path, **where))
         phases["load"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler)
+        textures = None
+        if shared is not None:
+            from .textures import TextureCache
+
+            textures = shared.setdefault("textures", TextureCache())
+        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
         phases["build"] = time.perf_counter() - t0
         if scene_cache is not None:
             scene_cache.clear()
@@ -115,21 +134,30 @@ def render(
         phases["load"] = 0.0
         phases["build"] = 0.0
 
-    settings = desc.settings
-    width, height = opt.resolution or settings.resolution
-    width, height = int(width), int(height)
-    pixel_filter, mode = _pixel_filter(opt, settings)
-    splat = pixel_filter if mode == "splat" else None
-    camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy,
-                    sample_filter=jitter() if splat is not None else pixel_filter)
-    window = _data_window(settings.data_window_ndc, width, height)
-    film = resume if resume is not None else Film(width, height, window, splat)
-    if resume is not None and (resume.width, resume.height, resume.window) != (width, height, window):
-        raise SettingsError("checkpoint does not match the requested resolution/data window", attribute="resume")
-    if resume is not None and (resume.mode, repr(resume.splat)) != (mode, repr(splat)):
-        raise SettingsError(f"checkpoint was rendered with pixel filter mode {resume.mode} "
-                            f"({resume.splat or 'filter importance sampling'}), not {mode} ({pixel_filter})",
-                            attribute="resume")
+    try:  # a refusal here (output path, film memory, checkpoint) must not leak the built scene
+        if on_loaded is not None:
+            on_loaded(desc)
+        settings = desc.settings
+        width, height = opt.resolution or settings.resolution
+        width, height = int(width), int(height)
+        pixel_filter, mode = _pixel_filter(opt, settings)
+        splat = pixel_filter if mode == "splat" else None
+        camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy,
+                        sample_filter=jitter() if splat is not None else pixel_filter)
+        window = _data_window(settings.data_window_ndc, width, height)
+        if resume is None:
+            _check_film_memory(width, height, window, splat is not None)
+        film = resume if resume is not None else Film(width, height, window, splat)
+        if resume is not None and (resume.width, resume.height, resume.window) != (width, height, window):
+            raise SettingsError("checkpoint does not match the requested resolution/data window", attribute="resume")
+        if resume is not None and (resume.mode, repr(resume.splat)) != (mode, repr(splat)):
+            raise SettingsError(f"checkpoint was rendered with pixel filter mode {resume.mode} "
+                                f"({resume.splat or 'filter importance sampling'}), not {mode} ({pixel_filter})",
+                                attribute="resume")
+    except BaseException:
+        if scene_cache is None:
+            scene.close()
+        raise
 
     # What lights without an authored illum:estimator use: --estimator TOKEN (or
     # --default-estimator), else IllumRenderSettingsAPI illum:estimator, else the schema fallback.
@@ -139,7 +167,7 @@ def render(
     # samples/s on 2 threads against 409-426k on 1).
     shading_threads = threads
     integrator = PathIntegrator(scene, camera, IntegratorOptions(
-        max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed, threads=shading_threads,
+        max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed if stream_seed is None else int(stream_seed), threads=shading_threads,
         estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples),
         default_estimator=default_estimator,
         emitter_samples=int(opt.emitter_samples), fast_path=bool(opt.fast_path)))
@@ -241,9 +269,12 @@ def render(
         "illum:estimators": {li["path"]: li["estimator"] for li in light_info},
         "illum:lightSampler": stats["light_sampler"],
         "illum:pixelFilter": f"{pixel_filter.name} {pixel_filter.radius:g} {mode}",
-        "worldToCamera": camera.world_to_camera(),
-        "worldToScreen": camera.projection_matrix() @ camera.world_to_camera(),
+        **_camera_metadata(camera),
     }
+    metadata["illum:frame"] = float(desc.time_code)
+    if film.count.size:
+        metadata["illum:sppRange"] = f"{int(film.count.min())} {int(film.count.max())}"
+
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings))
 
 
@@ -308,24 +339,112 @@ def _data_window(ndc, width: int, height: int) -> tuple[int, int, int, int]:
     return x0, y0, x1, y1
 
 
+def available_memory() -> int | None:
+    """Bytes this process may still allocate: the least of the machine's available memory, the
+    room left under an address-space limit (RLIMIT_AS) and under a cgroup v2 memory limit.
+    None when none of them can be read."""
+    import resource
+
+    room = []
+    info = _proc_fields("/proc/meminfo", ("MemAvailable:",))
+    if "MemAvailable:" in info:
+        room.append(info["MemAvailable:"])
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        size = _proc_fields("/proc/self/status", ("VmSize:",)).get("VmSize:", 0)
+        room.append(soft - size)
+    try:
+        with open("/sys/fs/cgroup/memory.max") as fh:
+            limit = fh.read().strip()
+        if limit != "max":
+            with open("/sys/fs/cgroup/memory.current") as fh:
+                room.append(int(limit) - int(fh.read()))
+    except (OSError, ValueError):
+        pass
+    return min(room) if room else None
+
+
+def _proc_fields(path: str, names: tuple[str, ...]) -> dict:
+    """{name: bytes} of ``name  N kB`` lines of a /proc file (missing file: {})."""
+    out = {}
+    try:
+        with open(path) as fh:
+            for line in fh:
+                parts = line.split()
+                if parts and parts[0] in names:
+                    out[parts[0]] = int(parts[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return out
+
+
+def _check_film_memory(width: int, height: int, window: tuple[int, int, int, int], splat: bool) -> None:
+    """SettingsError naming the resolution when the film (renderer/film.py Film.bytes_per_pixel)
+    cannot fit in the memory this process has left: refused before it is allocated, not a
+    MemoryError (or the OOM killer) after the load, or mid-render."""
+    x0, y0, x1, y1 = window
+    need = (x1 - x0) * (y1 - y0) * Film.bytes_per_pixel(splat)
+    room = available_memory()
+    if room is not None and need > room:
+        raise SettingsError(f"a {width}x{height} film needs {need / 2**30:.1f} GiB, more than the "
+                            f"{max(room, 0) / 2**30:.1f} GiB of memory available", attribute="resolution")
+
+
+# OpenEXR's camera space is left-handed (x right, y up, +z the viewing direction); USD's camera
+# looks down -z, so OpenEXR's worldToCamera is USD's world-to-camera with z negated.
+_USD_TO_EXR_CAMERA = np.diag([1.0, 1.0, -1.0, 1.0])
+# Screen [-1, 1]^2 (y up) -> OpenEXR NDC: (0, 0) the display window's top-left corner, (1, 1)
+# its bottom-right one (x right, y down).
+_SCREEN_TO_NDC = np.array([[0.5, 0, 0, 0.5], [0, -0.5, 0, 0.5], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+def _camera_metadata(camera) -> dict:
+    """The camera matrices of an EXR, as OpenEXR's standard attributes define them (column-vector
+    here; the writer stores their transposes, Imath's row-vector form): worldToCamera,
+    worldToNDC (a world point times it, divided by w, gives NDC x, y), and worldToScreen (the
+    same with screen coordinates in [-1, 1], y up, as RenderMan and Nuke read it)."""
+    world_to_camera = camera.world_to_camera()
+    world_to_screen = camera.projection_matrix() @ world_to_camera
+    return {"worldToCamera": _USD_TO_EXR_CAMERA @ world_to_camera,
+            "worldToScreen": world_to_screen,
+            "worldToNDC": _SCREEN_TO_NDC @ world_to_screen}
+
+
 def write_outputs(result: RenderResult, exr: str | None = None, png: str | None = None,
-                  stats_json: str | None = None) -> dict:
-    """Write the requested files (atomically) and return the write time in seconds."""
+                  stats_json: str | None = None, *, compression: str = "zip", half: bool = False) -> dict:
+    """Write the requested files and return the write time in seconds.
+
+    exr: the beauty image (by extension: EXR with the render's metadata, or a display-referred
+    PNG/JPEG/TIFF); png: a display-referred preview of the full image. Every file goes to a
+    temporary name first; they are renamed together once all are written
+    (renderer/output.py AtomicFiles), so a failing preview leaves no EXR behind either.
+    compression, half: the EXR's compression and half-float pixels."""
+    from .film import write_exr, write_png
+    from .output import AtomicFiles
+
     t0 = time.perf_counter()
-    if exr:
-        write_exr(exr, result.film, result.metadata)
-    if png:
-        write_png(png, result.film)
-    write_s = time.perf_counter() - t0
-    result.stats["seconds"]["write"] = write_s
-    if stats_json:
-        d = os.path.dirname(os.path.abspath(stats_json))
-        os.makedirs(d, exist_ok=True)
-        tmp = stats_json + ".tmp"
-        with open(tmp, "w") as fh:
-            json.dump(result.stats, fh, indent=2, default=_json_default)
-        os.replace(tmp, stats_json)
+    with AtomicFiles() as files:
+        if exr:
+            if os.path.splitext(exr)[1].lower() == ".exr":
+                write_exr(exr, result.film, result.metadata, files=files, compression=compression, half=half)
+            else:
+                write_png(exr, result.film, files=files)
+        if png:
+            write_png(png, result.film, files=files)
+        write_s = time.perf_counter() - t0
+        result.stats["seconds"]["write"] = write_s
+        if stats_json:
+            write_json(stats_json, result.stats, files=files)
     return {"write": write_s}
+
+
+def write_json(path: str, obj, *, files=None) -> None:
+    """``obj`` as indented JSON (numpy values as Python ones), atomically: joining ``files``
+    (renderer/output.py AtomicFiles) or renamed into place alone."""
+    from .output import joining
+
+    with joining(files) as f, open(f.temp(path), "w") as fh:
+        json.dump(obj, fh, indent=2, default=_json_default)
 
 
 def _json_default(o):

@@ -167,8 +167,12 @@ class Scene:
 BRUTE_FORCE_LIGHTS = 16
 
 
-def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sampler: str = "auto") -> Scene:
-    """Flatten geometry, build the BVH, materials, lights and the light sampler."""
+def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sampler: str = "auto",
+                textures=None) -> Scene:
+    """Flatten geometry, build the BVH, materials, lights and the light sampler.
+
+    textures: a TextureCache to load image files into and reuse (a frame range decodes each
+    texture once for all its frames); None: a new one."""
     import time
 
     from .light_samplers import make_light_sampler
@@ -191,7 +195,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         radius = float(max(0.5 * np.linalg.norm(hi - lo), 1e-6))
     else:
         center, radius = np.zeros(3), 1.0
-    textures = TextureCache()
+    textures = TextureCache() if textures is None else textures
     materials = MaterialTable.build(desc.materials, textures)
     lights = LightSet.build(desc.lights, center, radius)
     tri_light, tri_absorb = mesh_light_tables(lights, geo)

@@ -1,7 +1,7 @@
 """Scale-out: one job's sample passes spread over a Ray cluster.
 
 A job of S samples per pixel is cut into *blocks* of B passes. Block b renders the whole image
-with ``RenderOptions(spp=B, seed=block_seed(base_seed, b))``: distinct seeds give independent
+with ``render(..., stream_seed=block_seed(base_seed, b))``: distinct seeds give independent
 random streams, so the blocks' films are independent estimates, and ``Film.merge`` (which sums
 sample sums, squares and counts) combines them with the right weights.
 
@@ -96,13 +96,13 @@ def _actor_class():
 
             from renderer.render import render
 
-            opts = replace(options, spp=int(spp), time_budget=time_budget, threads=1,
-                           seed=block_seed(options.seed, block))
+            opts = replace(options, spp=int(spp), time_budget=time_budget, threads=1)
             with self.render_lock:
                 if token in self.stopped:
                     raise _BlockStopped(block)
                 t0 = time.perf_counter()
-                result = render(stage, opts, cancel=lambda: token in self.stopped, scene_cache=self.cache)
+                result = render(stage, opts, cancel=lambda: token in self.stopped, scene_cache=self.cache,
+                                stream_seed=block_seed(options.seed, block))
                 info = {"spp": int(result.stats["spp"]), "seconds": dict(result.stats["seconds"]),
                         "rays": dict(result.stats["rays"]), "wall": time.perf_counter() - t0,
                         "pid": os.getpid()}

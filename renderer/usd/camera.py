@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from pxr import Sdf, Usd, UsdGeom
 
 from renderer.description import CameraDesc
 
-from .common import ReadContext
+from .common import ReadContext, gf_matrix_to_np
 
 __all__ = ["read_camera", "find_camera"]
 
@@ -51,7 +53,7 @@ def read_camera(prim: Usd.Prim, ctx: ReadContext) -> CameraDesc:
 
     return CameraDesc(
         path=str(prim.GetPath()),
-        camera_to_world=ctx.finite_world(prim),
+        camera_to_world=_invertible_world(prim, ctx),
         projection=projection,
         # "Perspective focal length": an orthographic camera never uses it, so any finite value
         # (0 included) is valid there.
@@ -66,6 +68,31 @@ def read_camera(prim: Usd.Prim, ctx: ReadContext) -> CameraDesc:
         exposure_scale=exposure_scale,
         clipping_planes=tuple(planes),
     )
+
+
+def _invertible_world(prim: Usd.Prim, ctx: ReadContext) -> np.ndarray:
+    """The camera's finite world matrix, which must be invertible: rays start from it and the
+    EXR's worldToCamera is its inverse. A singular one (a scale of 0 on the camera or an
+    ancestor) is a StageError naming the xformOp that makes it so."""
+    m = ctx.finite_world(prim)
+    if _invertible(m):
+        return m
+    p = prim
+    while p and not p.IsPseudoRoot():
+        xf = UsdGeom.Xformable(p)
+        if xf:
+            for op in xf.GetOrderedXformOps():
+                if not _invertible(gf_matrix_to_np(op.GetOpTransform(ctx.time))):
+                    raise ctx.error("the camera's transform is singular (a scale of 0?): it cannot be inverted",
+                                    p, op.GetAttr().GetName())
+        p = p.GetParent()
+    raise ctx.error("the camera's world transform is singular: it cannot be inverted", prim, "xformOpOrder")
+
+
+def _invertible(m: np.ndarray) -> bool:
+    """The (4, 4) matrix's linear part keeps full rank to float64 precision."""
+    s = np.linalg.svd(np.asarray(m, dtype=np.float64)[:3, :3], compute_uv=False)
+    return bool(s[0] > 0.0 and s[-1] > 1e-12 * s[0])
 
 
 def find_camera(ctx: ReadContext, requested: str | None, settings_camera: str,
