@@ -29,7 +29,11 @@ import numpy as np
 class TextureDesc:
     """A UsdUVTexture feeding one material input.
 
-    file: absolute, resolved path of the image.
+    file: the image's resolved path: an absolute file path, or a package-relative identifier
+        (``/a/pkg.usdz[maps/wood.png]``) whose bytes are ``data``.
+    data: the image file's bytes when it is not a file on disk (inside a .usdz package, or
+        served by a custom asset resolver), read by the reader through USD's asset resolver;
+        None for files (renderer/assets.py). Not part of equality: ``file`` names the bytes.
     source_color_space: 'raw' | 'sRGB' | 'auto' ('auto' = sRGB for 8-bit files with 3 or 4
         channels, raw otherwise: the UsdPreviewSurface spec).
     wrap_s, wrap_t: 'black' | 'clamp' | 'repeat' | 'mirror' | 'useMetadata' (resolved when the
@@ -51,6 +55,7 @@ class TextureDesc:
     output: str = "rgb"
     st_primvar: str = "st"
     st_transform: tuple = ()
+    data: Optional[bytes] = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -239,7 +244,8 @@ class LightDesc:
 
     kind: 'rect' | 'disk' | 'sphere' | 'dome' | 'distant' | 'cylinder' | 'mesh'.
     light_to_world: (4, 4) float64; for domes it includes the poleAxis / up-axis correction.
-    texture_file: absolute path ('' when none); texture_format for domes.
+    texture_file: resolved path ('' when none), as TextureDesc.file; texture_data its bytes when
+    it is not a file on disk (TextureDesc.data); texture_format for domes.
     """
 
     path: str
@@ -262,6 +268,7 @@ class LightDesc:
     treat_as_line: bool = False
     texture_file: str = ""
     texture_format: str = "automatic"
+    texture_data: Optional[bytes] = field(default=None, compare=False, repr=False)
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     # Light linking, resolved against the stage's gprims by the reader: None means "everything".
     light_link_excludes: Optional[frozenset] = None  # mesh paths NOT illuminated
@@ -295,6 +302,8 @@ class SceneDescription:
 
     stats: counters the reader fills (prims visited, pruned subtrees, points read, ...).
     warnings: human-readable warnings, each said once per stage.
+    strict: the stage was read with ``--strict`` (every missing or unreadable asset is an
+        error); the render core decodes its textures under the same policy.
     """
 
     source: str
@@ -308,3 +317,4 @@ class SceneDescription:
     up_axis: str = "Y"
     warnings: list[str] = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+    strict: bool = False

@@ -97,12 +97,12 @@ def render(
 
     # ---- load + build (cached for resident workers) --------------------------------------
     key = (os.path.abspath(stage_path), os.path.getmtime(stage_path) if os.path.exists(stage_path) else 0,
-           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads)
+           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads, opt.strict)
     cached = scene_cache.get(key) if scene_cache is not None else None
     if cached is None:
         t0 = time.perf_counter()
         desc = load_stage(stage_path, camera=opt.camera, settings=opt.settings, frame=opt.frame,
-                          purposes=opt.purposes)
+                          purposes=opt.purposes, strict=opt.strict)
         phases["load"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler)

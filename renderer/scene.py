@@ -191,7 +191,9 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         radius = float(max(0.5 * np.linalg.norm(hi - lo), 1e-6))
     else:
         center, radius = np.zeros(3), 1.0
-    textures = TextureCache()
+    # The reader has applied the missing-asset policy already; a file that vanished since, or
+    # that decodes badly past its header, follows the same policy here.
+    textures = TextureCache(missing="error" if desc.strict else "fallback", strict=desc.strict)
     materials = MaterialTable.build(desc.materials, textures)
     lights = LightSet.build(desc.lights, center, radius)
     tri_light, tri_absorb = mesh_light_tables(lights, geo)

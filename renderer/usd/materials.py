@@ -237,7 +237,13 @@ class MaterialTable:
         if "<UDIM>" in authored:
             ctx.warn("texture-udim", f"{prim.GetPath()}: UDIM textures are not supported; using the fallback")
             return None
-        path = ctx.resolve_asset(prim, "inputs:file", raw)
+        # The attribute that holds the path (a Material interface input, when connected).
+        where, where_name = file_attr.GetPrim(), file_attr.GetName()
+        fallback_note = f"{prim.GetPath()} uses its inputs:fallback"
+        asset = ctx.read_image_asset(where, where_name, raw, fallback_note)
+        if asset is None:
+            return None
+        path, data = asset
 
         def wrap(name: str) -> str:
             mode = str(self._texture_value(tex, name))
@@ -266,6 +272,7 @@ class MaterialTable:
             output=output,
             st_primvar=st_name,
             st_transform=st_transform,
+            data=data,
         )
 
     def _st_primvar(self, tex: UsdShade.Shader) -> tuple[str, tuple]:

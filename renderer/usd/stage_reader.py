@@ -42,6 +42,7 @@ from renderer.errors import StageError
 from . import implicit
 from .camera import find_camera, read_camera
 from .common import ReadContext, one_line
+from .composition import check_composition
 from .estimator_api import check_light_api_target
 from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
@@ -60,7 +61,8 @@ _IMPLICIT_TYPES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylin
 # Entry points
 # --------------------------------------------------------------------------------------
 def load_stage(path: str, *, camera: str | None = None, settings: str | None = None,
-               frame: float | None = None, purposes: tuple[str, ...] | None = None) -> SceneDescription:
+               frame: float | None = None, purposes: tuple[str, ...] | None = None,
+               strict: bool = False) -> SceneDescription:
     """Open a USD stage file and read it into a SceneDescription.
 
     camera: camera prim path (or a unique camera prim name); default: the RenderSettings
@@ -69,12 +71,16 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
     frame: time code to read at; default: ``stage.GetStartTimeCode()`` (0.0 when unauthored),
         the time usdrecord and usdview render at.
     purposes: included purposes, replacing RenderSettings.includedPurposes.
+    strict: every missing or unreadable asset (texture, light texture, IES profile, sublayer,
+        reference, payload) and a sublayer cycle is a StageError naming the layer, prim and
+        attribute; by default each gives one warning and its fallback (a UsdUVTexture's
+        ``fallback``, an untextured or unshaped light, a skipped arc).
 
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
     values that cannot be rendered.
     """
     return read_stage(open_stage(path), source=path, camera=camera, settings=settings, frame=frame,
-                      purposes=purposes)
+                      purposes=purposes, strict=strict)
 
 
 def open_stage(path: str) -> Usd.Stage:
@@ -92,7 +98,8 @@ def open_stage(path: str) -> Usd.Stage:
 
 
 def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
-               frame: float | None = None, purposes: tuple[str, ...] | None = None) -> SceneDescription:
+               frame: float | None = None, purposes: tuple[str, ...] | None = None,
+               strict: bool = False) -> SceneDescription:
     """Read an already open stage (same options as ``load_stage``; ``source`` names it in errors)."""
     source = source or stage.GetRootLayer().identifier
     if frame is not None:
@@ -104,7 +111,7 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         # never the Default time code: at Default, USD ignores time samples, so an animated camera
         # or mesh would resolve to its default value (often none) instead of its held first sample.
         time = Usd.TimeCode(stage.GetStartTimeCode())
-    ctx = ReadContext(stage, source, time)
+    ctx = ReadContext(stage, source, time, strict=strict)
     if frame is None and not stage.HasAuthoredMetadata("startTimeCode") and any(
             layer.ListAllTimeSamples() for layer in stage.GetUsedLayers()):
         ctx.warn("default-time", f"the stage has time samples but no startTimeCode: read at time "
@@ -115,17 +122,10 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         raise ctx.error(one_line(exc)) from None
 
 
-_MAX_COMPOSITION_WARNINGS = 10
-
-
 def _read(ctx: ReadContext, camera: str | None, settings: str | None,
           purposes: tuple[str, ...] | None) -> SceneDescription:
-    # Missing sublayers/references still give a stage; say so instead of rendering silently.
-    errors = ctx.stage.GetCompositionErrors()
-    for k, err in enumerate(errors[:_MAX_COMPOSITION_WARNINGS]):
-        ctx.warn(f"composition-{k}", f"composition error: {one_line(err)}")
-    if len(errors) > _MAX_COMPOSITION_WARNINGS:
-        ctx.warn("composition-more", f"{len(errors) - _MAX_COMPOSITION_WARNINGS} more composition errors")
+    # Missing sublayers/references still give a stage; say so (or fail under strict).
+    check_composition(ctx)
     settings_prim = find_settings_prim(ctx, settings)
     settings_desc, dof_off = read_render_settings(ctx, settings_prim, purposes)
     reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes)
@@ -151,6 +151,7 @@ def _read(ctx: ReadContext, camera: str | None, settings: str | None,
         up_axis=ctx.up_axis,
         warnings=ctx.warnings.messages(),
         stats=dict(ctx.stats),
+        strict=ctx.strict,
     )
 
 
