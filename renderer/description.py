@@ -16,7 +16,7 @@ Conventions
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Optional
 
 import numpy as np
@@ -59,11 +59,30 @@ class TextureDesc:
 
 
 @dataclass(frozen=True)
+class PrimvarReaderDesc:
+    """A UsdPrimvarReader_* feeding a material input directly: the gprim's primvar ``name``,
+    interpolated at each hit as st is (constant, uniform, vertex, varying or faceVarying).
+
+    width: its components (float 1, float2 2, float3 / normal / point / vector 3, float4 4,
+        int 1 -- read as a float). fallback: (width,) float, the reader's ``fallback`` input,
+        used where the gprim has no such primvar (the spec).
+    """
+
+    name: str
+    width: int
+    fallback: tuple
+
+
+@dataclass(frozen=True)
 class MaterialInput:
-    """A constant value (float or RGB triple) optionally overridden by a texture."""
+    """A constant value (float or RGB triple) optionally overridden per hit by a texture or by a
+    primvar (``primvar``; ``value`` is then its fallback mapped to the input, as for a texture).
+    A single-component source feeding a colour broadcasts; a float input fed by several
+    components takes the first."""
 
     value: tuple | float
     texture: Optional[TextureDesc] = None
+    primvar: Optional[PrimvarReaderDesc] = None
 
 
 @dataclass(frozen=True)
@@ -90,6 +109,23 @@ class MaterialDesc:
     normal: MaterialInput = MaterialInput((0.0, 0.0, 1.0))
 
 
+def primvar_layout(materials: list[MaterialDesc]) -> dict[str, tuple[int, int]]:
+    """{primvar name: (first column, width)} of the primvars ``materials`` read per hit, in the
+    per-hit coordinates after st (columns 2..; renderer/materials.py). A name read with several
+    widths gets the largest."""
+    widths: dict[str, int] = {}
+    for mat in materials:
+        for f in fields(mat):
+            pv = getattr(getattr(mat, f.name), "primvar", None)
+            if pv is not None:
+                widths[pv.name] = max(widths.get(pv.name, 0), int(pv.width))
+    layout, col = {}, 2
+    for name in sorted(widths):
+        layout[name] = (col, widths[name])
+        col += widths[name]
+    return layout
+
+
 # --------------------------------------------------------------------------------------
 # Geometry
 # --------------------------------------------------------------------------------------
@@ -108,6 +144,9 @@ class MeshDesc:
     material: index into ``SceneDescription.materials``.
     double_sided: UsdGeom doubleSided (informational: illum shades both sides of every surface,
         as hdEmbree and Cycles do).
+    primvars: {name: (T, 3, k) float32 per-corner values} of the primvars its materials read
+        per hit through UsdPrimvarReader nodes (PrimvarReaderDesc); a primvar the gprim lacks is
+        absent (the reader's fallback applies).
     """
 
     path: str
@@ -117,6 +156,7 @@ class MeshDesc:
     st: Optional[np.ndarray]
     material: int
     double_sided: bool = False
+    primvars: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------

@@ -125,8 +125,27 @@ class ReadContext:
         attr = prim.GetAttribute(name)
         if not attr:
             return default
-        value = attr.Get(self.time)
+        value = self.get_attr(attr)
         return default if value is None else value
+
+    def get_attr(self, attr: Usd.Attribute):
+        """``attr``'s value at the read time, after checking its authored type against the
+        schema's (``check_type``)."""
+        self.check_type(attr)
+        return attr.Get(self.time)
+
+    def check_type(self, attr: Usd.Attribute) -> None:
+        """StageError naming the attribute when its strongest opinion is authored with another
+        value type than its schema declares (``float2[] points``): USD composes the value as
+        authored, which would otherwise fail later with an unrelated message."""
+        stack = attr.GetPropertyStack(self.time)
+        if not stack:
+            return
+        definition = attr.GetPrim().GetPrimDefinition().GetAttributeDefinition(attr.GetName())
+        authored = stack[0].typeName
+        if definition and authored and authored.type != definition.GetTypeName().type:
+            raise self.error(f"authored as {authored} in {stack[0].layer.identifier}, but the schema "
+                             f"declares {definition.GetTypeName()}", attr.GetPrim(), attr.GetName())
 
     def finite_float(self, prim: Usd.Prim, name: str, value, *, min_value: float | None = None,
                      positive: bool = False) -> float:

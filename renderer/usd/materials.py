@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from pxr import Sdr, Usd, UsdGeom, UsdShade
 
-from renderer.description import MaterialDesc, MaterialInput, TextureDesc
+from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc, TextureDesc
 
 from .common import ReadContext
 
@@ -27,6 +27,10 @@ _TEXTURE_ID = "UsdUVTexture"
 _WRAP_MODES = ("black", "clamp", "repeat", "mirror")
 _COLOR_SPACES = ("raw", "sRGB", "auto")
 _OUTPUT_CHANNELS = {"rgb": slice(0, 3), "r": 0, "g": 1, "b": 2, "a": 3}
+# UsdPrimvarReader nodes read per hit (PrimvarReaderDesc) -> components; int reads as a float.
+_READER_WIDTHS = {"UsdPrimvarReader_float": 1, "UsdPrimvarReader_float2": 2, "UsdPrimvarReader_float3": 3,
+                  "UsdPrimvarReader_normal": 3, "UsdPrimvarReader_point": 3, "UsdPrimvarReader_vector": 3,
+                  "UsdPrimvarReader_float4": 4, "UsdPrimvarReader_int": 1}
 # MaterialDesc field -> (UsdPreviewSurface input, kind); kind 'color' | 'float' | 'vector'
 # ('vector': three components like a colour, e.g. the tangent-space normal3f ``normal``).
 _TEXTURABLE = {
@@ -67,6 +71,7 @@ class MaterialTable:
         self._index: dict[MaterialDesc, int] = {}
         self._by_path: dict[str, tuple[int, str | None] | None] = {}
         self._surface_defaults = _sdr_defaults(_SURFACE_ID)
+        self._reader_defaults: dict[str, dict] = {}
         self._texture_defaults = _sdr_defaults(_TEXTURE_ID)
         self._transform_defaults = {"rotation": 0.0, "scale": (1.0, 1.0), "translation": (0.0, 0.0),
                                     **_sdr_defaults("UsdTransform2d")}
@@ -176,11 +181,22 @@ class MaterialTable:
     def _constant_input(self, shader: UsdShade.Shader, name: str, defaults: dict | None = None):
         attr = self._producing_attribute(shader, name)
         defaults = self._surface_defaults if defaults is None else defaults
-        if attr is not None and not UsdShade.Output.IsOutput(attr):
+        if attr is not None and UsdShade.Output.IsOutput(attr):
+            self._unsupported_source(attr, shader, name)
+        elif attr is not None:
             value = attr.Get(self.ctx.time)
             if value is not None:
                 return value
         return defaults.get(name)
+
+    def _unsupported_source(self, output: Usd.Attribute, shader: UsdShade.Shader, name: str) -> None:
+        """One warning per (source shader id, input): a node illum does not evaluate feeds an
+        input it reads as a constant; the input's default is used."""
+        source = UsdShade.Shader(output.GetPrim())
+        source_id = source.GetIdAttr().Get() if source else None
+        self.ctx.warn(f"input-source-{source_id}-{name}",
+                      f"{output.GetPrim().GetPath()}: shader '{source_id}' feeding {shader.GetPath()}.inputs:{name} "
+                      f"is not supported there (illum reads that input as a constant); using the default value")
 
     def _texturable_input(self, shader: UsdShade.Shader, name: str, kind: str,
                           st_names: list[str]) -> MaterialInput:
@@ -198,6 +214,11 @@ class MaterialTable:
                     return MaterialInput(self._channel_value(fb, output, kind))
                 st_names.append(tex.st_primvar)
                 return MaterialInput(self._channel_value(tex.fallback, output, kind), tex)
+            if source_id in _READER_WIDTHS:
+                reader = self._primvar_input(source, str(source_id), shader, name, kind)
+                if reader is not None:
+                    return reader
+                return MaterialInput(self._default_value(shader, name, kind))
             ctx.warn(f"input-source-{source_id}",
                      f"{attr.GetPrim().GetPath()}: shader '{source_id}' feeding "
                      f"{shader.GetPath()}.inputs:{name} is not supported; using the default value")
@@ -210,6 +231,44 @@ class MaterialTable:
         if kind != "float":
             return MaterialInput(ctx.finite_tuple(where, attr_name, value))
         return MaterialInput(ctx.finite_float(where, attr_name, value))
+
+    def _default_value(self, shader: UsdShade.Shader, name: str, kind: str):
+        value = self._surface_defaults.get(name)
+        if kind != "float":
+            return self.ctx.finite_tuple(shader.GetPrim(), f"inputs:{name}", value)
+        return self.ctx.finite_float(shader.GetPrim(), f"inputs:{name}", value)
+
+    def _primvar_input(self, reader: UsdShade.Shader, reader_id: str, shader: UsdShade.Shader, name: str,
+                       kind: str) -> MaterialInput | None:
+        """A UsdPrimvarReader_* feeding UsdPreviewSurface input ``name``: the primvar read per hit
+        (PrimvarReaderDesc) with the reader's fallback as the input's value; None (after a
+        warning) where illum cannot map it."""
+        ctx = self.ctx
+        width = _READER_WIDTHS[reader_id]
+        k = 1 if kind == "float" else 3
+        if width == 2 and k == 3:
+            ctx.warn(f"reader-width-{reader.GetPath()}-{name}",
+                     f"{reader.GetPath()}: {reader_id} (2 components) cannot feed the 3-component "
+                     f"{shader.GetPath()}.inputs:{name}; using its default value")
+            return None
+        var_attr = self._producing_attribute(reader, "varname")
+        varname = var_attr.Get(ctx.time) if var_attr is not None and not UsdShade.Output.IsOutput(var_attr) else None
+        varname = str(varname or "")
+        # Some exporters write the full attribute name; the primvar's name is what is read.
+        varname = varname[len("primvars:"):] if varname.startswith("primvars:") else varname
+        if reader_id not in self._reader_defaults:
+            self._reader_defaults[reader_id] = _sdr_defaults(reader_id)
+        raw = self._constant_input(reader, "fallback", self._reader_defaults[reader_id])
+        fallback = ctx.finite_tuple(reader.GetPrim(), "inputs:fallback", np.atleast_1d(
+            np.asarray(raw if raw is not None else np.zeros(width), dtype=np.float64)).ravel())
+        if len(fallback) < width:
+            raise ctx.error(f"fallback has {len(fallback)} components, {reader_id} reads {width}",
+                            reader.GetPrim(), "inputs:fallback")
+        fallback = fallback[:width]
+        value = fallback[0] if k == 1 else (fallback[:1] * 3 if width == 1 else fallback[:3])
+        if not varname:  # reads no primvar: always its fallback (the spec)
+            return MaterialInput(value)
+        return MaterialInput(value, primvar=PrimvarReaderDesc(varname, width, fallback))
 
     @staticmethod
     def _channel_value(value4: tuple, output: str, kind: str):
@@ -229,7 +288,10 @@ class MaterialTable:
         ctx = self.ctx
         prim = tex.GetPrim()
         file_attr = self._producing_attribute(tex, "file")
-        raw = file_attr.Get(ctx.time) if file_attr is not None and not UsdShade.Output.IsOutput(file_attr) else None
+        if file_attr is not None and UsdShade.Output.IsOutput(file_attr):
+            self._unsupported_source(file_attr, tex, "file")
+            return None
+        raw = file_attr.Get(ctx.time) if file_attr is not None else None
         authored = getattr(raw, "path", raw) or ""
         if not authored:
             ctx.warn("texture-no-file", f"{prim.GetPath()}: UsdUVTexture has no inputs:file; using its fallback")

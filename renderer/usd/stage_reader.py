@@ -36,11 +36,11 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Ar, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
-from renderer.description import LightDesc, MeshDesc, SceneDescription
+from renderer.description import LightDesc, MeshDesc, SceneDescription, primvar_layout
 from renderer.errors import StageError
 
 from . import implicit
-from .camera import find_camera, read_camera
+from .camera import find_camera, framing_camera, read_camera
 from .common import ReadContext, one_line
 from .composition import check_composition
 from .estimator_api import check_light_api_target
@@ -131,11 +131,20 @@ def _read(ctx: ReadContext, camera: str | None, settings: str | None,
     reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes)
     reader.run()
     cam_prim = find_camera(ctx, camera, settings_desc.camera, settings_desc.path, reader.first_camera)
-    camera_desc = read_camera(cam_prim, ctx)
+    if cam_prim is None:
+        camera_desc = framing_camera(ctx, settings_desc.included_purposes)
+        ctx.warn("no-camera", "the stage has no camera: rendering through a default camera (GfCamera's 50 mm lens "
+                              "and 20.955 mm aperture) that frames the stage's bounding box, as usdrecord does; "
+                              "pass --camera or add a UsdGeom.Camera")
+    else:
+        camera_desc = read_camera(cam_prim, ctx)
     if dof_off:
         camera_desc = dataclasses.replace(camera_desc, f_stop=0.0)
     warn_unused_portals(reader.portal_paths, reader.lights, ctx)
     lights = resolve_light_links(reader.light_prims, reader.lights, [m.path for m in reader.meshes])
+    if not lights:
+        ctx.warn("no-lights", "the stage has no lights (no prim with UsdLux LightAPI that emits): only "
+                              "emissive surfaces light it, and without them the image is black")
     ctx.stats["meshes"] = len(reader.meshes)
     ctx.stats["lights"] = len(lights)
     ctx.stats["materials"] = len(reader.materials.materials)
@@ -175,6 +184,7 @@ class _LocalMesh:
     material: int
     double_sided: bool
     tri_material: np.ndarray | None = None
+    primvars: dict = dataclasses.field(default_factory=dict)  # MeshDesc.primvars, local
 
 
 @dataclass
@@ -232,7 +242,8 @@ def _split_by_material(desc: MeshDesc, tri_material: np.ndarray) -> list[MeshDes
         out.append(dataclasses.replace(
             desc, points=desc.points[used], triangles=remap.reshape(tris.shape).astype(np.int32),
             normals=None if desc.normals is None else desc.normals[sel],
-            st=None if desc.st is None else desc.st[sel], material=int(m)))
+            st=None if desc.st is None else desc.st[sel], material=int(m),
+            primvars={name: v[sel] for name, v in desc.primvars.items()}))
     return out
 
 
@@ -260,12 +271,14 @@ def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
         if flip.any():
             nw[flip] = nw[flip][:, :, swap]
         normals = nw.reshape(n_inst * n_tri, 3, 3).astype(np.float32)
-    st = None
-    if lm.st is not None:
-        st = np.broadcast_to(lm.st, (n_inst,) + lm.st.shape).copy()
+    def corners(values: np.ndarray) -> np.ndarray:
+        """Per-corner values (T, 3, k) repeated for each instance, corners swapped as the winding."""
+        out = np.broadcast_to(values, (n_inst,) + values.shape).copy()
         if flip.any():
-            st[flip] = st[flip][:, :, swap]
-        st = st.reshape(n_inst * n_tri, 3, 2).astype(np.float32, copy=False)
+            out[flip] = out[flip][:, :, swap]
+        return out.reshape((n_inst * n_tri,) + values.shape[1:]).astype(np.float32, copy=False)
+
+    st = None if lm.st is None else corners(lm.st)
     return MeshDesc(
         path=lm.path,
         points=pts.reshape(-1, 3),
@@ -274,6 +287,7 @@ def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
         st=st,
         material=lm.material,
         double_sided=lm.double_sided,
+        primvars={name: corners(v) for name, v in lm.primvars.items()},
     )
 
 
@@ -578,7 +592,7 @@ class _Traversal:
                    subsets: list | None = None) -> _LocalMesh | None:
         ctx, t = self.ctx, self.ctx.time
         mesh = UsdGeom.Mesh(prim)
-        raw_points = mesh.GetPointsAttr().Get(t)
+        raw_points = ctx.get_attr(mesh.GetPointsAttr())
         if raw_points is None or len(raw_points) == 0:
             return None
         points = np.asarray(raw_points, dtype=np.float64)
@@ -586,9 +600,9 @@ class _Traversal:
         if not np.isfinite(points).all():
             bad = int(np.nonzero(~np.isfinite(points).all(axis=1))[0][0])
             raise ctx.error(f"point {bad} is not finite ({tuple(points[bad])})", prim, "points")
-        raw = mesh.GetFaceVertexCountsAttr().Get(t)
+        raw = ctx.get_attr(mesh.GetFaceVertexCountsAttr())
         counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
-        raw = mesh.GetFaceVertexIndicesAttr().Get(t)
+        raw = ctx.get_attr(mesh.GetFaceVertexIndicesAttr())
         indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
         if len(counts) and counts.min() < 0:
             raise ctx.error("negative face vertex count", prim, "faceVertexCounts")
@@ -622,6 +636,12 @@ class _Traversal:
             # use at refine level 0, not flat facets; bilinear and none stay faceted.
             normals = _smooth_vertex_normals(points, indices[tri_corners], tri_face, counts, indices)
         st = self._primvar_corners(prim, st_name, tri_corners, tri_face, indices, sizes, width=2)
+        reads = self._primvars_read(material, subsets)
+        primvars = {}
+        for name, width in reads.items():
+            values = self._primvar_corners(prim, name, tri_corners, tri_face, indices, sizes, width=width)
+            if values is not None:
+                primvars[name] = values.astype(np.float32)
         return _LocalMesh(
             path=str(prim.GetPath()),
             points=points,
@@ -631,7 +651,15 @@ class _Traversal:
             material=material,
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             tri_material=self._triangle_materials(subsets, material, len(counts), tri_face),
+            primvars=primvars,
         )
+
+    def _primvars_read(self, material: int, subsets: list | None) -> dict[str, int]:
+        """{name: width} of the primvars the gprim's materials (its own and its subsets') read
+        per hit through UsdPrimvarReader nodes."""
+        used = [material] + [m for _p, _f, m, _st in (subsets or [])]
+        layout = primvar_layout([self.materials.materials[i] for i in used])
+        return {name: width for name, (_col, width) in layout.items()}
 
     def _triangle_materials(self, subsets, material, n_faces, tri_face) -> np.ndarray | None:
         """(T,) material per triangle from the subsets' face ids (the first subset listing a face
@@ -657,7 +685,7 @@ class _Traversal:
         attr = mesh.GetNormalsAttr()
         if not attr.HasAuthoredValue():
             return None
-        values = attr.Get(self.ctx.time)
+        values = self.ctx.get_attr(attr)
         if values is None:
             return None
         return self._expand(prim, "normals", np.asarray(values, dtype=np.float64), None,
@@ -683,6 +711,8 @@ class _Traversal:
                 indices, sizes, width):
         ctx = self.ctx
         path = prim.GetPath()
+        if values.ndim == 1 and width == 1:  # a scalar primvar (float[], int[])
+            values = values[:, None]
         if values.ndim != 2 or values.shape[1] < width:
             ctx.warn(f"primvar-type-{attr_name}", f"{path}: {attr_name} does not hold {width}-vectors; ignored")
             return None
@@ -749,4 +779,24 @@ class _Traversal:
             st=None,
             material=material,
             double_sided=bool(ctx.get(prim, "doubleSided", False)),
+            primvars=self._constant_primvars(prim, material, len(tris)),
         )
+
+    def _constant_primvars(self, prim: Usd.Prim, material: int, n_tri: int) -> dict:
+        """The primvars an implicit gprim's material reads, for its n_tri triangles: implicit
+        prims have no topology, so only a constant (or inherited constant) primvar applies."""
+        out = {}
+        for name, width in self._primvars_read(material, None).items():
+            pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+            if not pv or not pv.HasValue():
+                continue
+            if pv.GetInterpolation() != UsdGeom.Tokens.constant:
+                self.ctx.warn(f"implicit-primvar-{name}",
+                              f"{prim.GetPath()}: primvars:{name} is {pv.GetInterpolation()}, but an implicit "
+                              f"{prim.GetTypeName()} has no topology to interpolate it on; its first value is used")
+            values = pv.ComputeFlattened(self.ctx.time)
+            v = np.atleast_1d(np.asarray(values[0] if values is not None and len(values) else [], dtype=np.float64))
+            if v.size < width or not np.isfinite(v).all():
+                continue
+            out[name] = np.broadcast_to(v[:width].astype(np.float32), (n_tri, 3, width)).copy()
+        return out
