@@ -6,9 +6,16 @@ shader output (a texture) or an attribute holding a value. Unauthored inputs tak
 defaults from the Sdr node definitions shipped with usd-core.
 
 Fallback when a gprim has no bound material (or a material without a UsdPreviewSurface):
-``primvars:displayColor``'s first value (so constant, or uniform/vertex where the first element
-stands in for the whole prim; per-face colours are not supported) as diffuse colour, else
+``primvars:displayColor`` as diffuse colour -- a constant (possibly inherited) value, or on a
+mesh a uniform / vertex / faceVarying one read per hit (PrimvarReaderDesc) -- else
 UsdPreviewSurface's own default grey (0.18).
+
+UsdPrimvarReader_float, _float2, _float3, _float4, _int, _normal, _point and _vector connected
+to a UsdPreviewSurface input (directly or through NodeGraphs) are read per hit
+(``MaterialInput.primvar``); a float2 cannot feed a colour. A UsdPrimvarReader_float2 (through
+UsdTransform2d nodes) feeds UsdUVTexture.st, any varname. Other nodes, and any node feeding an
+input illum reads as a constant (UsdUVTexture file, scale, bias, ...; UsdPrimvarReader_string),
+give one warning each and the input's default.
 """
 
 from __future__ import annotations
@@ -132,6 +139,11 @@ class MaterialTable:
             values = pv.ComputeFlattened(self.ctx.time)
             if values is not None and len(values) > 0:
                 color = self.ctx.finite_tuple(prim, "primvars:displayColor", values[0])
+                if pv.GetInterpolation() != UsdGeom.Tokens.constant and prim.IsA(UsdGeom.Mesh):
+                    # Per-face or per-vertex colours: read per hit, as a UsdPrimvarReader_float3
+                    # of displayColor would (Hydra's fallback material does the same).
+                    return MaterialDesc(path="", diffuse_color=MaterialInput(
+                        color, primvar=PrimvarReaderDesc("displayColor", 3, color)))
                 return MaterialDesc(path="", diffuse_color=MaterialInput(color))
         return MaterialDesc(path="")
 

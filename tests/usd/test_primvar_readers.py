@@ -201,3 +201,26 @@ def test_reader_on_a_texture_constant_input_warns_once():
     d = read(stage)
     hits = [w for w in d.warnings if "feeding" in w and "inputs:scale" in w]
     assert len(hits) == 1 and "UsdPrimvarReader_float4" in hits[0] and "(and 1 more like it)" in hits[0]
+
+
+@pytest.mark.parametrize("interpolation", ["uniform", "vertex"])
+def test_unbound_mesh_shows_its_display_color_per_hit(interpolation):
+    """No material: displayColor is the diffuse colour at each hit, per face or per vertex (not
+    its first value for the whole mesh)."""
+    stage = new_stage()
+    m, pts, counts, _idx = _grid_mesh(stage, "/G")
+    if interpolation == "vertex":
+        colours = np.c_[pts[:, 0] / 3.0, pts[:, 1] / 3.0, np.full(len(pts), 0.5)]
+    else:
+        colours = np.c_[np.linspace(0.1, 0.9, len(counts)), np.zeros(len(counts)), np.full(len(counts), 0.5)]
+    UsdGeom.PrimvarsAPI(m).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, interpolation).Set(
+        Vt.Vec3fArray.FromNumpy(colours.astype(np.float32)))
+    d = read(stage)
+    mat, st, p = _hits(d)
+    params = MaterialTable.build(d.materials, TextureCache()).evaluate(mat, st)
+    if interpolation == "vertex":
+        expected = np.c_[p[:, 0] / 3.0, p[:, 1] / 3.0, np.full(len(p), 0.5)]
+    else:
+        face = (np.floor(np.clip(p[:, 0], 0, 2.999)) * 3 + np.floor(np.clip(p[:, 1], 0, 2.999))).astype(int)
+        expected = colours[face]
+    np.testing.assert_allclose(params.diffuse, expected, atol=1e-6)
