@@ -21,7 +21,7 @@ give one warning each and the input's default.
 from __future__ import annotations
 
 import numpy as np
-from pxr import Sdr, Usd, UsdGeom, UsdShade
+from pxr import Ar, Sdf, Sdr, Usd, UsdGeom, UsdShade
 
 from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc, TextureDesc
 
@@ -35,6 +35,7 @@ _WRAP_MODES = ("black", "clamp", "repeat", "mirror")
 _COLOR_SPACES = ("raw", "sRGB", "auto")
 _OUTPUT_CHANNELS = {"rgb": slice(0, 3), "r": 0, "g": 1, "b": 2, "a": 3}
 # UsdPrimvarReader nodes read per hit (PrimvarReaderDesc) -> components; int reads as a float.
+_READER_PREFIX = "UsdPrimvarReader_"
 _READER_WIDTHS = {"UsdPrimvarReader_float": 1, "UsdPrimvarReader_float2": 2, "UsdPrimvarReader_float3": 3,
                   "UsdPrimvarReader_normal": 3, "UsdPrimvarReader_point": 3, "UsdPrimvarReader_vector": 3,
                   "UsdPrimvarReader_float4": 4, "UsdPrimvarReader_int": 1}
@@ -79,6 +80,11 @@ class MaterialTable:
         self._by_path: dict[str, tuple[int, str | None] | None] = {}
         self._surface_defaults = _sdr_defaults(_SURFACE_ID)
         self._reader_defaults: dict[str, dict] = {}
+        # Readers evaluated per gprim (_reader_on_gprim): the gprim being read, the primvars read
+        # from it so far, and per material path the primvars its description depends on.
+        self._gprim: Usd.Prim | None = None
+        self._gprim_reads: dict[str, object] = {}
+        self._per_gprim: dict[str, tuple[str, ...]] = {}
         self._texture_defaults = _sdr_defaults(_TEXTURE_ID)
         self._transform_defaults = {"rotation": 0.0, "scale": (1.0, 1.0), "translation": (0.0, 0.0),
                                     **_sdr_defaults("UsdTransform2d")}
@@ -115,13 +121,65 @@ class MaterialTable:
         material = self._bound_material(prim)
         if material is None:
             return None
-        key = str(material.GetPath())
+        path = str(material.GetPath())
+        # Subsets carry no primvars: a reader evaluated per gprim reads the subset's mesh.
+        gprim = prim.GetParent() if prim.IsA(UsdGeom.Subset) else prim
+        names = self._per_gprim.get(path, ())
+        key = (path, tuple(self._gprim_value(gprim, name) for name in names))
         if key not in self._by_path:
-            # Read each material once; an unusable one is remembered as None so that it is
-            # neither re-read nor re-warned for every prim bound to it.
-            desc, st_name = self._read_material(material)
+            # Read each material once (once per distinct value of the primvars it reads per
+            # gprim); an unusable one is remembered as None so that it is neither re-read nor
+            # re-warned for every prim bound to it.
+            self._gprim, self._gprim_reads = gprim, {}
+            try:
+                desc, st_name = self._read_material(material)
+            finally:
+                self._gprim = None
+            if self._gprim_reads:
+                self._per_gprim[path] = names = tuple(sorted(self._gprim_reads))
+                key = (path, tuple(self._gprim_reads[name] for name in names))
             self._by_path[key] = None if desc is None else (self._add(desc), st_name)
         return self._by_path[key]
+
+    # ---- primvar readers evaluated per gprim -------------------------------------------
+    def _gprim_value(self, gprim: Usd.Prim, varname: str):
+        """The value of primvar ``varname`` on ``gprim`` (inherited constants included) as a
+        hashable value: its first element when it is not constant (with a warning), None when
+        the gprim has none."""
+        pv = UsdGeom.PrimvarsAPI(gprim).FindPrimvarWithInheritance(varname)
+        if not pv or not pv.HasValue():
+            return None
+        values = pv.ComputeFlattened(self.ctx.time)
+        if values is None:
+            return None
+        if pv.GetTypeName().isArray:
+            if len(values) == 0:
+                return None
+            if len(values) > 1 or pv.GetInterpolation() != UsdGeom.Tokens.constant:
+                self.ctx.warn(f"gprim-primvar-{varname}",
+                              f"{gprim.GetPath()}: primvars:{varname} ({pv.GetInterpolation()}) feeds a material "
+                              f"input illum evaluates once per gprim; its first value is used")
+            values = values[0]
+        return values if isinstance(values, (str, int, float)) else tuple(float(x) for x in values)
+
+    def _reader_on_gprim(self, reader: UsdShade.Shader):
+        """A UsdPrimvarReader_* feeding an input illum reads as a constant (a UsdUVTexture's
+        file, scale, bias, fallback; a UsdTransform2d's inputs; ...), evaluated on the gprim
+        being read: its primvar's (first) value, else the reader's fallback. The material is
+        then read once per distinct value (``_bound_index``)."""
+        reader_id = str(reader.GetIdAttr().Get())
+        var_attr = self._producing_attribute(reader, "varname")
+        varname = var_attr.Get(self.ctx.time) if var_attr is not None and not UsdShade.Output.IsOutput(var_attr) else ""
+        varname = str(varname or "")
+        varname = varname[len("primvars:"):] if varname.startswith("primvars:") else varname
+        value = self._gprim_value(self._gprim, varname) if varname else None
+        if varname:
+            self._gprim_reads[varname] = value
+        if value is not None:
+            return value
+        if reader_id not in self._reader_defaults:
+            self._reader_defaults[reader_id] = _sdr_defaults(reader_id)
+        return self._constant_input(reader, "fallback", self._reader_defaults[reader_id])
 
     def _bound_material(self, prim: Usd.Prim) -> UsdShade.Material | None:
         api = UsdShade.MaterialBindingAPI(prim)
@@ -194,7 +252,13 @@ class MaterialTable:
         attr = self._producing_attribute(shader, name)
         defaults = self._surface_defaults if defaults is None else defaults
         if attr is not None and UsdShade.Output.IsOutput(attr):
-            self._unsupported_source(attr, shader, name)
+            source = UsdShade.Shader(attr.GetPrim())
+            if self._gprim is not None and source and str(source.GetIdAttr().Get()).startswith(_READER_PREFIX):
+                value = self._reader_on_gprim(source)
+                if value is not None:
+                    return value
+            else:
+                self._unsupported_source(attr, shader, name)
         elif attr is not None:
             value = attr.Get(self.ctx.time)
             if value is not None:
@@ -301,8 +365,7 @@ class MaterialTable:
         prim = tex.GetPrim()
         file_attr = self._producing_attribute(tex, "file")
         if file_attr is not None and UsdShade.Output.IsOutput(file_attr):
-            self._unsupported_source(file_attr, tex, "file")
-            return None
+            return self._texture_from_gprim(tex, file_attr, output)
         raw = file_attr.Get(ctx.time) if file_attr is not None else None
         authored = getattr(raw, "path", raw) or ""
         if not authored:
@@ -312,7 +375,37 @@ class MaterialTable:
             ctx.warn("texture-udim", f"{prim.GetPath()}: UDIM textures are not supported; using the fallback")
             return None
         # The attribute that holds the path (a Material interface input, when connected).
-        where, where_name = file_attr.GetPrim(), file_attr.GetName()
+        return self._texture_desc(tex, output, file_attr.GetPrim(), file_attr.GetName(), raw)
+
+    def _texture_from_gprim(self, tex: UsdShade.Shader, file_attr, output: str) -> TextureDesc | None:
+        """UsdUVTexture.file fed by a UsdPrimvarReader_string: the gprim's string primvar, a path
+        anchored to the layer that authored the primvar (one material per distinct file)."""
+        source = UsdShade.Shader(file_attr.GetPrim())
+        if self._gprim is None or not source or str(source.GetIdAttr().Get()) != "UsdPrimvarReader_string":
+            self._unsupported_source(file_attr, tex, "file")
+            return None
+        value = self._reader_on_gprim(source)
+        if not value:
+            self.ctx.warn(f"texture-no-file-{tex.GetPath()}", f"{tex.GetPath()}: the UsdPrimvarReader_string feeding "
+                                                              "inputs:file gives no path; using its fallback")
+            return None
+        var_attr = self._producing_attribute(source, "varname")
+        varname = str(var_attr.Get(self.ctx.time) or "") if var_attr is not None else ""
+        varname = varname[len("primvars:"):] if varname.startswith("primvars:") else varname
+        pv = UsdGeom.PrimvarsAPI(self._gprim).FindPrimvarWithInheritance(varname)
+        where, where_name = (pv.GetAttr().GetPrim(), pv.GetAttr().GetName()) if pv else (source.GetPrim(),
+                                                                                           "inputs:fallback")
+        stack = pv.GetAttr().GetPropertyStack(self.ctx.time) if pv else []
+        anchored = stack[0].layer.ComputeAbsolutePath(str(value)) if stack else str(value)
+        raw = Sdf.AssetPath(str(value), str(Ar.GetResolver().Resolve(anchored)))
+        return self._texture_desc(tex, output, where, where_name, raw)
+
+    def _texture_desc(self, tex: UsdShade.Shader, output: str, where: Usd.Prim, where_name: str,
+                      raw) -> TextureDesc | None:
+        """The TextureDesc of UsdUVTexture ``tex`` reading image ``raw`` (authored on
+        ``where``.``where_name``), or None where the missing-asset policy gives its fallback."""
+        ctx = self.ctx
+        prim = tex.GetPrim()
         fallback_note = f"{prim.GetPath()} uses its inputs:fallback"
         asset = ctx.read_image_asset(where, where_name, raw, fallback_note)
         if asset is None:

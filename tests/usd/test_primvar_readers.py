@@ -174,9 +174,9 @@ def test_render_with_display_color_reader_matches_the_authored_colour(tmp_path):
     np.testing.assert_allclose(images[1], images[0], rtol=1e-6, atol=1e-9)
 
 
-def test_reader_on_a_texture_constant_input_warns_once():
-    """UsdUVTexture inputs illum reads as constants (scale here) fed by a node: one warning
-    naming the node and the input, and the input's default."""
+def test_unknown_node_on_a_texture_constant_input_warns_once():
+    """UsdUVTexture inputs illum reads as constants (scale here) fed by a node it does not
+    evaluate: one warning naming the node and the input, and the input's default."""
     stage = new_stage()
     mats = []
     for k in range(2):
@@ -187,8 +187,7 @@ def test_reader_on_a_texture_constant_input_warns_once():
         tex.CreateIdAttr("UsdUVTexture")
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(TEXTURE)
         reader = UsdShade.Shader.Define(stage, f"/M{k}/Scale")
-        reader.CreateIdAttr("UsdPrimvarReader_float4")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("tint")
+        reader.CreateIdAttr("StudioNoise")
         tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).ConnectToSource(
             reader.CreateOutput("result", Sdf.ValueTypeNames.Float4))
         tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.1 * (k + 1), 0, 0, 1))
@@ -200,7 +199,8 @@ def test_reader_on_a_texture_constant_input_warns_once():
         mats.append(mat)
     d = read(stage)
     hits = [w for w in d.warnings if "feeding" in w and "inputs:scale" in w]
-    assert len(hits) == 1 and "UsdPrimvarReader_float4" in hits[0] and "(and 1 more like it)" in hits[0]
+    assert len(hits) == 1 and "'StudioNoise'" in hits[0] and "(and 1 more like it)" in hits[0]
+    assert all(m.diffuse_color.texture.scale == (1, 1, 1, 1) for m in d.materials if m.path)
 
 
 @pytest.mark.parametrize("interpolation", ["uniform", "vertex"])
@@ -224,3 +224,57 @@ def test_unbound_mesh_shows_its_display_color_per_hit(interpolation):
         face = (np.floor(np.clip(p[:, 0], 0, 2.999)) * 3 + np.floor(np.clip(p[:, 1], 0, 2.999))).astype(int)
         expected = colours[face]
     np.testing.assert_allclose(params.diffuse, expected, atol=1e-6)
+
+
+def test_string_reader_picks_each_gprims_texture_and_numeric_readers_its_scale(tmp_path):
+    """UsdUVTexture.file from a UsdPrimvarReader_string and its scale from a
+    UsdPrimvarReader_float4, evaluated per gprim from constant primvars: one material per
+    distinct value; a gprim without the primvar gets the reader's fallback (no file: the
+    texture's fallback, with a warning)."""
+    import OpenImageIO as oiio
+
+    (tmp_path / "maps").mkdir()
+    for name, rgb in (("red.png", (1, 0, 0)), ("blue.png", (0, 0, 1))):
+        pixels = np.tile(np.array(rgb, np.float32), (2, 2, 1))
+        assert oiio.ImageBuf(pixels).write(str(tmp_path / "maps" / name), oiio.UINT8)
+    stage = new_stage()
+    mat = UsdShade.Material.Define(stage, "/Shared")
+    pbr = UsdShade.Shader.Define(stage, "/Shared/PBR")
+    pbr.CreateIdAttr("UsdPreviewSurface")
+    tex = UsdShade.Shader.Define(stage, "/Shared/Tex")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.5, 0.5, 0.5, 1))
+    name_reader = UsdShade.Shader.Define(stage, "/Shared/FileName")
+    name_reader.CreateIdAttr("UsdPrimvarReader_string")
+    name_reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("texFile")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).ConnectToSource(
+        name_reader.CreateOutput("result", Sdf.ValueTypeNames.String))
+    gain = UsdShade.Shader.Define(stage, "/Shared/Gain")
+    gain.CreateIdAttr("UsdPrimvarReader_float4")
+    gain.CreateInput("varname", Sdf.ValueTypeNames.String).Set("gain")
+    gain.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(1, 1, 1, 1))
+    tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).ConnectToSource(
+        gain.CreateOutput("result", Sdf.ValueTypeNames.Float4))
+    pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+        tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+    mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+    for k, (file, gain_value) in enumerate([("./maps/red.png", (2, 2, 2, 1)), ("./maps/blue.png", None),
+                                            ("./maps/red.png", (2, 2, 2, 1)), (None, None)]):
+        m, *_ = _grid_mesh(stage, f"/G{k}")
+        api = UsdGeom.PrimvarsAPI(m)
+        if file is not None:
+            api.CreatePrimvar("texFile", Sdf.ValueTypeNames.String, UsdGeom.Tokens.constant).Set(file)
+        if gain_value is not None:
+            api.CreatePrimvar("gain", Sdf.ValueTypeNames.Float4, UsdGeom.Tokens.constant).Set(Gf.Vec4f(*gain_value))
+        bind(m, mat)
+    layer = tmp_path / "s.usda"
+    stage.GetRootLayer().Export(str(layer))
+    from renderer.usd import load_stage
+
+    d = load_stage(str(layer))
+    inputs = [d.materials[next(m for m in d.meshes if m.path == f"/G{k}").material].diffuse_color for k in range(4)]
+    assert inputs[0] == inputs[2] and len({id(d.materials[m.material]) for m in d.meshes}) == 3
+    assert inputs[0].texture.file == str(tmp_path / "maps" / "red.png") and inputs[0].texture.scale == (2, 2, 2, 1)
+    assert inputs[1].texture.file == str(tmp_path / "maps" / "blue.png") and inputs[1].texture.scale == (1, 1, 1, 1)
+    assert inputs[3].texture is None and inputs[3].value == pytest.approx((0.5, 0.5, 0.5))
+    assert sum("gives no path" in w for w in d.warnings) == 1
