@@ -142,6 +142,14 @@ class MaterialTable:
         return self._by_path[key]
 
     # ---- primvar readers evaluated per gprim -------------------------------------------
+    def _varname(self, reader: UsdShade.Shader) -> str:
+        """The primvar a UsdPrimvarReader reads ('' when unauthored or connected). Some
+        exporters write the full attribute name; the primvar's name is what is read."""
+        attr = self._producing_attribute(reader, "varname")
+        name = attr.Get(self.ctx.time) if attr is not None and not UsdShade.Output.IsOutput(attr) else None
+        name = str(name or "")
+        return name[len("primvars:"):] if name.startswith("primvars:") else name
+
     def _gprim_value(self, gprim: Usd.Prim, varname: str):
         """The value of primvar ``varname`` on ``gprim`` (inherited constants included) as a
         hashable value: its first element when it is not constant (with a warning), None when
@@ -168,10 +176,7 @@ class MaterialTable:
         being read: its primvar's (first) value, else the reader's fallback. The material is
         then read once per distinct value (``_bound_index``)."""
         reader_id = str(reader.GetIdAttr().Get())
-        var_attr = self._producing_attribute(reader, "varname")
-        varname = var_attr.Get(self.ctx.time) if var_attr is not None and not UsdShade.Output.IsOutput(var_attr) else ""
-        varname = str(varname or "")
-        varname = varname[len("primvars:"):] if varname.startswith("primvars:") else varname
+        varname = self._varname(reader)
         value = self._gprim_value(self._gprim, varname) if varname else None
         if varname:
             self._gprim_reads[varname] = value
@@ -327,11 +332,7 @@ class MaterialTable:
                      f"{reader.GetPath()}: {reader_id} (2 components) cannot feed the 3-component "
                      f"{shader.GetPath()}.inputs:{name}; using its default value")
             return None
-        var_attr = self._producing_attribute(reader, "varname")
-        varname = var_attr.Get(ctx.time) if var_attr is not None and not UsdShade.Output.IsOutput(var_attr) else None
-        varname = str(varname or "")
-        # Some exporters write the full attribute name; the primvar's name is what is read.
-        varname = varname[len("primvars:"):] if varname.startswith("primvars:") else varname
+        varname = self._varname(reader)
         if reader_id not in self._reader_defaults:
             self._reader_defaults[reader_id] = _sdr_defaults(reader_id)
         raw = self._constant_input(reader, "fallback", self._reader_defaults[reader_id])
@@ -389,10 +390,7 @@ class MaterialTable:
             self.ctx.warn(f"texture-no-file-{tex.GetPath()}", f"{tex.GetPath()}: the UsdPrimvarReader_string feeding "
                                                               "inputs:file gives no path; using its fallback")
             return None
-        var_attr = self._producing_attribute(source, "varname")
-        varname = str(var_attr.Get(self.ctx.time) or "") if var_attr is not None else ""
-        varname = varname[len("primvars:"):] if varname.startswith("primvars:") else varname
-        pv = UsdGeom.PrimvarsAPI(self._gprim).FindPrimvarWithInheritance(varname)
+        pv = UsdGeom.PrimvarsAPI(self._gprim).FindPrimvarWithInheritance(self._varname(source))
         where, where_name = (pv.GetAttr().GetPrim(), pv.GetAttr().GetName()) if pv else (source.GetPrim(),
                                                                                            "inputs:fallback")
         stack = pv.GetAttr().GetPropertyStack(self.ctx.time) if pv else []
@@ -453,11 +451,7 @@ class MaterialTable:
             src = UsdShade.Shader(attr.GetPrim())
             src_id = str(src.GetIdAttr().Get()) if src else ""
             if src_id.startswith("UsdPrimvarReader"):
-                var_attr = self._producing_attribute(src, "varname")
-                name = var_attr.Get(self.ctx.time) if var_attr is not None else None
-                name = str(name or "st")
-                # Some exporters write the full attribute name; the primvar's name is what we need.
-                return (name[len("primvars:"):] if name.startswith("primvars:") else name), _affine(m)
+                return self._varname(src) or "st", _affine(m)
             if src_id == "UsdTransform2d":
                 m = m @ self._transform2d(src)
                 attr = self._producing_attribute(src, "in")
