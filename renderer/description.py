@@ -111,14 +111,23 @@ class MaterialDesc:
 
 def primvar_layout(materials: list[MaterialDesc]) -> dict[str, tuple[int, int]]:
     """{primvar name: (first column, width)} of the primvars ``materials`` read per hit, in the
-    per-hit coordinates after st (columns 2..; renderer/materials.py). A name read with several
-    widths gets the largest."""
+    per-hit coordinates after st (columns 2..; renderer/materials.py): those UsdPrimvarReader
+    nodes read, and the st primvars of their textures when there are several. A name read with
+    several widths gets the largest."""
     widths: dict[str, int] = {}
+    st_names: set[str] = set()
     for mat in materials:
         for f in fields(mat):
-            pv = getattr(getattr(mat, f.name), "primvar", None)
+            inp = getattr(mat, f.name)
+            pv = getattr(inp, "primvar", None)
             if pv is not None:
                 widths[pv.name] = max(widths.get(pv.name, 0), int(pv.width))
+            tex = getattr(inp, "texture", None)
+            if tex is not None:
+                st_names.add(tex.st_primvar)
+    if len(st_names) > 1:  # several st sets: each texture reads its own (renderer/materials.py)
+        for name in st_names:
+            widths[name] = max(widths.get(name, 0), 2)
     layout, col = {}, 2
     for name in sorted(widths):
         layout[name] = (col, widths[name])

@@ -39,6 +39,10 @@ Textured inputs: a colour input fed by a single-channel output ('r', 'g', 'b', '
 to RGB; a float input fed by 'rgb' takes the red channel. Without texture coordinates (st None)
 textures are looked up at st = (0, 0), the UsdPrimvarReader_float2 fallback.
 
+Several st sets: where the scene's textures read more than one st primvar (UsdUVTexture.st from
+UsdPrimvarReader_float2 nodes with different varnames), each of those primvars also gets columns
+in the per-hit coordinates, and each texture reads its own (``_texture_st``).
+
 Primvar inputs (a UsdPrimvarReader_* connected to an input, ``MaterialInput.primvar``): the
 primvars materials read are laid out after st in the per-hit coordinates (``primvar_layout``:
 ``evaluate``'s ``st`` is (n, 2 + K), columns 2.. the interpolated primvars, as the geometry's
@@ -168,6 +172,7 @@ def _texture_key(tex: TextureDesc) -> tuple:
         tuple(np.ravel(tex.fallback).tolist()),
         tex.output,
         tuple(tex.st_transform),
+        tex.st_primvar,
     )
 
 
@@ -391,7 +396,7 @@ class MaterialTable:
             rows = np.nonzero(np.isin(mat, mats_t))[0]
             if rows.size == 0:
                 continue
-            st_rows = np.zeros((rows.size, 2)) if st is None else np.asarray(st, dtype=np.float64)[rows]
+            st_rows = self._texture_st(tex, st, rows)
             rgba = self.texture_cache.lookup(tex, st_rows)
             mat_rows = mat[rows]
             # Group the bindings by (field, channels): usually one group covering every row.
@@ -409,6 +414,21 @@ class MaterialTable:
                     arr[r] = vals[:, 0]
                 else:
                     arr[r] = vals
+
+    def _texture_st(self, tex: TextureDesc, st: Optional[np.ndarray], rows: np.ndarray) -> np.ndarray:
+        """(k, 2) texture coordinates of ``tex`` at hits ``rows``: columns 0-1 of the per-hit
+        coordinates, or, where the scene's textures read several st primvars
+        (``primvar_layout``), the texture's own st primvar's columns where the hit's gprim has
+        it (a gprim whose materials read one st set holds it in columns 0-1 only)."""
+        if st is None:
+            return np.zeros((rows.size, 2))
+        st = np.asarray(st, dtype=np.float64)
+        out = st[rows, :2]
+        named = self.primvar_layout.get(tex.st_primvar)
+        if named is not None and st.shape[1] >= named[0] + 2:
+            own = st[rows, named[0]:named[0] + 2]
+            out = np.where(np.isfinite(own).all(axis=1, keepdims=True), own, out)
+        return out
 
     def presence_at(self, mat: np.ndarray, st: Optional[np.ndarray] = None) -> np.ndarray:
         """(n,) presence probability at hits without evaluating the other inputs (for shadow

@@ -238,11 +238,9 @@ class MaterialTable:
             if inp and (inp.HasConnectedSource() or inp.GetAttr().HasAuthoredValue()):
                 ctx.warn(f"preview-{unsupported}",
                          f"{shader.GetPath()}: UsdPreviewSurface input '{unsupported}' is ignored by illum")
+        # The mesh's st columns hold the first; textures reading others read their own
+        # (description.primvar_layout).
         st_name = st_names[0] if st_names else None
-        if len(set(st_names)) > 1:
-            ctx.warn("material-many-st",
-                     f"{material.GetPath()}: textures read different st primvars {sorted(set(st_names))}; "
-                     f"illum uses '{st_name}' for all")
         return MaterialDesc(**fields), st_name
 
     def _producing_attribute(self, shader: UsdShade.Shader, name: str):

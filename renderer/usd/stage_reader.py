@@ -581,10 +581,8 @@ class _Traversal:
                 continue
             raw = subset.GetIndicesAttr().Get(self.ctx.time)
             faces = np.asarray(raw if raw is not None else [], dtype=np.int64)
-            if st_name and mesh_hit[1] and st_name != mesh_hit[1]:
-                self.ctx.warn("material-many-st", f"{subset.GetPath()}: its material reads st primvar "
-                                                  f"'{st_name}', the mesh's '{mesh_hit[1]}'; illum uses "
-                                                  f"'{mesh_hit[1]}' for the whole mesh")
+            # A subset material reading another st primvar than the mesh's reads its own
+            # (description.primvar_layout).
             out.append((str(subset.GetPath()), faces, material, st_name))
         return out
 

@@ -278,3 +278,61 @@ def test_string_reader_picks_each_gprims_texture_and_numeric_readers_its_scale(t
     assert inputs[1].texture.file == str(tmp_path / "maps" / "blue.png") and inputs[1].texture.scale == (1, 1, 1, 1)
     assert inputs[3].texture is None and inputs[3].value == pytest.approx((0.5, 0.5, 0.5))
     assert sum("gives no path" in w for w in d.warnings) == 1
+
+
+def test_textures_read_their_own_st_sets(tmp_path):
+    """Two textures of one material read different st primvars (st and uv2), and another mesh's
+    material reads uv2 alone: every texture is looked up at its own coordinates."""
+    import OpenImageIO as oiio
+
+    ramp = np.random.default_rng(5).random((8, 8, 3)).astype(np.float32)
+    for name in ("a.exr", "b.exr"):
+        assert oiio.ImageBuf(ramp[:, ::-1] if name == "b.exr" else ramp).write(str(tmp_path / name), oiio.HALF)
+    stage = new_stage()
+
+    def textured(path, wiring):
+        mat = UsdShade.Material.Define(stage, path)
+        pbr = UsdShade.Shader.Define(stage, f"{path}/PBR")
+        pbr.CreateIdAttr("UsdPreviewSurface")
+        for inp, (vtype, out, file, varname) in wiring.items():
+            reader = UsdShade.Shader.Define(stage, f"{path}/St_{inp}")
+            reader.CreateIdAttr("UsdPrimvarReader_float2")
+            reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set(varname)
+            tex = UsdShade.Shader.Define(stage, f"{path}/Tex_{inp}")
+            tex.CreateIdAttr("UsdUVTexture")
+            tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(str(tmp_path / file))
+            tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+            tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+            tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+                reader.CreateOutput("result", Sdf.ValueTypeNames.Float2))
+            pbr.CreateInput(inp, vtype).ConnectToSource(tex.CreateOutput(out, vtype))
+        mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+        return mat
+
+    both = textured("/Both", {"diffuseColor": (Sdf.ValueTypeNames.Color3f, "rgb", "a.exr", "st"),
+                              "roughness": (Sdf.ValueTypeNames.Float, "r", "b.exr", "uv2")})
+    only = textured("/Only", {"diffuseColor": (Sdf.ValueTypeNames.Color3f, "rgb", "b.exr", "uv2")})
+    st_of = {"st": lambda q: np.c_[q[:, 0] / 3.0, q[:, 1] / 3.0], "uv2": lambda q: np.c_[q[:, 1] / 3.0, 1 - q[:, 0] / 3.0]}
+    for path, mat in (("/G0", both), ("/G1", only)):
+        m, pts, *_ = _grid_mesh(stage, path)
+        for name, f in st_of.items():
+            UsdGeom.PrimvarsAPI(m).CreatePrimvar(name, Sdf.ValueTypeNames.TexCoord2fArray, "vertex").Set(
+                Vt.Vec2fArray.FromNumpy(f(pts).astype(np.float32)))
+        bind(m, mat)
+    d = read(stage)
+    assert not any("st primvar" in w for w in d.warnings), d.warnings
+    mat, st, p = _hits(d, 600)
+    table = MaterialTable.build(d.materials, TextureCache())
+    params = table.evaluate(mat, st)
+    cache = TextureCache()
+    by_path = {d.materials[i].path: i for i in range(len(d.materials))}
+    for path, checks in (("/Both", (("diffuse", "diffuse_color", "st"), ("roughness", "roughness", "uv2"))),
+                         ("/Only", (("diffuse", "diffuse_color", "uv2"),))):
+        rows = mat == by_path[path]
+        assert rows.sum() > 50
+        for field, attr, st_name in checks:
+            tex = getattr(d.materials[by_path[path]], attr).texture
+            assert tex.st_primvar == st_name
+            expected = cache.lookup(tex, st_of[st_name](p[rows]))
+            got = getattr(params, field)[rows]
+            np.testing.assert_allclose(got, expected[:, :3] if got.ndim == 2 else expected[:, 0], atol=1e-5)
