@@ -31,6 +31,21 @@ def one_line(text: str) -> str:
     return " ".join(text.split())
 
 
+_TEXT_TYPES = ("token", "string", "asset")
+
+
+def _value_shape(type_name: Sdf.ValueTypeName) -> tuple:
+    """(array, text or number, components) of a value type: what must agree between an authored
+    value and its schema for the reader to use it. Precision and role may differ (double for
+    float, float3 for color3f, int for float: the values convert); shape may not (float2[] for
+    point3f[], a scalar for an array)."""
+    scalar = str(type_name.scalarType)
+    if scalar in _TEXT_TYPES:
+        return type_name.isArray, "text", 1
+    digits = re.search(r"\d", scalar)
+    return type_name.isArray, "number", int(digits.group()) if digits else 1
+
+
 class WarningLog:
     """Warnings said once per stage.
 
@@ -143,7 +158,7 @@ class ReadContext:
             return
         definition = attr.GetPrim().GetPrimDefinition().GetAttributeDefinition(attr.GetName())
         authored = stack[0].typeName
-        if definition and authored and authored.type != definition.GetTypeName().type:
+        if definition and authored and _value_shape(authored) != _value_shape(definition.GetTypeName()):
             raise self.error(f"authored as {authored} in {stack[0].layer.identifier}, but the schema "
                              f"declares {definition.GetTypeName()}", attr.GetPrim(), attr.GetName())
 

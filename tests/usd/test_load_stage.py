@@ -142,8 +142,8 @@ def Mesh "M"
 @pytest.mark.parametrize("line, attribute, words", [
     ("float2[] points = [(0, 0), (1, 0), (1, 1)]\n    int[] faceVertexCounts = [3]", "points",
      "authored as float2[]"),
-    ("point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]\n    float[] faceVertexCounts = [3]",
-     "faceVertexCounts", "authored as float[]"),
+    ("point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]\n    int faceVertexCounts = 3",
+     "faceVertexCounts", "authored as int"),
 ])
 def test_wrongly_typed_attribute_names_it(tmp_path, line, attribute, words):
     """A schema attribute authored with another value type is a StageError (exit 2) naming the
@@ -154,6 +154,15 @@ def test_wrongly_typed_attribute_names_it(tmp_path, line, attribute, words):
         load_stage(str(path))
     assert (err.value.prim, err.value.attribute) == ("/M", attribute)
     assert words in err.value.message and "schema declares" in err.value.message
+
+
+def test_other_precision_or_role_of_the_same_shape_is_read(tmp_path):
+    """double for float, float3[] for point3f[], float[] for int[]: the values convert."""
+    path = tmp_path / "ok.usda"
+    path.write_text(BAD_TYPE % "float3[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]\n"
+                                "    float[] faceVertexCounts = [3]\n    double doubleSided = 1")
+    d = load_stage(str(path))
+    assert len(d.meshes) == 1 and d.meshes[0].triangles.shape == (1, 3)
 
 
 def test_stage_without_lights_warns_and_the_stats_say_so(tmp_path):
