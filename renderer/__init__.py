@@ -1,5 +1,7 @@
 """illum: a USD-native path tracer (see README.md).
 
+Importing the package registers illum's USD schemas (``_register_schemas``).
+
 Importing the package sets two process-wide code-generation options before any kernel compiles:
 on CPUs with AVX-512 that run it at full clock, the compiled kernels' vectorised loops use
 512-bit registers (8 doubles) instead of LLVM's default 256 for Intel server parts, and LLVM's
@@ -67,3 +69,31 @@ def _configure_numba() -> None:
 
 
 _configure_numba()
+
+
+def _register_schemas() -> None:
+    """Make USD know illum's schemas (usd_schemas: IllumLightAPI, IllumRenderSettingsAPI) for
+    any stage this process opens, including the caller's own pxr code after ``import renderer``.
+
+    USD must learn a schema plugin before its schema registry is first used. When pxr is not
+    loaded yet, the plugin directory is put on PXR_PLUGINPATH_NAME, which USD reads when its
+    plugin registry starts (so ``import renderer`` does not load pxr); when it is, the plugin
+    is registered at once (``usd_schemas.register``).
+    """
+    import sys
+    from importlib.util import find_spec
+
+    if "pxr" in sys.modules:
+        import usd_schemas  # noqa: F401  (registers on import)
+
+        return
+    spec = find_spec("usd_schemas")
+    if spec is None or not spec.submodule_search_locations:
+        return
+    plugin_dir = os.path.abspath(list(spec.submodule_search_locations)[0])
+    paths = [p for p in os.environ.get("PXR_PLUGINPATH_NAME", "").split(os.pathsep) if p]
+    if plugin_dir not in paths:
+        os.environ["PXR_PLUGINPATH_NAME"] = os.pathsep.join([plugin_dir, *paths])
+
+
+_register_schemas()

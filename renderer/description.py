@@ -16,7 +16,7 @@ Conventions
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Optional
 
 import numpy as np
@@ -29,7 +29,11 @@ import numpy as np
 class TextureDesc:
     """A UsdUVTexture feeding one material input.
 
-    file: absolute, resolved path of the image.
+    file: the image's resolved path: an absolute file path, or a package-relative identifier
+        (``/a/pkg.usdz[maps/wood.png]``) whose bytes are ``data``.
+    data: the image file's bytes when it is not a file on disk (inside a .usdz package, or
+        served by a custom asset resolver), read by the reader through USD's asset resolver;
+        None for files (renderer/assets.py). Not part of equality: ``file`` names the bytes.
     source_color_space: 'raw' | 'sRGB' | 'auto' ('auto' = sRGB for 8-bit files with 3 or 4
         channels, raw otherwise: the UsdPreviewSurface spec).
     wrap_s, wrap_t: 'black' | 'clamp' | 'repeat' | 'mirror' | 'useMetadata' (resolved when the
@@ -51,14 +55,34 @@ class TextureDesc:
     output: str = "rgb"
     st_primvar: str = "st"
     st_transform: tuple = ()
+    data: Optional[bytes] = field(default=None, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class PrimvarReaderDesc:
+    """A UsdPrimvarReader_* feeding a material input directly: the gprim's primvar ``name``,
+    interpolated at each hit as st is (constant, uniform, vertex, varying or faceVarying).
+
+    width: its components (float 1, float2 2, float3 / normal / point / vector 3, float4 4,
+        int 1 -- read as a float). fallback: (width,) float, the reader's ``fallback`` input,
+        used where the gprim has no such primvar (the spec).
+    """
+
+    name: str
+    width: int
+    fallback: tuple
 
 
 @dataclass(frozen=True)
 class MaterialInput:
-    """A constant value (float or RGB triple) optionally overridden by a texture."""
+    """A constant value (float or RGB triple) optionally overridden per hit by a texture or by a
+    primvar (``primvar``; ``value`` is then its fallback mapped to the input, as for a texture).
+    A single-component source feeding a colour broadcasts; a float input fed by several
+    components takes the first."""
 
     value: tuple | float
     texture: Optional[TextureDesc] = None
+    primvar: Optional[PrimvarReaderDesc] = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +109,32 @@ class MaterialDesc:
     normal: MaterialInput = MaterialInput((0.0, 0.0, 1.0))
 
 
+def primvar_layout(materials: list[MaterialDesc]) -> dict[str, tuple[int, int]]:
+    """{primvar name: (first column, width)} of the primvars ``materials`` read per hit, in the
+    per-hit coordinates after st (columns 2..; renderer/materials.py): those UsdPrimvarReader
+    nodes read, and the st primvars of their textures when there are several. A name read with
+    several widths gets the largest."""
+    widths: dict[str, int] = {}
+    st_names: set[str] = set()
+    for mat in materials:
+        for f in fields(mat):
+            inp = getattr(mat, f.name)
+            pv = getattr(inp, "primvar", None)
+            if pv is not None:
+                widths[pv.name] = max(widths.get(pv.name, 0), int(pv.width))
+            tex = getattr(inp, "texture", None)
+            if tex is not None:
+                st_names.add(tex.st_primvar)
+    if len(st_names) > 1:  # several st sets: each texture reads its own (renderer/materials.py)
+        for name in st_names:
+            widths[name] = max(widths.get(name, 0), 2)
+    layout, col = {}, 2
+    for name in sorted(widths):
+        layout[name] = (col, widths[name])
+        col += widths[name]
+    return layout
+
+
 # --------------------------------------------------------------------------------------
 # Geometry
 # --------------------------------------------------------------------------------------
@@ -103,6 +153,9 @@ class MeshDesc:
     material: index into ``SceneDescription.materials``.
     double_sided: UsdGeom doubleSided (informational: illum shades both sides of every surface,
         as hdEmbree and Cycles do).
+    primvars: {name: (T, 3, k) float32 per-corner values} of the primvars its materials read
+        per hit through UsdPrimvarReader nodes (PrimvarReaderDesc); a primvar the gprim lacks is
+        absent (the reader's fallback applies).
     """
 
     path: str
@@ -112,6 +165,7 @@ class MeshDesc:
     st: Optional[np.ndarray]
     material: int
     double_sided: bool = False
+    primvars: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------
@@ -239,7 +293,8 @@ class LightDesc:
 
     kind: 'rect' | 'disk' | 'sphere' | 'dome' | 'distant' | 'cylinder' | 'mesh'.
     light_to_world: (4, 4) float64; for domes it includes the poleAxis / up-axis correction.
-    texture_file: absolute path ('' when none); texture_format for domes.
+    texture_file: resolved path ('' when none), as TextureDesc.file; texture_data its bytes when
+    it is not a file on disk (TextureDesc.data); texture_format for domes.
     """
 
     path: str
@@ -262,6 +317,7 @@ class LightDesc:
     treat_as_line: bool = False
     texture_file: str = ""
     texture_format: str = "automatic"
+    texture_data: Optional[bytes] = field(default=None, compare=False, repr=False)
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     # Light linking, resolved against the stage's gprims by the reader: None means "everything".
     light_link_excludes: Optional[frozenset] = None  # mesh paths NOT illuminated
@@ -295,6 +351,8 @@ class SceneDescription:
 
     stats: counters the reader fills (prims visited, pruned subtrees, points read, ...).
     warnings: human-readable warnings, each said once per stage.
+    strict: the stage was read with ``--strict`` (every missing or unreadable asset is an
+        error); the render core decodes its textures under the same policy.
     """
 
     source: str
@@ -308,3 +366,4 @@ class SceneDescription:
     up_axis: str = "Y"
     warnings: list[str] = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+    strict: bool = False

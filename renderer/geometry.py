@@ -262,7 +262,8 @@ def _interaction_tri(v0, v1, v2, n0, n1, n2, fn, w1, w2, dx, dy, dz):
 
 @njit(cache=True, nogil=True)
 def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d, p, ng, ns, st):
-    """One pass per hit: float64 point, normals facing wo = -d (_interaction_row), interpolated st."""
+    """One pass per hit: float64 point, normals facing wo = -d (_interaction_row), interpolated st
+    (every column of st_tab: st and the primvars materials read, renderer/materials.py)."""
     for i in range(prim.shape[0]):
         k = prim[i]
         w1 = b1[i]
@@ -273,22 +274,23 @@ def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d,
             p[i, c] = pp[c]
             ng[i, c] = gg[c]
             ns[i, c] = ss[c]
-        for c in range(2):
+        for c in range(st.shape[1]):
             st[i, c] = st_tab[k, 0, c] * w0 + st_tab[k, 1, c] * w1 + st_tab[k, 2, c] * w2
 
 
 def surface_interaction(vertices, face_normal, normals, st_tab, prim, b1, b2, d):
     """Hit points of rays with direction d (n, 3) on triangles prim (n,) at barycentrics b1, b2.
 
-    vertices, normals: (T, 3, 3) float64; face_normal: (T, 3); st_tab: (T, 3, 2).
+    vertices, normals: (T, 3, 3) float64; face_normal: (T, 3); st_tab: (T, 3, C), C = 2 (st)
+    plus the primvar columns materials read per hit (GeometryTables.st).
     Returns p (n, 3) float64 rebuilt from the float64 triangle (so the ray offset only has to
-    cover embree's float32 rounding), ng and ns (n, 3) unit and facing wo = -d, st (n, 2).
+    cover embree's float32 rounding), ng and ns (n, 3) unit and facing wo = -d, st (n, C).
     """
     n = prim.shape[0]
     p = np.zeros((n, 3))
     ng = np.zeros((n, 3))
     ns = np.zeros((n, 3))
-    st = np.zeros((n, 2))
+    st = np.zeros((n, st_tab.shape[2]))
     _interaction_kernel(vertices, face_normal, normals, st_tab, np.ascontiguousarray(prim, dtype=np.int64),
                         np.ascontiguousarray(b1, dtype=np.float64), np.ascontiguousarray(b2, dtype=np.float64),
                         np.ascontiguousarray(d, dtype=np.float64), p, ng, ns, st)

@@ -38,6 +38,16 @@ normal is textured or a constant other than (0, 0, 1); the integrator bends thei
 Textured inputs: a colour input fed by a single-channel output ('r', 'g', 'b', 'a') broadcasts it
 to RGB; a float input fed by 'rgb' takes the red channel. Without texture coordinates (st None)
 textures are looked up at st = (0, 0), the UsdPrimvarReader_float2 fallback.
+
+Several st sets: where the scene's textures read more than one st primvar (UsdUVTexture.st from
+UsdPrimvarReader_float2 nodes with different varnames), each of those primvars also gets columns
+in the per-hit coordinates, and each texture reads its own (``_texture_st``).
+
+Primvar inputs (a UsdPrimvarReader_* connected to an input, ``MaterialInput.primvar``): the
+primvars materials read are laid out after st in the per-hit coordinates (``primvar_layout``:
+``evaluate``'s ``st`` is (n, 2 + K), columns 2.. the interpolated primvars, as the geometry's
+per-corner table, renderer/scene.py). A hit whose gprim lacks the primvar carries NaN there and
+gets the reader's fallback. Components map to the input as for textures.
 """
 
 from __future__ import annotations
@@ -49,7 +59,7 @@ import numpy as np
 
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
-from renderer.description import MaterialDesc, MaterialInput, TextureDesc
+from renderer.description import MaterialDesc, MaterialInput, TextureDesc, primvar_layout
 from renderer.errors import StageError
 from renderer.textures import TextureCache, output_channels
 
@@ -140,6 +150,16 @@ def _as_components(value, k: int, where: str, path: str) -> np.ndarray:
     return v
 
 
+def _components(k: int, n: int) -> list[int]:
+    """Which of n source components feed a k-component input: broadcast 1 -> 3, else the first
+    k (the reader refuses a float2 feeding a 3-component input)."""
+    if k == 1:
+        return [0]
+    if n == 2:
+        raise StageError("a 2-component primvar cannot feed a 3-component input")
+    return [0, 0, 0] if n == 1 else [0, 1, 2]
+
+
 def _texture_key(tex: TextureDesc) -> tuple:
     """A hashable identity for a TextureDesc (its sequences may arrive as lists)."""
     return (
@@ -152,6 +172,7 @@ def _texture_key(tex: TextureDesc) -> tuple:
         tuple(np.ravel(tex.fallback).tolist()),
         tex.output,
         tuple(tex.st_transform),
+        tex.st_primvar,
     )
 
 
@@ -183,6 +204,11 @@ class MaterialTable:
         self._by_texture: list[tuple[np.ndarray, list[_Binding]]] = []
         # Per SurfaceParams field: (m,) int64 texture slot or -1.
         self._slot: dict[str, np.ndarray] = {}
+        # Primvar inputs: {(field, columns of the per-hit coordinates): (materials (k,), fallback
+        # rows (k, components))} (module docstring).
+        self._primvar: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        self.primvar_layout: dict[str, tuple[int, int]] = {}
+        self._varies: dict[str, np.ndarray] = {}  # per field: (m,) bool, textured or primvar-fed
         self.has_emission = False
         self.has_cutout = False
         self.emissive_materials = np.zeros(0, dtype=bool)
@@ -221,11 +247,21 @@ class MaterialTable:
         slot_of: dict[tuple, int] = {}
         slots = {fname: np.full(m, -1, dtype=np.int64) for _, fname, _, _ in _TEXTURABLE}
         bindings: list[list[_Binding]] = []
+        table.primvar_layout = layout = primvar_layout(materials)
+        primvar_fed = {fname: np.zeros(m, dtype=bool) for _, fname, _, _ in _TEXTURABLE}
+        by_columns: dict[tuple, tuple[list, list]] = {}
         for i, mat in enumerate(materials):
             for attr, fname, k, usd_name in _TEXTURABLE:
                 inp: MaterialInput = getattr(mat, attr)
                 v = _as_components(inp.value, k, usd_name, mat.path)
                 const[fname][i] = v if k == 3 else v[0]
+                if inp.primvar is not None:
+                    first, _w = layout[inp.primvar.name]
+                    cols = tuple(first + c for c in _components(k, int(inp.primvar.width)))
+                    mats_f, fallbacks = by_columns.setdefault((fname, cols), ([], []))
+                    mats_f.append(i)
+                    fallbacks.append(v)
+                    primvar_fed[fname][i] = True
                 if inp.texture is not None:
                     tex = inp.texture
                     try:
@@ -260,14 +296,19 @@ class MaterialTable:
             arr.setflags(write=False)
         table.const = const
         table._slot = slots
+        table._primvar = {key: (np.array(ms, dtype=np.int64), np.array(fb, dtype=np.float64))
+                          for key, (ms, fb) in by_columns.items()}
+        # A primvar-fed input varies per hit like a textured one.
+        varies = {f: (slots[f] >= 0) | primvar_fed[f] for f in slots}
+        table._varies = varies
         table._by_texture = [
             (np.unique(np.array([b.material for b in bs], dtype=np.int64)), bs) for bs in bindings
         ]
-        emissive = np.any(const["emission"] > 0.0, axis=1) | (slots["emission"] >= 0)
+        emissive = np.any(const["emission"] > 0.0, axis=1) | varies["emission"]
         table.emissive_materials = emissive
         table.has_emission = bool(emissive.any())
-        table.has_cutout = bool(np.any(const["opacity"] < 1.0) or np.any(slots["opacity"] >= 0))
-        table.normal_mapped = np.any(const["normal"] != np.array(_FLAT), axis=1) | (slots["normal"] >= 0)
+        table.has_cutout = bool(np.any(const["opacity"] < 1.0) or np.any(varies["opacity"]))
+        table.normal_mapped = np.any(const["normal"] != np.array(_FLAT), axis=1) | varies["normal"]
         table.has_normal_map = bool(table.normal_mapped.any())
         return table
 
@@ -282,12 +323,33 @@ class MaterialTable:
         out = {name: arr[mat] for name, arr in self.const.items() if name != "normal" or self.has_normal_map}
         if self.textures:
             self._apply_textures(out, mat, st, None)
+        if self._primvar:
+            self._apply_primvars(out, mat, st, None)
         return SurfaceParams(**out)
+
+    def _apply_primvars(self, out: dict, mat: np.ndarray, st: Optional[np.ndarray], only: Optional[str]) -> None:
+        """Override primvar-fed inputs in ``out`` from the per-hit coordinates' primvar columns;
+        NaN there (the gprim lacks the primvar) or no coordinates at all give the fallback."""
+        for (fname, cols), (mats_f, fallbacks) in self._primvar.items():
+            if (only is not None and fname != only) or fname not in out:
+                continue
+            rows = np.nonzero(np.isin(mat, mats_f))[0]
+            if rows.size == 0:
+                continue
+            fb = fallbacks[np.searchsorted(mats_f, mat[rows])] if mats_f.size > 1 else \
+                np.broadcast_to(fallbacks[0], (rows.size, fallbacks.shape[1]))
+            if st is None or np.shape(st)[1] <= max(cols):
+                vals = fb
+            else:
+                vals = np.asarray(st, dtype=np.float64)[rows][:, list(cols)]
+                vals = np.where(np.isnan(vals), fb, vals)
+            arr = out[fname]
+            arr[rows] = vals[:, 0] if arr.ndim == 1 else vals
 
     @property
     def bsdf_is_constant(self) -> bool:
         """No BSDF input of any material is textured: the BSDF depends on the material alone."""
-        return not any(np.any(self._slot[f] >= 0) for f in BSDF_FIELDS if f in self._slot)
+        return not any(np.any(self._varies[f]) for f in BSDF_FIELDS if f in self._varies)
 
     @property
     def params_needed(self) -> bool:
@@ -334,7 +396,7 @@ class MaterialTable:
             rows = np.nonzero(np.isin(mat, mats_t))[0]
             if rows.size == 0:
                 continue
-            st_rows = np.zeros((rows.size, 2)) if st is None else np.asarray(st, dtype=np.float64)[rows]
+            st_rows = self._texture_st(tex, st, rows)
             rgba = self.texture_cache.lookup(tex, st_rows)
             mat_rows = mat[rows]
             # Group the bindings by (field, channels): usually one group covering every row.
@@ -353,6 +415,21 @@ class MaterialTable:
                 else:
                     arr[r] = vals
 
+    def _texture_st(self, tex: TextureDesc, st: Optional[np.ndarray], rows: np.ndarray) -> np.ndarray:
+        """(k, 2) texture coordinates of ``tex`` at hits ``rows``: columns 0-1 of the per-hit
+        coordinates, or, where the scene's textures read several st primvars
+        (``primvar_layout``), the texture's own st primvar's columns where the hit's gprim has
+        it (a gprim whose materials read one st set holds it in columns 0-1 only)."""
+        if st is None:
+            return np.zeros((rows.size, 2))
+        st = np.asarray(st, dtype=np.float64)
+        out = st[rows, :2]
+        named = self.primvar_layout.get(tex.st_primvar)
+        if named is not None and st.shape[1] >= named[0] + 2:
+            own = st[rows, named[0]:named[0] + 2]
+            out = np.where(np.isfinite(own).all(axis=1, keepdims=True), own, out)
+        return out
+
     def presence_at(self, mat: np.ndarray, st: Optional[np.ndarray] = None) -> np.ndarray:
         """(n,) presence probability at hits without evaluating the other inputs (for shadow
         rays and any-hit style tests)."""
@@ -360,6 +437,8 @@ class MaterialTable:
         out = {"opacity": self.const["opacity"][mat]}
         if self.textures and np.any(self._slot["opacity"] >= 0):
             self._apply_textures(out, mat, st, "opacity")
+        if self._primvar:
+            self._apply_primvars(out, mat, st, "opacity")
         return _presence(out["opacity"], self.const["opacity_threshold"][mat])
 
     @staticmethod

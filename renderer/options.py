@@ -220,6 +220,10 @@ OPTIONS: tuple[Option, ...] = (
            "the filter; importance: samples drawn from the filter add to their own pixel (default: RenderSettings "
            "illum:pixelFilter:mode, else splat)", flags=("--pixel-filter-mode",), metavar="MODE",
            choices=_pixel_filter_modes, max_length=64, example="importance"),
+    Option("strict", "bool", False, "make every missing or unreadable asset (texture, light texture, IES file, "
+           "sublayer, reference, payload) and a sublayer cycle an error naming the layer, prim and attribute "
+           "(default: one warning per file, and the texture's fallback, an untextured or unshaped light, or the "
+           "arc skipped)", flags=("--strict",), example=True),
     Option("light_samples", "per_light", {}, "light samples per shading point for all lights, or /Light=N for "
            "one (repeatable)", flags=("--light-samples",), metavar="[/Light=|*=]N", item="int", lo=1, hi=4096,
            example={"": 2}),

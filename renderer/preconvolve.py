@@ -88,7 +88,6 @@ interpolation (bilinear, with the smooth and the "sun" parts taken out analytica
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import sys
@@ -99,6 +98,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from renderer.assets import asset_sha256
 from renderer.errors import IllumError, SettingsError
 
 __all__ = [
@@ -730,11 +730,7 @@ def texel_cos_integral(h: int, w: int, row: int, col: int, normals: np.ndarray, 
 # --------------------------------------------------------------------------------------
 def file_sha256(path: str) -> str:
     """Hex sha256 of a file's bytes (the content hash recorded as illum:sourceHash)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 22), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    return asset_sha256(path)
 
 
 class _Source:
@@ -1157,18 +1153,21 @@ def irradiance_cache_dir() -> str:
 
 
 def dome_irradiance_table(texture_file: str, img: np.ndarray, authored: str = "", prim: str = "",
-                          size: int = LOAD_SIZE) -> tuple[IrradianceTable, list[str]]:
+                          size: int = LOAD_SIZE, texture_data: bytes | None = None
+                          ) -> tuple[IrradianceTable, list[str]]:
     """The table DomeLight.irradiance_lookup interpolates, and warnings.
 
     texture_file: the dome's texture (its sha256 is the freshness key); img (H, W, 3) its
-    texels as the renderer loaded them; authored: absolute path of illum:dome:irradiance ('').
+    texels as the renderer loaded them; texture_data: the texture's bytes when it is not a file
+    (inside a .usdz package: LightDesc.texture_data); authored: absolute path of
+    illum:dome:irradiance ('').
     Authored maps are used when their illum:sourceHash matches and their method is 'exact';
     otherwise (stale, approximate, unreadable) a warning and the load-time computation, cached
     on disk by content hash.
     """
     warnings: list[str] = []
     t0 = time.perf_counter()
-    src_hash = file_sha256(texture_file)
+    src_hash = asset_sha256(texture_file, texture_data)
     label = prim or texture_file
     if authored:
         why = ""

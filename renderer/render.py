@@ -109,11 +109,12 @@ def render(
 
     # ---- load + build (cached for resident workers) --------------------------------------
     key = (os.path.abspath(stage_path), os.path.getmtime(stage_path) if os.path.exists(stage_path) else 0,
-           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads)
+           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads, opt.strict)
     cached = scene_cache.get(key) if scene_cache is not None else None
     if cached is None:
         t0 = time.perf_counter()
-        where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes)
+        where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes,
+                     strict=opt.strict)
         opened = shared.get("stage") if shared is not None else None
         desc = (load_stage(stage_path, **where) if opened is None
                 else read_stage(opened, source=stage_path, **where))
@@ -123,7 +124,8 @@ def render(
         if shared is not None:
             from .textures import TextureCache
 
-            textures = shared.setdefault("textures", TextureCache())
+            textures = shared.setdefault("textures", TextureCache(missing="error" if opt.strict else "fallback",
+                                                                  strict=opt.strict))
         scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
         phases["build"] = time.perf_counter() - t0
         if scene_cache is not None:

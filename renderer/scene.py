@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .accel import Accel
-from .description import SceneDescription
+from .description import SceneDescription, primvar_layout
 from .geometry import normalize, uv_tangents
 
 
@@ -20,7 +20,9 @@ class GeometryTables:
     """Per-triangle data, indexed by embree's primID.
 
     vertices: (T, 3, 3) float64; normals: (T, 3, 3) float64 unit per-corner shading normals
-    (face normals where the mesh had none); st: (T, 3, 2) float64 (zeros where none);
+    (face normals where the mesh had none); st: (T, 3, 2 + K) float64: st (zeros where none),
+    then the K primvar components materials read per hit, laid out by
+    ``materials.primvar_layout`` (NaN where a mesh lacks the primvar: the reader's fallback);
     face_normal: (T, 3) unit geometric normals (front = counter-clockwise winding);
     material: (T,) int32; mesh: (T,) int32 index into ``mesh_paths``.
     tangent: (T, 3) unit dp/du and handed: (T,) UV handedness (+1, -1; 0 = no frame) for
@@ -44,6 +46,8 @@ class GeometryTables:
 
 
 def build_geometry(desc: SceneDescription) -> GeometryTables:
+    layout = primvar_layout(desc.materials)
+    columns = 2 + sum(w for _c, w in layout.values())
     verts, norms, sts, mats, owners = [], [], [], [], []
     for i, m in enumerate(desc.meshes):
         tri = m.triangles
@@ -61,12 +65,23 @@ def build_geometry(desc: SceneDescription) -> GeometryTables:
         else:
             nrm = np.repeat(fn[:, None, :], 3, axis=1)
         norms.append(nrm)
-        sts.append(np.zeros((tri.shape[0], 3, 2)) if m.st is None else np.asarray(m.st, dtype=np.float64))
+        st = np.zeros((tri.shape[0], 3, columns))
+        if m.st is not None:
+            st[:, :, :2] = m.st
+        for name, (col, width) in layout.items():
+            values = m.primvars.get(name)
+            if values is None:
+                st[:, :, col:col + width] = np.nan
+            else:
+                w = min(width, values.shape[2])
+                st[:, :, col:col + w] = values[:, :, :w]
+                st[:, :, col + w:col + width] = np.nan
+        sts.append(st)
         mats.append(np.full(tri.shape[0], m.material, dtype=np.int32))
         owners.append(np.full(tri.shape[0], i, dtype=np.int32))
     if not verts:
         z3 = np.zeros((0, 3, 3))
-        return GeometryTables(z3, z3, np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(0, np.int32),
+        return GeometryTables(z3, z3, np.zeros((0, 3, columns)), np.zeros((0, 3)), np.zeros(0, np.int32),
                               np.zeros(0, np.int32), [m.path for m in desc.meshes])
     vertices = np.concatenate(verts)
     face_normal = normalize(np.cross(vertices[:, 1] - vertices[:, 0], vertices[:, 2] - vertices[:, 0]))
@@ -78,7 +93,7 @@ def build_geometry(desc: SceneDescription) -> GeometryTables:
         # Built once, and only for the triangles that need a frame.
         tangent, handed = np.zeros((vertices.shape[0], 3)), np.zeros(vertices.shape[0])
         rows = np.nonzero(mapped[material])[0]
-        tangent[rows], handed[rows] = uv_tangents(vertices[rows], st[rows])
+        tangent[rows], handed[rows] = uv_tangents(vertices[rows], st[rows][:, :, :2])
     return GeometryTables(
         vertices=vertices,
         normals=np.concatenate(norms),
@@ -195,7 +210,10 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         radius = float(max(0.5 * np.linalg.norm(hi - lo), 1e-6))
     else:
         center, radius = np.zeros(3), 1.0
-    textures = TextureCache() if textures is None else textures
+    # The reader has applied the missing-asset policy already; a file that vanished since, or
+    # that decodes badly past its header, follows the same policy here.
+    if textures is None:
+        textures = TextureCache(missing="error" if desc.strict else "fallback", strict=desc.strict)
     materials = MaterialTable.build(desc.materials, textures)
     lights = LightSet.build(desc.lights, center, radius)
     tri_light, tri_absorb = mesh_light_tables(lights, geo)

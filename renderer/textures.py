@@ -32,7 +32,12 @@ Conventions
   reported once per file in ``TextureCache.warnings``.
 * **Errors**: a file that does not exist raises ``renderer.errors.StageError`` naming it (unless
   the cache was built with ``missing='fallback'``); a file that exists but OIIO cannot read gives
-  a warning and the fallback value.
+  a warning and the fallback value, or a StageError when the cache was built with
+  ``strict=True`` (``illum render --strict``: every missing or unreadable asset is an error).
+  The stage reader has already applied that policy to files it could not find or whose header
+  it could not read (renderer/usd), naming the layer, prim and attribute.
+* **Packages**: a texture inside a ``.usdz`` package carries its bytes (``TextureDesc.data``,
+  read through USD's asset resolver); it is decoded from them (renderer/assets.py).
 
 Memory: decoded images are kept as float32 (H, W, 4); lookups compute in float64.
 """
@@ -45,6 +50,7 @@ from typing import Iterable, Optional
 
 import numpy as np
 
+from renderer.assets import local_file
 from renderer.description import TextureDesc
 from renderer.errors import StageError
 
@@ -109,23 +115,25 @@ def _expand_channels(px: np.ndarray) -> np.ndarray:
     return out
 
 
-def load_image(path: str) -> tuple[Optional[LoadedImage], str]:
-    """Read ``path`` with OpenImageIO -> (LoadedImage or None, error message or '')."""
+def load_image(path: str, data: Optional[bytes] = None) -> tuple[Optional[LoadedImage], str]:
+    """Read ``path`` (or its bytes ``data``, renderer/assets.py) with OpenImageIO ->
+    (LoadedImage or None, error message or '')."""
     import OpenImageIO as oiio
 
     # Keep colour channels as stored ("straight"): without this OIIO premultiplies the colour of
     # PNG/TIFF files with alpha on read, darkening colours wherever alpha < 1.
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
-    buf = oiio.ImageBuf(path, 0, 0, config)
-    if buf.has_error:
-        return None, buf.geterror()
-    spec = buf.spec()
-    if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
-        return None, "image has no pixels"
-    px = buf.get_pixels(oiio.FLOAT)
-    if buf.has_error:
-        return None, buf.geterror()
+    with local_file(path, data) as local:
+        buf = oiio.ImageBuf(local, 0, 0, config)
+        if buf.has_error:
+            return None, buf.geterror()
+        spec = buf.spec()
+        if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+            return None, "image has no pixels"
+        px = buf.get_pixels(oiio.FLOAT)
+        if buf.has_error:
+            return None, buf.geterror()
     px = np.asarray(px, dtype=np.float32)
     if px.ndim == 4:  # (depth, H, W, C) for volume files: take the first slice
         px = px[0]
@@ -141,6 +149,23 @@ def load_image(path: str) -> tuple[Optional[LoadedImage], str]:
     pixels = np.ascontiguousarray(_expand_channels(px)[::-1])
     return LoadedImage(path, pixels, bool(is_integer), int(spec.nchannels), nonfinite,
                        is_8bit=base == oiio.UINT8, wrap_metadata=_wrap_metadata(spec)), ""
+
+
+def probe_image(path: str, data: Optional[bytes] = None) -> str:
+    """Why OpenImageIO cannot open the image at ``path`` (or its bytes ``data``): reads only the
+    header. '' when it can."""
+    import OpenImageIO as oiio
+
+    with local_file(path, data) as local:
+        inp = oiio.ImageInput.open(local)
+        if inp is None:
+            # OIIO names the file it opened: the asset's own name, not a temporary copy's
+            return " ".join(oiio.geterror().replace(local, path).split()) or "not an image OpenImageIO can read"
+        spec = inp.spec()
+        inp.close()
+    if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
+        return "image has no pixels"
+    return ""
 
 
 def _wrap_metadata(spec) -> tuple[str, str] | None:
@@ -212,16 +237,19 @@ class TextureCache:
 
     missing: 'error' (default) raises StageError for a file that does not exist; 'fallback'
         records a warning and returns the texture's fallback value instead.
+    strict: a file that exists but cannot be decoded raises StageError too (else a warning and
+        the fallback value).
     warnings: human-readable messages (unreadable files, non-finite texels), each said once.
 
     Build-time use: ``add(tex)`` for every TextureDesc (``MaterialTable.build`` does this); after
     that, ``lookup`` only reads, so one cache can be shared by render threads.
     """
 
-    def __init__(self, missing: str = "error"):
+    def __init__(self, missing: str = "error", strict: bool = False):
         if missing not in ("error", "fallback"):
             raise ValueError("missing must be 'error' or 'fallback'")
         self.missing = missing
+        self.strict = strict
         self.warnings: list[str] = []
         self._files: dict[str, Optional[LoadedImage]] = {}
         self._decoded: dict[tuple[str, bool], np.ndarray] = {}
@@ -229,17 +257,19 @@ class TextureCache:
     # ----------------------------------------------------------------------------------
     # Loading
     # ----------------------------------------------------------------------------------
-    def _load_file(self, path: str) -> Optional[LoadedImage]:
+    def _load_file(self, path: str, data: Optional[bytes] = None) -> Optional[LoadedImage]:
         if path in self._files:
             return self._files[path]
         img: Optional[LoadedImage] = None
-        if not path or not os.path.isfile(path):
+        if data is None and (not path or not os.path.isfile(path)):
             if self.missing == "error":
                 raise StageError("texture file not found", file=path or "<empty asset path>")
             self.warnings.append(f"{path or '<empty asset path>'}: texture file not found; using fallback")
         else:
-            img, err = load_image(path)
+            img, err = load_image(path, data)
             if img is None:
+                if self.strict:
+                    raise StageError(f"cannot read texture: {err.strip()}", file=path)
                 self.warnings.append(f"{path}: cannot read texture ({err.strip()}); using fallback")
             elif img.nonfinite:
                 self.warnings.append(
@@ -268,7 +298,7 @@ class TextureCache:
             if mode not in WRAP_MODES and mode != "useMetadata":
                 raise StageError(f"unknown texture wrap mode {mode!r}", file=tex.file)
         output_channels(tex.output)
-        img = self._load_file(tex.file)
+        img = self._load_file(tex.file, tex.data)
         if img is None:
             return
         key = (tex.file, self.decodes_srgb(tex, img))

@@ -358,13 +358,14 @@ def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
 
     if opts.resolution is not None:
         return
-    key = (job.stage, os.path.getmtime(job.stage), opts.settings, opts.camera, opts.frame, opts.purposes)
+    key = (job.stage, os.path.getmtime(job.stage), opts.settings, opts.camera, opts.frame, opts.purposes,
+           opts.strict)
     res = ctx.resolution_cache.get(key)
     if res is None:
         from renderer.usd import load_stage
 
         desc = load_stage(job.stage, camera=opts.camera, settings=opts.settings, frame=opts.frame,
-                          purposes=opts.purposes)
+                          purposes=opts.purposes, strict=opts.strict)
         res = tuple(int(v) for v in desc.settings.resolution)
         ctx.resolution_cache.clear()
         ctx.resolution_cache[key] = res

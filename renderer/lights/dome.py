@@ -200,7 +200,7 @@ class DomeLight:
                 prim=desc.path,
                 attribute="inputs:texture:format",
             )
-        img = load_texture_rgb(desc.texture_file, desc.path)
+        img = load_texture_rgb(desc.texture_file, desc.path, data=desc.texture_data)
         h, w = img.shape[:2]
         if fmt == "automatic" and w != 2 * h:
             raise StageError(
@@ -386,7 +386,8 @@ class DomeLight:
         when fresh, else computed from these very texels (cached on disk by content hash)."""
         from renderer.preconvolve import dome_irradiance_table
 
-        return dome_irradiance_table(desc.texture_file, img, desc.estimator.dome_irradiance, prim=desc.path)
+        return dome_irradiance_table(desc.texture_file, img, desc.estimator.dome_irradiance, prim=desc.path,
+                                    texture_data=desc.texture_data)
 
     # ----------------------------------------------------------------------------------
     def _to_local(self, idx: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -57,6 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from renderer.assets import asset_bytes
 from renderer.errors import StageError
 
 __all__ = ["IesError", "IesProfile", "load_ies", "parse_ies"]
@@ -212,11 +213,11 @@ class _Tokens:
         return out, lines
 
 
-def load_ies(path: str) -> IesProfile:
-    """Read and parse an IES file; IesError (naming the file) when unreadable or malformed."""
+def load_ies(path: str, data: bytes | None = None) -> IesProfile:
+    """Read and parse an IES file (``data``: its bytes when it is not a file on disk, e.g. inside
+    a .usdz package; renderer/assets.py); IesError (naming the file) when unreadable or malformed."""
     try:
-        with open(path, "rb") as fh:
-            data = fh.read()
+        data = asset_bytes(path, data)
     except OSError as exc:
         raise IesError(f"cannot read IES file: {exc.strerror or exc}", file=str(path)) from None
     # IES files are ASCII; keyword text in the wild is often Latin-1.

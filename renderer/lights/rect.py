@@ -136,7 +136,7 @@ class RectLight:
             n[i] = emission_normal(ex[i], ey[i], linear_part(d.light_to_world))
             L[i] = emitted_radiance(d, cls.world_area(d))
             if d.texture_file:
-                img = load_texture_rgb(d.texture_file, d.path)
+                img = load_texture_rgb(d.texture_file, d.path, data=d.texture_data)
                 tex[i] = len(images)
                 images.append(img)
                 weights.append(luminance(img))

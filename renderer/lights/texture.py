@@ -17,11 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from renderer.assets import local_file
 from renderer.errors import StageError
 
 
-def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file") -> np.ndarray:
-    """Read an image as linear float RGB (H, W, 3) float64 (row 0 = top of the image).
+def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file",
+                     data: bytes | None = None) -> np.ndarray:
+    """Read an image as linear float RGB (H, W, 3) float64 (row 0 = top of the image); ``data``:
+    its bytes when it is not a file on disk (LightDesc.texture_data, renderer/assets.py).
 
     One-channel images are replicated to grey, extra channels (alpha) are ignored. UsdLux has no
     colour-space input for light textures, so illum applies UsdUVTexture's 'auto' rule (the
@@ -33,14 +36,15 @@ def load_texture_rgb(path: str, prim: str, attribute: str = "inputs:texture:file
     """
     import OpenImageIO as oiio
 
-    buf = oiio.ImageBuf(path)
-    spec = buf.spec()
-    if buf.has_error or spec.width <= 0 or spec.height <= 0:
-        msg = buf.geterror() if buf.has_error else "empty image"
-        raise StageError(f"cannot read texture '{path}': {msg}", prim=prim, attribute=attribute)
-    px = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float64)
-    if buf.has_error:
-        raise StageError(f"cannot read texture '{path}': {buf.geterror()}", prim=prim, attribute=attribute)
+    with local_file(path, data) as local:
+        buf = oiio.ImageBuf(local)
+        spec = buf.spec()
+        if buf.has_error or spec.width <= 0 or spec.height <= 0:
+            msg = buf.geterror() if buf.has_error else "empty image"
+            raise StageError(f"cannot read texture '{path}': {msg}", prim=prim, attribute=attribute)
+        px = np.asarray(buf.get_pixels(oiio.FLOAT), dtype=np.float64)
+        if buf.has_error:
+            raise StageError(f"cannot read texture '{path}': {buf.geterror()}", prim=prim, attribute=attribute)
     if px.ndim == 2:
         px = px[:, :, None]
     if px.ndim == 4:  # volume images: take the first slice

@@ -18,12 +18,17 @@ What is read and what is not (each unsupported feature gives one warning per sta
   PointInstancer prototypes give one light per instance, named ``<prototype light path>[id]``
   (one ``[id]`` per instancer level; ``stage_reader``); mesh lights and PortalLights there are
   skipped with a warning. ShapingAPI and ShadowAPI are read by ``lux_shaping``.
-* Materials: UsdPreviewSurface (universal render context) with UsdUVTexture and
-  UsdPrimvarReader_float2 and UsdTransform2d; materialBind GeomSubsets split a mesh by
-  material; normal, displacement, clearcoat and occlusion inputs are ignored; UDIM paths use
-  the fallback.
-* displayColor fallback uses the first value of ``primvars:displayColor`` for the whole prim
-  (a constant one may be inherited from an ancestor, UsdGeom primvar inheritance).
+* Materials: UsdPreviewSurface (universal render context) with UsdUVTexture, UsdTransform2d
+  and UsdPrimvarReader_* (numeric readers on any UsdPreviewSurface input are read per hit;
+  ``materials``); materialBind GeomSubsets split a mesh by material; displacement, clearcoat
+  and occlusion inputs are ignored; UDIM paths use the fallback.
+* displayColor fallback: ``primvars:displayColor`` per hit on meshes (constant, uniform, vertex,
+  faceVarying; a constant one may be inherited from an ancestor, UsdGeom primvar inheritance).
+* Assets (textures, light textures, IES profiles) resolve through Ar, so files inside ``.usdz``
+  packages are read from the package (``ReadContext.read_asset``). A missing or unreadable
+  asset, sublayer, reference or payload, or a sublayer cycle, gives one warning per file and its
+  fallback; ``strict=True`` (``--strict``) makes each an error naming layer, prim and attribute.
+* No lights: a warning. No camera: usdrecord's framing camera, with a warning.
 * Time: one time code, no motion blur (velocities and multiple samples are not read); without
   a frame it is ``stage.GetStartTimeCode()`` (0.0 when unauthored), as usdrecord uses.
 * Camera: clippingPlanes clip camera rays; dataWindowNDC overscan beyond [0, 1] is not

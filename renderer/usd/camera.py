@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 
-from pxr import Sdf, Usd, UsdGeom
+from pxr import Gf, Sdf, Usd, UsdGeom
 
 from renderer.description import CameraDesc
 
 from .common import ReadContext, gf_matrix_to_np
 
-__all__ = ["read_camera", "find_camera"]
+__all__ = ["read_camera", "find_camera", "framing_camera"]
 
 # UsdGeomCamera's focal length and apertures are in tenths of a scene unit (Gf.Camera's
 # APERTURE_UNIT == FOCAL_LENGTH_UNIT == 0.1).
@@ -96,13 +96,13 @@ def _invertible(m: np.ndarray) -> bool:
 
 
 def find_camera(ctx: ReadContext, requested: str | None, settings_camera: str,
-                settings_prim: str, first_seen: str | None) -> Usd.Prim:
+                settings_prim: str, first_seen: str | None) -> Usd.Prim | None:
     """Pick the render camera.
 
     Order: the ``camera`` argument (a path, or a bare prim name searched for among cameras),
     then the RenderSettings ``camera`` relationship, then the first camera met during the
     render traversal, then the first camera anywhere on the stage (e.g. under an invisible
-    scope). No camera at all is a StageError naming the file.
+    scope). None when the stage has no camera at all (``framing_camera`` then frames it).
     """
     stage = ctx.stage
     if requested:
@@ -132,7 +132,55 @@ def find_camera(ctx: ReadContext, requested: str | None, settings_camera: str,
         return stage.GetPrimAtPath(first_seen)
     for prim in _all_cameras(stage):
         return prim
-    raise ctx.error("the stage has no camera (pass --camera or add a UsdGeom.Camera)")
+    return None
+
+
+# Where a default camera is needed: usdrecord's (UsdAppUtilsFrameRecorder) framing of the stage.
+DEFAULT_CAMERA_PATH = "<default camera>"
+
+
+def framing_camera(ctx: ReadContext, purposes: tuple[str, ...]) -> CameraDesc:
+    """The camera usdrecord renders through when a stage has none: GfCamera's defaults (50 mm
+    focal length, 20.955 x 15.2908 mm aperture), looking down the axis that is horizontal and
+    not the up axis (-Z on a Y-up stage, +Y on a Z-up one) at the centre of the stage's world
+    bounding box (``purposes`` included), from where the box's half-diagonal in the image plane
+    fills half the horizontal field of view, backed off by half the box's depth. An empty
+    stage gives a camera at the origin. The near clipping plane is brought closer than
+    GfCamera's 1 unit when the box is that close, so a small stage is not clipped away."""
+    cache = UsdGeom.BBoxCache(ctx.time, list(purposes), useExtentsHint=True)
+    box = cache.ComputeWorldBound(ctx.stage.GetPseudoRoot())
+    box_range = box.ComputeAlignedRange()
+    if box_range.IsEmpty():
+        center, dim = Gf.Vec3d(0.0), Gf.Vec3d(0.0)
+    else:
+        center, dim = box.ComputeCentroid(), box_range.GetSize()
+    z_up = ctx.up_axis == UsdGeom.Tokens.z
+    corner = Gf.Vec2d(dim[0], dim[2] if z_up else dim[1]) / 2.0
+    gf = Gf.Camera()
+    half_fov = math.radians(gf.GetFieldOfView(Gf.Camera.FOVHorizontal) / 2.0)
+    distance = math.sqrt(Gf.Dot(corner, corner)) / math.tan(half_fov) + (dim[1] if z_up else dim[2]) / 2.0
+    xf = Gf.Matrix4d(1.0)
+    if z_up:
+        xf.SetRotate(Gf.Rotation(Gf.Vec3d(1.0, 0.0, 0.0), 90.0))
+        xf.SetTranslateOnly(center + Gf.Vec3d(0.0, -distance, 0.0))
+    else:
+        xf.SetTranslate(center + Gf.Vec3d(0.0, 0.0, distance))
+    to_world = gf_matrix_to_np(xf)
+    if not np.all(np.isfinite(to_world)):
+        raise ctx.error("the stage's bounding box is not finite: cannot frame a default camera")
+    near, far = gf.clippingRange.min, gf.clippingRange.max
+    extent = math.sqrt(Gf.Dot(dim, dim))
+    if distance - extent < near:
+        near = max(1e-6, 1e-3 * max(distance, extent))
+    far = max(far, 2.0 * (distance + extent))
+    return CameraDesc(
+        path=DEFAULT_CAMERA_PATH,
+        camera_to_world=to_world,
+        focal_length=gf.focalLength * TENTHS,
+        horizontal_aperture=gf.horizontalAperture * TENTHS,
+        vertical_aperture=gf.verticalAperture * TENTHS,
+        clipping_range=(near, far),
+    )
 
 
 def _all_cameras(stage: Usd.Stage):

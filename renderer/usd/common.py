@@ -8,9 +8,10 @@ import re
 from collections import OrderedDict
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom
+from pxr import Ar, Gf, Sdf, Usd, UsdGeom
 
 from renderer.errors import StageError
+from renderer.textures import probe_image
 
 
 def gf_matrix_to_np(m: Gf.Matrix4d) -> np.ndarray:
@@ -28,6 +29,21 @@ def one_line(text: str) -> str:
     if messages:
         text = "; ".join(m.strip() for m in messages)
     return " ".join(text.split())
+
+
+_TEXT_TYPES = ("token", "string", "asset")
+
+
+def _value_shape(type_name: Sdf.ValueTypeName) -> tuple:
+    """(array, text or number, components) of a value type: what must agree between an authored
+    value and its schema for the reader to use it. Precision and role may differ (double for
+    float, float3 for color3f, int for float: the values convert); shape may not (float2[] for
+    point3f[], a scalar for an array)."""
+    scalar = str(type_name.scalarType)
+    if scalar in _TEXT_TYPES:
+        return type_name.isArray, "text", 1
+    digits = re.search(r"\d", scalar)
+    return type_name.isArray, "number", int(digits.group()) if digits else 1
 
 
 class WarningLog:
@@ -60,13 +76,18 @@ class ReadContext:
 
     file: the stage path as the user gave it (used in every error message).
     time: the Usd.TimeCode all values are read at.
+    strict: every missing or unreadable asset is a StageError (``--strict``); otherwise one
+        warning per file and the consumer's fallback (``asset_unusable``).
     xform_cache: one UsdGeom.XformCache(time) for the whole read.
     """
 
-    def __init__(self, stage: Usd.Stage, file: str, time: Usd.TimeCode):
+    def __init__(self, stage: Usd.Stage, file: str, time: Usd.TimeCode, strict: bool = False):
         self.stage = stage
         self.file = file
         self.time = time
+        self.strict = strict
+        self._assets: dict[str, tuple[str, bytes | None] | str] = {}
+        self._image_problems: dict[str, str] = {}
         self.xform_cache = UsdGeom.XformCache(time)
         self.warnings = WarningLog()
         self.stats: dict[str, int] = {
@@ -119,8 +140,27 @@ class ReadContext:
         attr = prim.GetAttribute(name)
         if not attr:
             return default
-        value = attr.Get(self.time)
+        value = self.get_attr(attr)
         return default if value is None else value
+
+    def get_attr(self, attr: Usd.Attribute):
+        """``attr``'s value at the read time, after checking its authored type against the
+        schema's (``check_type``)."""
+        self.check_type(attr)
+        return attr.Get(self.time)
+
+    def check_type(self, attr: Usd.Attribute) -> None:
+        """StageError naming the attribute when its strongest opinion is authored with another
+        value type than its schema declares (``float2[] points``): USD composes the value as
+        authored, which would otherwise fail later with an unrelated message."""
+        stack = attr.GetPropertyStack(self.time)
+        if not stack:
+            return
+        definition = attr.GetPrim().GetPrimDefinition().GetAttributeDefinition(attr.GetName())
+        authored = stack[0].typeName
+        if definition and authored and _value_shape(authored) != _value_shape(definition.GetTypeName()):
+            raise self.error(f"authored as {authored} in {stack[0].layer.identifier}, but the schema "
+                             f"declares {definition.GetTypeName()}", attr.GetPrim(), attr.GetName())
 
     def finite_float(self, prim: Usd.Prim, name: str, value, *, min_value: float | None = None,
                      positive: bool = False) -> float:
@@ -141,11 +181,71 @@ class ReadContext:
             raise self.error(f"value {t} is not finite", prim, name)
         return t
 
-    def resolve_asset(self, prim: Usd.Prim, name: str, value) -> str:
-        """Absolute path of an asset-valued attribute ('' when unauthored or empty).
+    # ---- assets ----------------------------------------------------------------------
+    def authoring_layer(self, prim: Usd.Prim, name: str) -> str:
+        """Identifier of the layer whose opinion gives attribute ``name`` its value ('' if none)."""
+        attr = prim.GetAttribute(name)
+        stack = attr.GetPropertyStack(self.time) if attr else []
+        return stack[0].layer.identifier if stack else ""
 
-        The asset resolver anchors relative paths to the layer that authored them; a path that
-        does not resolve to an existing file is a StageError naming the prim and attribute.
+    def asset_unusable(self, prim: Usd.Prim, name: str, asset: str, problem: str, consequence: str) -> None:
+        """The one policy for an asset that is missing or cannot be read (textures, light
+        textures, IES profiles): under ``strict`` a StageError naming the authoring layer, the
+        prim and the attribute; otherwise one warning per asset (further prims using it are
+        counted) saying what illum does instead (``consequence``)."""
+        layer = self.authoring_layer(prim, name) or self.file
+        if self.strict:
+            raise StageError(f"{problem}: '{asset}'", file=layer, prim=str(prim.GetPath()), attribute=name)
+        self.warn(f"asset-{asset}", f"{layer}: {prim.GetPath()}.{name}: {problem}: '{asset}'; {consequence}")
+
+    def read_asset(self, prim: Usd.Prim, name: str, value, consequence: str) -> tuple[str, bytes | None] | None:
+        """(resolved path, bytes or None) of an asset-valued attribute, or None when unauthored,
+        missing or unreadable (``asset_unusable`` has applied the policy, with ``consequence``).
+
+        Resolution goes through USD's asset resolver (Ar), so paths inside a ``.usdz`` package
+        (``pkg.usdz[maps/wood.png]``) and a custom resolver's identifiers work. A file on disk
+        is returned by path (bytes None); anything else is read through ``ArAsset`` and its
+        bytes are returned with its identifier (renderer/assets.py). Each asset is read once.
+        """
+        resolved = self.resolve_asset(prim, name, value, consequence)
+        if not resolved:
+            return None
+        cached = self._assets.get(resolved)
+        if cached is None:
+            if os.path.isfile(resolved):
+                cached = (resolved, None)
+            else:
+                asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
+                buffer = asset.GetBuffer() if asset else None
+                cached = (resolved, bytes(buffer)) if buffer is not None else "cannot read asset"
+            self._assets[resolved] = cached
+        if isinstance(cached, str):
+            self.asset_unusable(prim, name, resolved, cached, consequence)
+            return None
+        return cached
+
+    def read_image_asset(self, prim: Usd.Prim, name: str, value,
+                         consequence: str) -> tuple[str, bytes | None] | None:
+        """``read_asset`` for an image: also None (after the policy) when OpenImageIO cannot
+        open it (its header is read once per file; decoding happens in the render core)."""
+        asset = self.read_asset(prim, name, value, consequence)
+        if asset is None:
+            return None
+        if asset[0] not in self._image_problems:
+            self._image_problems[asset[0]] = probe_image(*asset)
+        problem = self._image_problems[asset[0]]
+        if problem:
+            self.asset_unusable(prim, name, asset[0], f"cannot read image ({problem})", consequence)
+            return None
+        return asset
+
+    def resolve_asset(self, prim: Usd.Prim, name: str, value, consequence: str = "") -> str:
+        """Resolved path of an asset-valued attribute ('' when unauthored or empty).
+
+        The asset resolver anchors relative paths to the layer that authored them. A path that
+        does not resolve is the missing-asset policy's (``asset_unusable``; it returns ''), or,
+        when the caller has no fallback (no ``consequence``), always a StageError naming the
+        prim and attribute.
         """
         if value is None:
             return ""
@@ -158,5 +258,8 @@ class ReadContext:
         if not resolved and os.path.isabs(authored) and os.path.exists(authored):
             resolved = authored
         if not resolved:
-            raise self.error(f"file not found: '{authored}'", prim, name)
-        return os.path.abspath(resolved)
+            if not consequence:
+                raise self.error(f"file not found: '{authored}'", prim, name)
+            self.asset_unusable(prim, name, authored, "file not found", consequence)
+            return ""
+        return os.path.abspath(resolved) if os.path.exists(resolved) else resolved

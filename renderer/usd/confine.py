@@ -36,6 +36,7 @@ from pxr import Ar, Sdf, Tf, Usd
 from renderer.errors import StageError
 
 from .common import one_line
+from .composition import locate_arc
 from .stage_reader import open_stage
 
 __all__ = ["Escape", "ConfinementReport", "find_escapes"]
@@ -140,29 +141,6 @@ def _evaluate(asset: str, variables: dict) -> str | None:
     return result.value if not result.errors and isinstance(result.value, str) else None
 
 
-def _locate_arc(layer: Sdf.Layer, asset: str) -> tuple[str, str]:
-    """(prim path, field) of the arc in ``layer`` that authors ``asset``."""
-    if asset in list(layer.subLayerPaths):
-        return "", "subLayers"
-    found: list[tuple[str, str]] = []
-
-    def visit(path: Sdf.Path) -> None:
-        if found or not (path.IsPrimPath() or path.IsPrimVariantSelectionPath()):
-            return
-        spec = layer.GetPrimAtPath(path)
-        if spec is None:
-            return
-        for name, proxy in (("references", spec.referenceList), ("payload", spec.payloadList)):
-            for kind in ("explicitItems", "addedItems", "prependedItems", "appendedItems", "orderedItems",
-                         "deletedItems"):
-                if any(item.assetPath == asset for item in getattr(proxy, kind)):
-                    found.append((str(path.StripAllVariantSelections()), name))
-                    return
-
-    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
-    return found[0] if found else ("", "references")
-
-
 class _Scan:
     def __init__(self, stage: Usd.Stage, roots: _Roots):
         self.stage = stage
@@ -201,7 +179,7 @@ class _Scan:
                     continue  # left to the used-layers backstop
                 target = _target(asset, anchor)
                 if target is not None and not self.roots.contains(target):
-                    prim, field_ = _locate_arc(layer, authored)
+                    prim, field_ = locate_arc(layer, authored)
                     self.escape(layer.realPath, prim, field_, asset, target)
 
     def used_layers(self) -> None:

@@ -79,6 +79,14 @@ def _light_api_fields(prim: Usd.Prim, ctx: ReadContext) -> dict:
     return fields
 
 
+def _light_texture(prim: Usd.Prim, ctx: ReadContext) -> tuple[str, bytes | None]:
+    """(resolved path, bytes when not a file) of inputs:texture:file, ('', None) when unauthored
+    or, under the missing-asset policy, missing or unreadable (the light renders untextured)."""
+    name = "inputs:texture:file"
+    asset = ctx.read_image_asset(prim, name, ctx.get(prim, name), "the light renders untextured (its color only)")
+    return asset if asset is not None else ("", None)
+
+
 def read_light(prim: Usd.Prim, ctx: ReadContext, to_world: np.ndarray | None = None) -> LightDesc | None:
     """One light prim (already known to have LightAPI and to be visible) -> LightDesc.
 
@@ -122,8 +130,7 @@ def read_light(prim: Usd.Prim, ctx: ReadContext, to_world: np.ndarray | None = N
         fields["height"] = num("inputs:height", min_value=0.0)
         if fields["width"] == 0.0 or fields["height"] == 0.0:
             degenerate = "zero width or height"
-        fields["texture_file"] = ctx.resolve_asset(prim, "inputs:texture:file",
-                                                   ctx.get(prim, "inputs:texture:file"))
+        fields["texture_file"], fields["texture_data"] = _light_texture(prim, ctx)
     elif kind == "disk":
         fields["radius"] = num("inputs:radius", min_value=0.0)
         if fields["radius"] == 0.0:
@@ -147,8 +154,7 @@ def read_light(prim: Usd.Prim, ctx: ReadContext, to_world: np.ndarray | None = N
             raise ctx.error(f"texture format '{fmt}' is not supported (use latlong or automatic)",
                             prim, "inputs:texture:format")
         fields["texture_format"] = fmt
-        fields["texture_file"] = ctx.resolve_asset(prim, "inputs:texture:file",
-                                                   ctx.get(prim, "inputs:texture:file"))
+        fields["texture_file"], fields["texture_data"] = _light_texture(prim, ctx)
         fields["portals"], fields["portal_paths"] = read_portals(prim, ctx)
 
     if degenerate:

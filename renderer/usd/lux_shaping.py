@@ -70,15 +70,17 @@ def read_shaping(prim: Usd.Prim, ctx: ReadContext, kind: str) -> ShapingDesc | N
                                              f"{clamped:g} (UsdLux: values outside [0, 1] are clamped)")
         softness = clamped
     ies_attr = "inputs:shaping:ies:file"
-    ies_file = ctx.resolve_asset(prim, ies_attr, ctx.get(prim, ies_attr))
-    profile = None
-    if ies_file:
+    ignored = "the light is not IES-shaped"
+    asset = ctx.read_asset(prim, ies_attr, ctx.get(prim, ies_attr), ignored)
+    ies_file, profile = "", None
+    if asset is not None:
         from renderer.lights.ies import IesError, load_ies
 
         try:
-            profile = load_ies(ies_file)
+            profile = load_ies(*asset)
+            ies_file = asset[0]
         except IesError as exc:
-            raise ctx.error(str(exc), prim, ies_attr) from None
+            ctx.asset_unusable(prim, ies_attr, asset[0], f"cannot read IES profile ({exc.message})", ignored)
     scale = num("inputs:shaping:ies:angleScale", 0.0)
     normalize = bool(ctx.get(prim, "inputs:shaping:ies:normalize", False))
     return ShapingDesc(focus=focus, focus_tint=tint, cone_angle=angle, cone_softness=softness,

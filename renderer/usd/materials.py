@@ -6,17 +6,24 @@ shader output (a texture) or an attribute holding a value. Unauthored inputs tak
 defaults from the Sdr node definitions shipped with usd-core.
 
 Fallback when a gprim has no bound material (or a material without a UsdPreviewSurface):
-``primvars:displayColor``'s first value (so constant, or uniform/vertex where the first element
-stands in for the whole prim; per-face colours are not supported) as diffuse colour, else
+``primvars:displayColor`` as diffuse colour -- a constant (possibly inherited) value, or on a
+mesh a uniform / vertex / faceVarying one read per hit (PrimvarReaderDesc) -- else
 UsdPreviewSurface's own default grey (0.18).
+
+UsdPrimvarReader_float, _float2, _float3, _float4, _int, _normal, _point and _vector connected
+to a UsdPreviewSurface input (directly or through NodeGraphs) are read per hit
+(``MaterialInput.primvar``); a float2 cannot feed a colour. A UsdPrimvarReader_float2 (through
+UsdTransform2d nodes) feeds UsdUVTexture.st, any varname. Other nodes, and any node feeding an
+input illum reads as a constant (UsdUVTexture file, scale, bias, ...; UsdPrimvarReader_string),
+give one warning each and the input's default.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from pxr import Sdr, Usd, UsdGeom, UsdShade
+from pxr import Ar, Sdf, Sdr, Usd, UsdGeom, UsdShade
 
-from renderer.description import MaterialDesc, MaterialInput, TextureDesc
+from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc, TextureDesc
 
 from .common import ReadContext
 
@@ -27,6 +34,11 @@ _TEXTURE_ID = "UsdUVTexture"
 _WRAP_MODES = ("black", "clamp", "repeat", "mirror")
 _COLOR_SPACES = ("raw", "sRGB", "auto")
 _OUTPUT_CHANNELS = {"rgb": slice(0, 3), "r": 0, "g": 1, "b": 2, "a": 3}
+# UsdPrimvarReader nodes read per hit (PrimvarReaderDesc) -> components; int reads as a float.
+_READER_PREFIX = "UsdPrimvarReader_"
+_READER_WIDTHS = {"UsdPrimvarReader_float": 1, "UsdPrimvarReader_float2": 2, "UsdPrimvarReader_float3": 3,
+                  "UsdPrimvarReader_normal": 3, "UsdPrimvarReader_point": 3, "UsdPrimvarReader_vector": 3,
+                  "UsdPrimvarReader_float4": 4, "UsdPrimvarReader_int": 1}
 # MaterialDesc field -> (UsdPreviewSurface input, kind); kind 'color' | 'float' | 'vector'
 # ('vector': three components like a colour, e.g. the tangent-space normal3f ``normal``).
 _TEXTURABLE = {
@@ -67,6 +79,12 @@ class MaterialTable:
         self._index: dict[MaterialDesc, int] = {}
         self._by_path: dict[str, tuple[int, str | None] | None] = {}
         self._surface_defaults = _sdr_defaults(_SURFACE_ID)
+        self._reader_defaults: dict[str, dict] = {}
+        # Readers evaluated per gprim (_reader_on_gprim): the gprim being read, the primvars read
+        # from it so far, and per material path the primvars its description depends on.
+        self._gprim: Usd.Prim | None = None
+        self._gprim_reads: dict[str, object] = {}
+        self._per_gprim: dict[str, tuple[str, ...]] = {}
         self._texture_defaults = _sdr_defaults(_TEXTURE_ID)
         self._transform_defaults = {"rotation": 0.0, "scale": (1.0, 1.0), "translation": (0.0, 0.0),
                                     **_sdr_defaults("UsdTransform2d")}
@@ -103,13 +121,70 @@ class MaterialTable:
         material = self._bound_material(prim)
         if material is None:
             return None
-        key = str(material.GetPath())
+        path = str(material.GetPath())
+        # Subsets carry no primvars: a reader evaluated per gprim reads the subset's mesh.
+        gprim = prim.GetParent() if prim.IsA(UsdGeom.Subset) else prim
+        names = self._per_gprim.get(path, ())
+        key = (path, tuple(self._gprim_value(gprim, name) for name in names))
         if key not in self._by_path:
-            # Read each material once; an unusable one is remembered as None so that it is
-            # neither re-read nor re-warned for every prim bound to it.
-            desc, st_name = self._read_material(material)
+            # Read each material once (once per distinct value of the primvars it reads per
+            # gprim); an unusable one is remembered as None so that it is neither re-read nor
+            # re-warned for every prim bound to it.
+            self._gprim, self._gprim_reads = gprim, {}
+            try:
+                desc, st_name = self._read_material(material)
+            finally:
+                self._gprim = None
+            if self._gprim_reads:
+                self._per_gprim[path] = names = tuple(sorted(self._gprim_reads))
+                key = (path, tuple(self._gprim_reads[name] for name in names))
             self._by_path[key] = None if desc is None else (self._add(desc), st_name)
         return self._by_path[key]
+
+    # ---- primvar readers evaluated per gprim -------------------------------------------
+    def _varname(self, reader: UsdShade.Shader) -> str:
+        """The primvar a UsdPrimvarReader reads ('' when unauthored or connected). Some
+        exporters write the full attribute name; the primvar's name is what is read."""
+        attr = self._producing_attribute(reader, "varname")
+        name = attr.Get(self.ctx.time) if attr is not None and not UsdShade.Output.IsOutput(attr) else None
+        name = str(name or "")
+        return name[len("primvars:"):] if name.startswith("primvars:") else name
+
+    def _gprim_value(self, gprim: Usd.Prim, varname: str):
+        """The value of primvar ``varname`` on ``gprim`` (inherited constants included) as a
+        hashable value: its first element when it is not constant (with a warning), None when
+        the gprim has none."""
+        pv = UsdGeom.PrimvarsAPI(gprim).FindPrimvarWithInheritance(varname)
+        if not pv or not pv.HasValue():
+            return None
+        values = pv.ComputeFlattened(self.ctx.time)
+        if values is None:
+            return None
+        if pv.GetTypeName().isArray:
+            if len(values) == 0:
+                return None
+            if len(values) > 1 or pv.GetInterpolation() != UsdGeom.Tokens.constant:
+                self.ctx.warn(f"gprim-primvar-{varname}",
+                              f"{gprim.GetPath()}: primvars:{varname} ({pv.GetInterpolation()}) feeds a material "
+                              f"input illum evaluates once per gprim; its first value is used")
+            values = values[0]
+        return values if isinstance(values, (str, int, float)) else tuple(float(x) for x in values)
+
+    def _reader_on_gprim(self, reader: UsdShade.Shader):
+        """A UsdPrimvarReader_* feeding an input illum reads as a constant (a UsdUVTexture's
+        file, scale, bias, fallback; a UsdTransform2d's inputs; ...), evaluated on the gprim
+        being read: its primvar's (first) value, else the reader's fallback. The material is
+        then read once per distinct value (``_bound_index``)."""
+        reader_id = str(reader.GetIdAttr().Get())
+        varname = self._varname(reader)
+        value = self._gprim_value(self._gprim, varname) if varname else None
+        if varname:
+            self._gprim_reads[varname] = value
+        if value is not None:
+            return value
+        if reader_id not in self._reader_defaults:
+            self._reader_defaults[reader_id] = _sdr_defaults(reader_id)
+        return self._constant_input(reader, "fallback", self._reader_defaults[reader_id])
 
     def _bound_material(self, prim: Usd.Prim) -> UsdShade.Material | None:
         api = UsdShade.MaterialBindingAPI(prim)
@@ -127,6 +202,11 @@ class MaterialTable:
             values = pv.ComputeFlattened(self.ctx.time)
             if values is not None and len(values) > 0:
                 color = self.ctx.finite_tuple(prim, "primvars:displayColor", values[0])
+                if pv.GetInterpolation() != UsdGeom.Tokens.constant and prim.IsA(UsdGeom.Mesh):
+                    # Per-face or per-vertex colours: read per hit, as a UsdPrimvarReader_float3
+                    # of displayColor would (Hydra's fallback material does the same).
+                    return MaterialDesc(path="", diffuse_color=MaterialInput(
+                        color, primvar=PrimvarReaderDesc("displayColor", 3, color)))
                 return MaterialDesc(path="", diffuse_color=MaterialInput(color))
         return MaterialDesc(path="")
 
@@ -158,11 +238,9 @@ class MaterialTable:
             if inp and (inp.HasConnectedSource() or inp.GetAttr().HasAuthoredValue()):
                 ctx.warn(f"preview-{unsupported}",
                          f"{shader.GetPath()}: UsdPreviewSurface input '{unsupported}' is ignored by illum")
+        # The mesh's st columns hold the first; textures reading others read their own
+        # (description.primvar_layout).
         st_name = st_names[0] if st_names else None
-        if len(set(st_names)) > 1:
-            ctx.warn("material-many-st",
-                     f"{material.GetPath()}: textures read different st primvars {sorted(set(st_names))}; "
-                     f"illum uses '{st_name}' for all")
         return MaterialDesc(**fields), st_name
 
     def _producing_attribute(self, shader: UsdShade.Shader, name: str):
@@ -176,11 +254,28 @@ class MaterialTable:
     def _constant_input(self, shader: UsdShade.Shader, name: str, defaults: dict | None = None):
         attr = self._producing_attribute(shader, name)
         defaults = self._surface_defaults if defaults is None else defaults
-        if attr is not None and not UsdShade.Output.IsOutput(attr):
+        if attr is not None and UsdShade.Output.IsOutput(attr):
+            source = UsdShade.Shader(attr.GetPrim())
+            if self._gprim is not None and source and str(source.GetIdAttr().Get()).startswith(_READER_PREFIX):
+                value = self._reader_on_gprim(source)
+                if value is not None:
+                    return value
+            else:
+                self._unsupported_source(attr, shader, name)
+        elif attr is not None:
             value = attr.Get(self.ctx.time)
             if value is not None:
                 return value
         return defaults.get(name)
+
+    def _unsupported_source(self, output: Usd.Attribute, shader: UsdShade.Shader, name: str) -> None:
+        """One warning per (source shader id, input): a node illum does not evaluate feeds an
+        input it reads as a constant; the input's default is used."""
+        source = UsdShade.Shader(output.GetPrim())
+        source_id = source.GetIdAttr().Get() if source else None
+        self.ctx.warn(f"input-source-{source_id}-{name}",
+                      f"{output.GetPrim().GetPath()}: shader '{source_id}' feeding {shader.GetPath()}.inputs:{name} "
+                      f"is not supported there (illum reads that input as a constant); using the default value")
 
     def _texturable_input(self, shader: UsdShade.Shader, name: str, kind: str,
                           st_names: list[str]) -> MaterialInput:
@@ -198,6 +293,11 @@ class MaterialTable:
                     return MaterialInput(self._channel_value(fb, output, kind))
                 st_names.append(tex.st_primvar)
                 return MaterialInput(self._channel_value(tex.fallback, output, kind), tex)
+            if source_id in _READER_WIDTHS:
+                reader = self._primvar_input(source, str(source_id), shader, name, kind)
+                if reader is not None:
+                    return reader
+                return MaterialInput(self._default_value(shader, name, kind))
             ctx.warn(f"input-source-{source_id}",
                      f"{attr.GetPrim().GetPath()}: shader '{source_id}' feeding "
                      f"{shader.GetPath()}.inputs:{name} is not supported; using the default value")
@@ -210,6 +310,40 @@ class MaterialTable:
         if kind != "float":
             return MaterialInput(ctx.finite_tuple(where, attr_name, value))
         return MaterialInput(ctx.finite_float(where, attr_name, value))
+
+    def _default_value(self, shader: UsdShade.Shader, name: str, kind: str):
+        value = self._surface_defaults.get(name)
+        if kind != "float":
+            return self.ctx.finite_tuple(shader.GetPrim(), f"inputs:{name}", value)
+        return self.ctx.finite_float(shader.GetPrim(), f"inputs:{name}", value)
+
+    def _primvar_input(self, reader: UsdShade.Shader, reader_id: str, shader: UsdShade.Shader, name: str,
+                       kind: str) -> MaterialInput | None:
+        """A UsdPrimvarReader_* feeding UsdPreviewSurface input ``name``: the primvar read per hit
+        (PrimvarReaderDesc) with the reader's fallback as the input's value; None (after a
+        warning) where illum cannot map it."""
+        ctx = self.ctx
+        width = _READER_WIDTHS[reader_id]
+        k = 1 if kind == "float" else 3
+        if width == 2 and k == 3:
+            ctx.warn(f"reader-width-{reader.GetPath()}-{name}",
+                     f"{reader.GetPath()}: {reader_id} (2 components) cannot feed the 3-component "
+                     f"{shader.GetPath()}.inputs:{name}; using its default value")
+            return None
+        varname = self._varname(reader)
+        if reader_id not in self._reader_defaults:
+            self._reader_defaults[reader_id] = _sdr_defaults(reader_id)
+        raw = self._constant_input(reader, "fallback", self._reader_defaults[reader_id])
+        fallback = ctx.finite_tuple(reader.GetPrim(), "inputs:fallback", np.atleast_1d(
+            np.asarray(raw if raw is not None else np.zeros(width), dtype=np.float64)).ravel())
+        if len(fallback) < width:
+            raise ctx.error(f"fallback has {len(fallback)} components, {reader_id} reads {width}",
+                            reader.GetPrim(), "inputs:fallback")
+        fallback = fallback[:width]
+        value = fallback[0] if k == 1 else (fallback[:1] * 3 if width == 1 else fallback[:3])
+        if not varname:  # reads no primvar: always its fallback (the spec)
+            return MaterialInput(value)
+        return MaterialInput(value, primvar=PrimvarReaderDesc(varname, width, fallback))
 
     @staticmethod
     def _channel_value(value4: tuple, output: str, kind: str):
@@ -229,7 +363,9 @@ class MaterialTable:
         ctx = self.ctx
         prim = tex.GetPrim()
         file_attr = self._producing_attribute(tex, "file")
-        raw = file_attr.Get(ctx.time) if file_attr is not None and not UsdShade.Output.IsOutput(file_attr) else None
+        if file_attr is not None and UsdShade.Output.IsOutput(file_attr):
+            return self._texture_from_gprim(tex, file_attr, output)
+        raw = file_attr.Get(ctx.time) if file_attr is not None else None
         authored = getattr(raw, "path", raw) or ""
         if not authored:
             ctx.warn("texture-no-file", f"{prim.GetPath()}: UsdUVTexture has no inputs:file; using its fallback")
@@ -237,7 +373,40 @@ class MaterialTable:
         if "<UDIM>" in authored:
             ctx.warn("texture-udim", f"{prim.GetPath()}: UDIM textures are not supported; using the fallback")
             return None
-        path = ctx.resolve_asset(prim, "inputs:file", raw)
+        # The attribute that holds the path (a Material interface input, when connected).
+        return self._texture_desc(tex, output, file_attr.GetPrim(), file_attr.GetName(), raw)
+
+    def _texture_from_gprim(self, tex: UsdShade.Shader, file_attr, output: str) -> TextureDesc | None:
+        """UsdUVTexture.file fed by a UsdPrimvarReader_string: the gprim's string primvar, a path
+        anchored to the layer that authored the primvar (one material per distinct file)."""
+        source = UsdShade.Shader(file_attr.GetPrim())
+        if self._gprim is None or not source or str(source.GetIdAttr().Get()) != "UsdPrimvarReader_string":
+            self._unsupported_source(file_attr, tex, "file")
+            return None
+        value = self._reader_on_gprim(source)
+        if not value:
+            self.ctx.warn(f"texture-no-file-{tex.GetPath()}", f"{tex.GetPath()}: the UsdPrimvarReader_string feeding "
+                                                              "inputs:file gives no path; using its fallback")
+            return None
+        pv = UsdGeom.PrimvarsAPI(self._gprim).FindPrimvarWithInheritance(self._varname(source))
+        where, where_name = (pv.GetAttr().GetPrim(), pv.GetAttr().GetName()) if pv else (source.GetPrim(),
+                                                                                           "inputs:fallback")
+        stack = pv.GetAttr().GetPropertyStack(self.ctx.time) if pv else []
+        anchored = stack[0].layer.ComputeAbsolutePath(str(value)) if stack else str(value)
+        raw = Sdf.AssetPath(str(value), str(Ar.GetResolver().Resolve(anchored)))
+        return self._texture_desc(tex, output, where, where_name, raw)
+
+    def _texture_desc(self, tex: UsdShade.Shader, output: str, where: Usd.Prim, where_name: str,
+                      raw) -> TextureDesc | None:
+        """The TextureDesc of UsdUVTexture ``tex`` reading image ``raw`` (authored on
+        ``where``.``where_name``), or None where the missing-asset policy gives its fallback."""
+        ctx = self.ctx
+        prim = tex.GetPrim()
+        fallback_note = f"{prim.GetPath()} uses its inputs:fallback"
+        asset = ctx.read_image_asset(where, where_name, raw, fallback_note)
+        if asset is None:
+            return None
+        path, data = asset
 
         def wrap(name: str) -> str:
             mode = str(self._texture_value(tex, name))
@@ -266,6 +435,7 @@ class MaterialTable:
             output=output,
             st_primvar=st_name,
             st_transform=st_transform,
+            data=data,
         )
 
     def _st_primvar(self, tex: UsdShade.Shader) -> tuple[str, tuple]:
@@ -279,11 +449,7 @@ class MaterialTable:
             src = UsdShade.Shader(attr.GetPrim())
             src_id = str(src.GetIdAttr().Get()) if src else ""
             if src_id.startswith("UsdPrimvarReader"):
-                var_attr = self._producing_attribute(src, "varname")
-                name = var_attr.Get(self.ctx.time) if var_attr is not None else None
-                name = str(name or "st")
-                # Some exporters write the full attribute name; the primvar's name is what we need.
-                return (name[len("primvars:"):] if name.startswith("primvars:") else name), _affine(m)
+                return self._varname(src) or "st", _affine(m)
             if src_id == "UsdTransform2d":
                 m = m @ self._transform2d(src)
                 attr = self._producing_attribute(src, "in")

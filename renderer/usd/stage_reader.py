@@ -36,12 +36,13 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Ar, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
-from renderer.description import LightDesc, MeshDesc, SceneDescription
+from renderer.description import LightDesc, MeshDesc, SceneDescription, primvar_layout
 from renderer.errors import StageError
 
 from . import implicit
-from .camera import find_camera, read_camera
+from .camera import find_camera, framing_camera, read_camera
 from .common import ReadContext, one_line
+from .composition import check_composition
 from .estimator_api import check_light_api_target
 from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
@@ -60,7 +61,8 @@ _IMPLICIT_TYPES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylin
 # Entry points
 # --------------------------------------------------------------------------------------
 def load_stage(path: str, *, camera: str | None = None, settings: str | None = None,
-               frame: float | None = None, purposes: tuple[str, ...] | None = None) -> SceneDescription:
+               frame: float | None = None, purposes: tuple[str, ...] | None = None,
+               strict: bool = False) -> SceneDescription:
     """Open a USD stage file and read it into a SceneDescription.
 
     camera: camera prim path (or a unique camera prim name); default: the RenderSettings
@@ -69,12 +71,16 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
     frame: time code to read at; default: ``stage.GetStartTimeCode()`` (0.0 when unauthored),
         the time usdrecord and usdview render at.
     purposes: included purposes, replacing RenderSettings.includedPurposes.
+    strict: every missing or unreadable asset (texture, light texture, IES profile, sublayer,
+        reference, payload) and a sublayer cycle is a StageError naming the layer, prim and
+        attribute; by default each gives one warning and its fallback (a UsdUVTexture's
+        ``fallback``, an untextured or unshaped light, a skipped arc).
 
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
     values that cannot be rendered.
     """
     return read_stage(open_stage(path), source=path, camera=camera, settings=settings, frame=frame,
-                      purposes=purposes)
+                      purposes=purposes, strict=strict)
 
 
 def open_stage(path: str) -> Usd.Stage:
@@ -92,7 +98,8 @@ def open_stage(path: str) -> Usd.Stage:
 
 
 def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
-               frame: float | None = None, purposes: tuple[str, ...] | None = None) -> SceneDescription:
+               frame: float | None = None, purposes: tuple[str, ...] | None = None,
+               strict: bool = False) -> SceneDescription:
     """Read an already open stage (same options as ``load_stage``; ``source`` names it in errors)."""
     source = source or stage.GetRootLayer().identifier
     if frame is not None:
@@ -104,7 +111,7 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         # never the Default time code: at Default, USD ignores time samples, so an animated camera
         # or mesh would resolve to its default value (often none) instead of its held first sample.
         time = Usd.TimeCode(stage.GetStartTimeCode())
-    ctx = ReadContext(stage, source, time)
+    ctx = ReadContext(stage, source, time, strict=strict)
     if frame is None and not stage.HasAuthoredMetadata("startTimeCode") and any(
             layer.ListAllTimeSamples() for layer in stage.GetUsedLayers()):
         ctx.warn("default-time", f"the stage has time samples but no startTimeCode: read at time "
@@ -115,27 +122,29 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         raise ctx.error(one_line(exc)) from None
 
 
-_MAX_COMPOSITION_WARNINGS = 10
-
-
 def _read(ctx: ReadContext, camera: str | None, settings: str | None,
           purposes: tuple[str, ...] | None) -> SceneDescription:
-    # Missing sublayers/references still give a stage; say so instead of rendering silently.
-    errors = ctx.stage.GetCompositionErrors()
-    for k, err in enumerate(errors[:_MAX_COMPOSITION_WARNINGS]):
-        ctx.warn(f"composition-{k}", f"composition error: {one_line(err)}")
-    if len(errors) > _MAX_COMPOSITION_WARNINGS:
-        ctx.warn("composition-more", f"{len(errors) - _MAX_COMPOSITION_WARNINGS} more composition errors")
+    # Missing sublayers/references still give a stage; say so (or fail under strict).
+    check_composition(ctx)
     settings_prim = find_settings_prim(ctx, settings)
     settings_desc, dof_off = read_render_settings(ctx, settings_prim, purposes)
     reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes)
     reader.run()
     cam_prim = find_camera(ctx, camera, settings_desc.camera, settings_desc.path, reader.first_camera)
-    camera_desc = read_camera(cam_prim, ctx)
+    if cam_prim is None:
+        camera_desc = framing_camera(ctx, settings_desc.included_purposes)
+        ctx.warn("no-camera", "the stage has no camera: rendering through a default camera (GfCamera's 50 mm lens "
+                              "and 20.955 mm aperture) that frames the stage's bounding box, as usdrecord does; "
+                              "pass --camera or add a UsdGeom.Camera")
+    else:
+        camera_desc = read_camera(cam_prim, ctx)
     if dof_off:
         camera_desc = dataclasses.replace(camera_desc, f_stop=0.0)
     warn_unused_portals(reader.portal_paths, reader.lights, ctx)
     lights = resolve_light_links(reader.light_prims, reader.lights, [m.path for m in reader.meshes])
+    if not lights:
+        ctx.warn("no-lights", "the stage has no lights (no prim with UsdLux LightAPI that emits): only "
+                              "emissive surfaces light it, and without them the image is black")
     ctx.stats["meshes"] = len(reader.meshes)
     ctx.stats["lights"] = len(lights)
     ctx.stats["materials"] = len(reader.materials.materials)
@@ -151,6 +160,7 @@ def _read(ctx: ReadContext, camera: str | None, settings: str | None,
         up_axis=ctx.up_axis,
         warnings=ctx.warnings.messages(),
         stats=dict(ctx.stats),
+        strict=ctx.strict,
     )
 
 
@@ -174,6 +184,7 @@ class _LocalMesh:
     material: int
     double_sided: bool
     tri_material: np.ndarray | None = None
+    primvars: dict = dataclasses.field(default_factory=dict)  # MeshDesc.primvars, local
 
 
 @dataclass
@@ -231,7 +242,8 @@ def _split_by_material(desc: MeshDesc, tri_material: np.ndarray) -> list[MeshDes
         out.append(dataclasses.replace(
             desc, points=desc.points[used], triangles=remap.reshape(tris.shape).astype(np.int32),
             normals=None if desc.normals is None else desc.normals[sel],
-            st=None if desc.st is None else desc.st[sel], material=int(m)))
+            st=None if desc.st is None else desc.st[sel], material=int(m),
+            primvars={name: v[sel] for name, v in desc.primvars.items()}))
     return out
 
 
@@ -259,12 +271,14 @@ def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
         if flip.any():
             nw[flip] = nw[flip][:, :, swap]
         normals = nw.reshape(n_inst * n_tri, 3, 3).astype(np.float32)
-    st = None
-    if lm.st is not None:
-        st = np.broadcast_to(lm.st, (n_inst,) + lm.st.shape).copy()
+    def corners(values: np.ndarray) -> np.ndarray:
+        """Per-corner values (T, 3, k) repeated for each instance, corners swapped as the winding."""
+        out = np.broadcast_to(values, (n_inst,) + values.shape).copy()
         if flip.any():
-            st[flip] = st[flip][:, :, swap]
-        st = st.reshape(n_inst * n_tri, 3, 2).astype(np.float32, copy=False)
+            out[flip] = out[flip][:, :, swap]
+        return out.reshape((n_inst * n_tri,) + values.shape[1:]).astype(np.float32, copy=False)
+
+    st = None if lm.st is None else corners(lm.st)
     return MeshDesc(
         path=lm.path,
         points=pts.reshape(-1, 3),
@@ -273,6 +287,7 @@ def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
         st=st,
         material=lm.material,
         double_sided=lm.double_sided,
+        primvars={name: corners(v) for name, v in lm.primvars.items()},
     )
 
 
@@ -566,10 +581,8 @@ class _Traversal:
                 continue
             raw = subset.GetIndicesAttr().Get(self.ctx.time)
             faces = np.asarray(raw if raw is not None else [], dtype=np.int64)
-            if st_name and mesh_hit[1] and st_name != mesh_hit[1]:
-                self.ctx.warn("material-many-st", f"{subset.GetPath()}: its material reads st primvar "
-                                                  f"'{st_name}', the mesh's '{mesh_hit[1]}'; illum uses "
-                                                  f"'{mesh_hit[1]}' for the whole mesh")
+            # A subset material reading another st primvar than the mesh's reads its own
+            # (description.primvar_layout).
             out.append((str(subset.GetPath()), faces, material, st_name))
         return out
 
@@ -577,7 +590,7 @@ class _Traversal:
                    subsets: list | None = None) -> _LocalMesh | None:
         ctx, t = self.ctx, self.ctx.time
         mesh = UsdGeom.Mesh(prim)
-        raw_points = mesh.GetPointsAttr().Get(t)
+        raw_points = ctx.get_attr(mesh.GetPointsAttr())
         if raw_points is None or len(raw_points) == 0:
             return None
         points = np.asarray(raw_points, dtype=np.float64)
@@ -585,9 +598,9 @@ class _Traversal:
         if not np.isfinite(points).all():
             bad = int(np.nonzero(~np.isfinite(points).all(axis=1))[0][0])
             raise ctx.error(f"point {bad} is not finite ({tuple(points[bad])})", prim, "points")
-        raw = mesh.GetFaceVertexCountsAttr().Get(t)
+        raw = ctx.get_attr(mesh.GetFaceVertexCountsAttr())
         counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
-        raw = mesh.GetFaceVertexIndicesAttr().Get(t)
+        raw = ctx.get_attr(mesh.GetFaceVertexIndicesAttr())
         indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
         if len(counts) and counts.min() < 0:
             raise ctx.error("negative face vertex count", prim, "faceVertexCounts")
@@ -621,6 +634,12 @@ class _Traversal:
             # use at refine level 0, not flat facets; bilinear and none stay faceted.
             normals = _smooth_vertex_normals(points, indices[tri_corners], tri_face, counts, indices)
         st = self._primvar_corners(prim, st_name, tri_corners, tri_face, indices, sizes, width=2)
+        reads = self._primvars_read(material, subsets)
+        primvars = {}
+        for name, width in reads.items():
+            values = self._primvar_corners(prim, name, tri_corners, tri_face, indices, sizes, width=width)
+            if values is not None:
+                primvars[name] = values.astype(np.float32)
         return _LocalMesh(
             path=str(prim.GetPath()),
             points=points,
@@ -630,7 +649,15 @@ class _Traversal:
             material=material,
             double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
             tri_material=self._triangle_materials(subsets, material, len(counts), tri_face),
+            primvars=primvars,
         )
+
+    def _primvars_read(self, material: int, subsets: list | None) -> dict[str, int]:
+        """{name: width} of the primvars the gprim's materials (its own and its subsets') read
+        per hit through UsdPrimvarReader nodes."""
+        used = [material] + [m for _p, _f, m, _st in (subsets or [])]
+        layout = primvar_layout([self.materials.materials[i] for i in used])
+        return {name: width for name, (_col, width) in layout.items()}
 
     def _triangle_materials(self, subsets, material, n_faces, tri_face) -> np.ndarray | None:
         """(T,) material per triangle from the subsets' face ids (the first subset listing a face
@@ -656,7 +683,7 @@ class _Traversal:
         attr = mesh.GetNormalsAttr()
         if not attr.HasAuthoredValue():
             return None
-        values = attr.Get(self.ctx.time)
+        values = self.ctx.get_attr(attr)
         if values is None:
             return None
         return self._expand(prim, "normals", np.asarray(values, dtype=np.float64), None,
@@ -682,6 +709,8 @@ class _Traversal:
                 indices, sizes, width):
         ctx = self.ctx
         path = prim.GetPath()
+        if values.ndim == 1 and width == 1:  # a scalar primvar (float[], int[])
+            values = values[:, None]
         if values.ndim != 2 or values.shape[1] < width:
             ctx.warn(f"primvar-type-{attr_name}", f"{path}: {attr_name} does not hold {width}-vectors; ignored")
             return None
@@ -748,4 +777,24 @@ class _Traversal:
             st=None,
             material=material,
             double_sided=bool(ctx.get(prim, "doubleSided", False)),
+            primvars=self._constant_primvars(prim, material, len(tris)),
         )
+
+    def _constant_primvars(self, prim: Usd.Prim, material: int, n_tri: int) -> dict:
+        """The primvars an implicit gprim's material reads, for its n_tri triangles: implicit
+        prims have no topology, so only a constant (or inherited constant) primvar applies."""
+        out = {}
+        for name, width in self._primvars_read(material, None).items():
+            pv = UsdGeom.PrimvarsAPI(prim).FindPrimvarWithInheritance(name)
+            if not pv or not pv.HasValue():
+                continue
+            if pv.GetInterpolation() != UsdGeom.Tokens.constant:
+                self.ctx.warn(f"implicit-primvar-{name}",
+                              f"{prim.GetPath()}: primvars:{name} is {pv.GetInterpolation()}, but an implicit "
+                              f"{prim.GetTypeName()} has no topology to interpolate it on; its first value is used")
+            values = pv.ComputeFlattened(self.ctx.time)
+            v = np.atleast_1d(np.asarray(values[0] if values is not None and len(values) else [], dtype=np.float64))
+            if v.size < width or not np.isfinite(v).all():
+                continue
+            out[name] = np.broadcast_to(v[:width].astype(np.float32), (n_tri, 3, width)).copy()
+        return out

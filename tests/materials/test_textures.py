@@ -251,9 +251,9 @@ def test_each_file_is_loaded_once(quad_exr, monkeypatch):
     calls = []
     real = textures_mod.load_image
 
-    def counting(path):
+    def counting(path, data=None):
         calls.append(path)
-        return real(path)
+        return real(path, data)
 
     monkeypatch.setattr(textures_mod, "load_image", counting)
     c = TextureCache()

@@ -92,11 +92,33 @@ def test_camera_under_invisible_scope_is_still_found():
     assert read(stage).camera.path == "/Hidden/Cam"
 
 
-def test_no_camera_names_the_file():
-    stage = new_stage(camera=False)
-    with pytest.raises(StageError) as err:
-        read(stage)
-    assert err.value.file == "mem.usda" and "no camera" in str(err.value)
+@pytest.mark.parametrize("up", ["Y", "Z"])
+def test_no_camera_frames_the_bounding_box_as_usdrecord(up):
+    """usdrecord's free camera: GfCamera defaults, looking along the horizontal axis that is not
+    up, at the box centre; a point on the box's front face at the in-plane half-diagonal from the
+    centre lies exactly on the edge of the horizontal field of view."""
+    stage = new_stage(up=up, camera=False)
+    cube = UsdGeom.Cube.Define(stage, "/Box")
+    cube.CreateSizeAttr(2.0)
+    UsdGeom.Xformable(cube).AddScaleOp().Set(Gf.Vec3f(1.0, 0.5, 1.5))
+    UsdGeom.Xformable(cube).AddTranslateOp().Set(Gf.Vec3d(3.0, 1.0, -2.0))  # after scale: centre (3, .5, -3)
+    d = read(stage)
+    assert sum("no camera" in w and "usdrecord" in w for w in d.warnings) == 1
+    cam = d.camera
+    assert (cam.focal_length, cam.horizontal_aperture) == pytest.approx((5.0, 2.0955), rel=1e-6)
+    m = cam.camera_to_world
+    centre, half = np.array([3.0, 0.5, -3.0]), np.array([1.0, 0.5, 1.5])
+    depth_axis, image_axes = (1, (0, 2)) if up == "Z" else (2, (0, 1))
+    forward = -m[:3, 2]  # the camera looks down its local -Z
+    expected_forward = np.zeros(3)
+    expected_forward[depth_axis] = 1.0 if up == "Z" else -1.0
+    np.testing.assert_allclose(forward, expected_forward, atol=1e-12)
+    eye = m[:3, 3]
+    np.testing.assert_allclose(eye[list(image_axes)], centre[list(image_axes)], atol=1e-9)
+    front = centre[depth_axis] - expected_forward[depth_axis] * half[depth_axis]
+    radius = np.hypot(*half[list(image_axes)])
+    tan_half_fov = (cam.horizontal_aperture / 2.0) / cam.focal_length
+    assert radius / abs(front - eye[depth_axis]) == pytest.approx(tan_half_fov, rel=1e-6)
 
 
 def test_missing_or_wrong_camera_argument(stage):

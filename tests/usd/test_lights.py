@@ -74,8 +74,12 @@ def test_light_frame_is_the_world_matrix(stage):
 
 
 def test_texture_files_resolved(tmp_path):
-    (tmp_path / "env.exr").write_bytes(b"x")
-    (tmp_path / "gobo.png").write_bytes(b"x")
+    # Real images: the reader opens each texture's header (the missing-asset policy covers
+    # unreadable files too).
+    import OpenImageIO as oiio
+
+    for name, fmt in (("env.exr", oiio.HALF), ("gobo.png", oiio.UINT8)):
+        assert oiio.ImageBuf(np.full((2, 4, 3), 0.5, np.float32)).write(str(tmp_path / name), fmt)
     stage = new_stage()
     dome = UsdLux.DomeLight.Define(stage, "/Dome")
     dome.CreateTextureFileAttr(Sdf.AssetPath("./env.exr"))
@@ -90,9 +94,13 @@ def test_texture_files_resolved(tmp_path):
 
 
 def test_missing_light_texture(stage):
+    """The missing-asset policy: a warning and an untextured dome; --strict: an error."""
     UsdLux.DomeLight.Define(stage, "/Dome").CreateTextureFileAttr(Sdf.AssetPath("/no/such/env.exr"))
+    d = read(stage)
+    assert _light(d, "/Dome").texture_file == ""
+    assert sum("/Dome.inputs:texture:file: file not found" in w for w in d.warnings) == 1
     with pytest.raises(StageError) as err:
-        read(stage)
+        read(stage, strict=True)
     assert (err.value.prim, err.value.attribute) == ("/Dome", "inputs:texture:file")
 
 

@@ -126,3 +126,59 @@ def test_composition_errors_become_warnings(tmp_path):
     path.write_text(STAGE.replace('def Xform "World"', 'def Xform "World" (references = @./missing_asset.usda@</X>)'))
     d = load_stage(str(path))
     assert any("composition error" in w and "missing_asset.usda" in w for w in d.warnings)
+
+
+BAD_TYPE = """#usda 1.0
+def Camera "C" {}
+def Mesh "M"
+{
+    %s
+    int[] faceVertexIndices = [0, 1, 2]
+    uniform token subdivisionScheme = "none"
+}
+"""
+
+
+@pytest.mark.parametrize("line, attribute, words", [
+    ("float2[] points = [(0, 0), (1, 0), (1, 1)]\n    int[] faceVertexCounts = [3]", "points",
+     "authored as float2[]"),
+    ("point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]\n    int faceVertexCounts = 3",
+     "faceVertexCounts", "authored as int"),
+])
+def test_wrongly_typed_attribute_names_it(tmp_path, line, attribute, words):
+    """A schema attribute authored with another value type is a StageError (exit 2) naming the
+    prim and attribute, not an internal error deep in the mesh code."""
+    path = tmp_path / "bad.usda"
+    path.write_text(BAD_TYPE % line)
+    with pytest.raises(StageError) as err:
+        load_stage(str(path))
+    assert (err.value.prim, err.value.attribute) == ("/M", attribute)
+    assert words in err.value.message and "schema declares" in err.value.message
+
+
+def test_other_precision_or_role_of_the_same_shape_is_read(tmp_path):
+    """double for float, float3[] for point3f[], float[] for int[]: the values convert."""
+    path = tmp_path / "ok.usda"
+    path.write_text(BAD_TYPE % "float3[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]\n"
+                                "    float[] faceVertexCounts = [3]\n    double doubleSided = 1")
+    d = load_stage(str(path))
+    assert len(d.meshes) == 1 and d.meshes[0].triangles.shape == (1, 3)
+
+
+def test_stage_without_lights_warns_and_the_stats_say_so(tmp_path):
+    from pxr import Gf, UsdGeom
+
+    from renderer.render import RenderOptions, render
+    from tests.stage_builders import add_camera, add_floor, add_settings, new_stage
+
+    path = str(tmp_path / "dark.usda")
+    stage = new_stage(path)
+    add_camera(stage, pos=(0, 6, 0), tilt_x=-90.0)
+    add_settings(stage, (8, 8))
+    add_floor(stage)
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World/Floor")).AddTranslateOp().Set(Gf.Vec3d(0, 0, 0))
+    stage.GetRootLayer().Save()
+    result = render(path, RenderOptions(spp=1, threads=1, resolution=(8, 8)))
+    hits = [w for w in result.stats["warnings"] if "no lights" in w]
+    assert len(hits) == 1 and hits[0] in result.warnings
+    assert float(result.film.image().max()) == 0.0

@@ -85,11 +85,19 @@ def test_softness_clamped_and_negative_focus_ignored_with_warnings(stage):
     assert any("shaping:focus -2 < 0 is ignored" in w for w in d.warnings)
 
 
-def test_missing_ies_file_names_prim_and_attribute(stage):
+def test_missing_ies_file_warns_or_fails_under_strict(stage):
+    """The missing-asset policy: by default one warning and an unshaped light; --strict: an error
+    naming the layer, the prim and the attribute."""
     _, api = _spot(stage)
     api.CreateShapingIesFileAttr(Sdf.AssetPath("/nonexistent/profile.ies"))
-    with pytest.raises(StageError, match=r"/Spot\.inputs:shaping:ies:file: file not found"):
-        read(stage)
+    d = read(stage)
+    assert _light(d, "/Spot").shaping.ies_profile is None and _light(d, "/Spot").shaping.ies_file == ""
+    hits = [w for w in d.warnings if "profile.ies" in w]
+    assert len(hits) == 1 and "/Spot.inputs:shaping:ies:file: file not found" in hits[0]
+    layer = stage.GetRootLayer().identifier
+    with pytest.raises(StageError, match=r"/Spot\.inputs:shaping:ies:file: file not found") as exc:
+        read(stage, strict=True)
+    assert exc.value.file == layer
 
 
 def test_malformed_ies_names_file_and_line(tmp_path):
@@ -101,9 +109,15 @@ def test_malformed_ies_names_file_and_line(tmp_path):
     api.CreateShapingIesFileAttr(Sdf.AssetPath("bad.ies"))
     stage.GetRootLayer().Export(str(stage_path))
     with pytest.raises(StageError) as exc:
-        load_stage(str(stage_path))
+        load_stage(str(stage_path), strict=True)
     msg = str(exc.value)
     assert "/Spot.inputs:shaping:ies:file" in msg and str(bad) in msg and "line 7" in msg and "'5O'" in msg
+    assert exc.value.file == str(stage_path)
+    # By default: the same words as one warning, and the light unshaped by IES.
+    d = load_stage(str(stage_path))
+    assert _light(d, "/Spot").shaping.ies_profile is None
+    hits = [w for w in d.warnings if str(bad) in w]
+    assert len(hits) == 1 and "line 7" in hits[0] and "'5O'" in hits[0]
 
 
 def test_shaping_on_distant_light_warns(stage):

@@ -2,6 +2,8 @@
 
 import os
 
+import numpy as np
+import OpenImageIO as oiio
 import pytest
 from pxr import Sdf, UsdGeom, UsdRender, UsdShade
 
@@ -89,7 +91,9 @@ def test_display_color_then_grey_fallback_and_dedupe(stage):
 
 def _textured_stage(tmp_path, file_value="tex/wood.png", through_nodegraph=False):
     (tmp_path / "tex").mkdir(exist_ok=True)
-    (tmp_path / "tex" / "wood.png").write_bytes(b"\x89PNG placeholder")
+    # A real image: the reader opens each texture's header (an unreadable one is the
+    # missing-asset policy's, like a missing one).
+    assert oiio.ImageBuf(np.full((2, 2, 3), 0.5, np.float32)).write(str(tmp_path / "tex" / "wood.png"), oiio.UINT8)
     stage = new_stage()
     mat, pbr = preview_material(stage, "/Looks/Wood")
     parent = "/Looks/Wood/NG" if through_nodegraph else "/Looks/Wood"
@@ -149,12 +153,33 @@ def test_texture_desc(tmp_path, through_nodegraph):
     assert m.emissive_color.texture is None
 
 
-def test_missing_texture_names_shader_and_file(tmp_path):
+def test_missing_texture_uses_fallback_or_fails_under_strict(tmp_path):
+    """The missing-asset policy: by default the UsdUVTexture's fallback with one warning per
+    file (two inputs read the same texture); --strict: an error naming layer, prim, attribute."""
     path = _textured_stage(tmp_path, file_value="tex/missing.png")
+    d = load_stage(path)
+    m = _material_of(d, "/Q")
+    assert m.diffuse_color.texture is None and m.diffuse_color.value == pytest.approx((0.3, 0.4, 0.5))
+    assert m.roughness.texture is None and m.roughness.value == pytest.approx(0.4)
+    hits = [w for w in d.warnings if "missing.png" in w]
+    assert len(hits) == 1 and "/Looks/Wood/Tex.inputs:file: file not found" in hits[0] and path in hits[0]
     with pytest.raises(StageError) as err:
-        load_stage(path)
+        load_stage(path, strict=True)
     assert err.value.prim == "/Looks/Wood/Tex" and err.value.attribute == "inputs:file"
-    assert "missing.png" in str(err.value) and path in str(err.value)
+    assert "missing.png" in str(err.value) and err.value.file == path
+
+
+def test_unreadable_texture_uses_fallback_or_fails_under_strict(tmp_path):
+    path = _textured_stage(tmp_path)
+    (tmp_path / "tex" / "wood.png").write_bytes(b"\x89PNG but truncated")
+    d = load_stage(path)
+    diffuse = _material_of(d, "/Q").diffuse_color
+    assert diffuse.texture is None and diffuse.value == pytest.approx((0.3, 0.4, 0.5))
+    hits = [w for w in d.warnings if "wood.png" in w]
+    assert len(hits) == 1 and "cannot read image" in hits[0]
+    with pytest.raises(StageError, match="cannot read image") as err:
+        load_stage(path, strict=True)
+    assert (err.value.file, err.value.prim, err.value.attribute) == (path, "/Looks/Wood/Tex", "inputs:file")
 
 
 def test_unsupported_surface_shader_warns_and_falls_back(stage):

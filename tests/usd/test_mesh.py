@@ -137,4 +137,4 @@ def test_subdivision_warning_once_per_stage(stage):
 
 def test_no_subdivision_warning_for_scheme_none(stage):
     add_quad(stage, "/Q")
-    assert not read(stage).warnings
+    assert [w for w in read(stage).warnings if "no lights" not in w] == []

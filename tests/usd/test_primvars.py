@@ -142,7 +142,9 @@ def test_texture_without_file_gives_its_fallback_and_default_st(stage, varname):
 def test_st_primvar_name_from_textured_material(tmp_path, varname):
     from .helpers import new_stage
 
-    (tmp_path / "t.png").write_bytes(b"not really a png")
+    import OpenImageIO as oiio
+
+    assert oiio.ImageBuf(np.full((2, 2, 3), 0.5, np.float32)).write(str(tmp_path / "t.png"), oiio.UINT8)
     stage = new_stage()
     m = _two_quads(stage)
     api = UsdGeom.PrimvarsAPI(m)

@@ -87,3 +87,18 @@ def test_register_is_idempotent():
     usd_schemas.register()
     usd_schemas.register()
     assert os.path.isfile(os.path.join(usd_schemas.PLUGIN_DIR, "plugInfo.json"))
+
+
+@pytest.mark.parametrize("pxr_first", [False, True])
+def test_import_renderer_registers_the_schemas(pxr_first):
+    """`import renderer` alone (not renderer.usd) makes USD know the schemas, whether pxr is
+    loaded before it or after; without it (the control) USD does not."""
+    probe = ("from pxr import Usd\n"
+             "print(Usd.SchemaRegistry().FindAppliedAPIPrimDefinition('IllumLightAPI') is not None)\n")
+    env = {k: v for k, v in os.environ.items() if k != "PXR_PLUGINPATH_NAME"}
+    for imports, expected in ((["import renderer"], "True"), ([], "False")):
+        lines = (["from pxr import Usd"] if pxr_first else []) + imports
+        proc = subprocess.run([sys.executable, "-c", "\n".join(lines) + "\n" + probe], cwd=REPO, env=env,
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.strip().splitlines()[-1] == expected
