@@ -170,7 +170,8 @@ class MaterialTable:
     Constant arrays (m, 3) / (m,) named like the SurfaceParams fields; ``textures`` the distinct
     TextureDescs in use; ``has_emission`` / ``has_cutout`` table-level flags;
     ``emissive_materials`` (m,) bool: the material may emit (constant emission > 0 or an emission
-    texture); ``normal_mapped`` (m,) bool: the material bends shading normals (module docstring),
+    texture); ``cutout_materials`` (m,) bool: the material may be absent at a hit (opacity below 1
+    or textured), ``has_cutout`` any of them; ``normal_mapped`` (m,) bool: the material bends shading normals (module docstring),
     ``has_normal_map`` any of them; ``paths`` the material prim paths.
     """
 
@@ -185,6 +186,7 @@ class MaterialTable:
         self._slot: dict[str, np.ndarray] = {}
         self.has_emission = False
         self.has_cutout = False
+        self.cutout_materials = np.zeros(0, dtype=bool)
         self.emissive_materials = np.zeros(0, dtype=bool)
         self.normal_mapped = np.zeros(0, dtype=bool)
         self.has_normal_map = False
@@ -266,7 +268,8 @@ class MaterialTable:
         emissive = np.any(const["emission"] > 0.0, axis=1) | (slots["emission"] >= 0)
         table.emissive_materials = emissive
         table.has_emission = bool(emissive.any())
-        table.has_cutout = bool(np.any(const["opacity"] < 1.0) or np.any(slots["opacity"] >= 0))
+        table.cutout_materials = (const["opacity"] < 1.0) | (slots["opacity"] >= 0)
+        table.has_cutout = bool(table.cutout_materials.any())
         table.normal_mapped = np.any(const["normal"] != np.array(_FLAT), axis=1) | (slots["normal"] >= 0)
         table.has_normal_map = bool(table.normal_mapped.any())
         return table
