@@ -330,11 +330,18 @@ def _uniform_pass(key, lo, hi, UB):
     n_u = UB.shape[0]
     for c in range(n_u):
         for r in range(lo, hi):
-            z = key + np.uint64(r * n_u + c + 1) * _GAMMA
-            z = (z ^ (z >> np.uint64(30))) * _MIX1
-            z = (z ^ (z >> np.uint64(27))) * _MIX2
-            z = z ^ (z >> np.uint64(31))
-            UB[c, r - lo] = float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+            UB[c, r - lo] = splitmix_u01(key, r * n_u + c + 1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def splitmix_u01(key, i):
+    """SplitMix64's output number i (>= 1) after state ``key`` (uint64) as a 53-bit double in
+    [0, 1): the counter-based stream of _uniform_pass, for any kernel that draws its own."""
+    z = key + np.uint64(i) * _GAMMA
+    z = (z ^ (z >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    z = z ^ (z >> np.uint64(31))
+    return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)

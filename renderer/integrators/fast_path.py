@@ -21,10 +21,12 @@ A scene qualifies when it has
 
 Cut-outs (opacity as presence, renderer/materials.py) as in the general path: a camera or
 extension ray that finds a surface absent (one draw against its presence) goes on from just
-behind it with its state unchanged; ``_through_cutouts`` re-traces only those rays before the
+behind it with its state unchanged; ``_through_cutouts`` walks only those rays on before the
 kernel sees the bounce's hits, and hands the kernel the first present surface with its distance
 from the ray's origin, so the lights the ray crosses on the way are counted as on one segment.
-Shadow rays see cut-outs through the general path's own ``_visible_through_cutouts``.
+Shadow rays see cut-outs as the general path's ``_visible_through_cutouts`` does. Both walks are
+compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has native Embree,
+else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
 One difference in the order of work, not in the estimate: at the last scattering vertex
@@ -42,14 +44,13 @@ from ..geometry import dot, offset_origin, surface_interaction
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
+from . import _cutout_kernels as ck
 from . import _vertex_kernels as vk
 
 # The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
 FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
-# Cut-out surfaces one camera or extension ray may pass through in one bounce (as the general
-# path's loop budget, which bounds its pass-throughs by 64 trips).
-CUTOUT_PASSES = 64
+CUTOUT_PASSES = ck.CUTOUT_PASSES
 
 
 def fast_path_reason(integ) -> str:
@@ -131,6 +132,19 @@ class FastPath:
         # kernel reads per-hit rows; otherwise one packed row per material.
         self.per_hit = bool(mats.params_needed)
         self.cutouts = bool(mats.has_cutout)
+        # The compiled cut-out walks (_cutout_kernels) where Embree is called natively; else the
+        # numpy loops (_through_cutouts_numpy, the general path's _visible_through_cutouts).
+        self.walk = None
+        if self.cutouts and scene.accel._native is not None:
+            h = scene.accel.native_handles()
+            g = scene.geometry
+            self.walk = ((h.scene, h.intersect1, h.occluded1),
+                         (np.ascontiguousarray(g.vertices, dtype=np.float64),
+                          np.ascontiguousarray(g.face_normal, dtype=np.float64),
+                          np.ascontiguousarray(g.normals, dtype=np.float64), np.ascontiguousarray(g.st, dtype=np.float64),
+                          np.ascontiguousarray(g.material, dtype=np.int64), scene.accel.tri_mag),
+                         np.ascontiguousarray(mats.cutout_materials), mats.presence_table(),
+                         scene.accel.epsilon_terms())
         # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
         self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
         self.no_rows = np.zeros(0, dtype=np.int64)
@@ -246,10 +260,21 @@ class FastPath:
     def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng) -> None:
         """Camera and extension rays pass through absent cut-out surfaces, as in the general
         path (PathIntegrator.trace): each hit on a material that may be cut out is present with
-        its presence (materials.presence_at) against one uniform from rng; a ray whose surface
-        is absent is traced on from just behind it, until a present surface or a miss (at most
+        its presence (materials.presence_at) against one uniform; a ray whose surface is absent
+        is traced on from just behind it, until a present surface or a miss (at most
         CUTOUT_PASSES surfaces). Updates in place the closest hits prim, b1, b2 (n,) and the hit
         distances t32 (n,) float32, measured from the ray's origin S[:, O] along d32 (n, 3)."""
+        if self.walk is None:
+            self._through_cutouts_numpy(prim, b1, b2, t32, d32, S, rng)
+            return
+        fns, geo, cut, tab, eps = self.walk
+        key = np.uint64(rng.integers(0, 2 ** 63))
+        traced = ck.through_cutouts_kernel(fns, key, S, d32, prim, b1, b2, t32, geo, cut, tab, eps)
+        self.integ.rays.add(extension=traced)
+
+    def _through_cutouts_numpy(self, prim, b1, b2, t32, d32, S, rng) -> None:
+        """_through_cutouts without native Embree calls: numpy passes over the rays still on
+        absent surfaces, each re-traced as one batch."""
         integ = self.integ
         scene = integ.scene
         g, mats, accel = scene.geometry, scene.materials, scene.accel
@@ -283,5 +308,11 @@ class FastPath:
         PathIntegrator._visible_through_cutouts sees them."""
         if not self.cutouts:
             return self.integ.scene.accel.occluded_prepared(sh_o, sh_d, sh_t)
+        if self.walk is not None:
+            fns, geo, cut, tab, eps = self.walk
+            blocked = np.empty(sh_o.shape[0], dtype=bool)
+            ck.shadow_cutouts_kernel(fns, np.uint64(rng.integers(0, 2 ** 63)), sh_o, sh_d, sh_t, geo, cut, tab, eps,
+                                     blocked)
+            return blocked
         return ~self.integ._visible_through_cutouts(sh_o.astype(np.float64), sh_d.astype(np.float64),
                                                     sh_t.astype(np.float64), rng)
