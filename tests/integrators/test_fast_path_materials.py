@@ -146,3 +146,18 @@ def test_the_comparison_sees_a_missing_material_feature(tmp_path, monkeypatch, w
         monkeypatch.setattr(fp_mod.FastPath, "_through_cutouts", lambda self, *a: None)
     z, zs = _block_z(*_pair(stage, 4, spp=256, rr_depth=1))
     assert max(abs(x) for x in zs) > Z_BLOCK, f"a missing {which} went unseen (blocks {np.round(zs, 2)})"
+
+
+def test_numpy_cutout_walk_matches_general_path(tmp_path, monkeypatch):
+    """Without native Embree calls the fast path walks cut-outs with numpy loops (FastPath.walk
+    None): the same estimate."""
+    orig = fp_mod.FastPath.__init__
+
+    def no_native(self, integ):
+        orig(self, integ)
+        assert self.walk is not None  # this machine has native Embree: the compiled walks ran above
+        self.walk = None
+
+    monkeypatch.setattr(fp_mod.FastPath, "__init__", no_native)
+    stage = _card_stage(tmp_path / "card.usda", tmp_path, True)
+    _check(*_pair(stage, 4, spp=256, rr_depth=1))
