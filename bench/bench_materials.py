@@ -9,40 +9,47 @@ Usage (from the repository root)::
     .venv/bin/python bench/bench_materials.py [--res 128] [--spp 16] [--repeats 3] [--base DIR]
                                               [--out bench/results/materials/compiled.md]
 
-Each run is a fresh process rendering the stage with one thread (``-j 1``) after a warm-up run
-per configuration (numba caches), and is timed by the CPU time of the child process (resource
-RUSAGE_CHILDREN; load, build and render, the whole command) as well as by the render's own
-wall-clock samples/s (stats ``samples_per_second``). On a shared machine CPU time is the steadier
-number; the table gives the median of the repeats.
+Each run is a fresh process that renders the stage once at 16x16 (numba caches, imports), then
+times ``render()`` (load, build, render; one thread, the same options as ``illum render -j 1
+[--no-fast-path]``) by its CPU time (time.process_time) and by the render's own wall-clock
+samples/s (stats ``samples_per_second``). On a shared machine CPU time is the steadier number;
+the table gives the median of the repeats.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
-import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STAGE = "stages/plant/plant.usda"
 
 
-def run(tree: str, res: int, spp: int, fast: bool, tmp: str) -> dict:
-    stats = os.path.join(tmp, "stats.json")
-    cmd = [sys.executable, "-m", "renderer.cli", "render", os.path.join(ROOT, STAGE), "--res", str(res), str(res),
-           "--spp", str(spp), "-j", "1", "--seed", "1", "-o", os.path.join(tmp, "out.exr"), "--stats", stats,
-           "--quiet", "--fast-path" if fast else "--no-fast-path"]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    subprocess.run(cmd, check=True, cwd=tree, env={**os.environ, "PYTHONPATH": tree})
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    with open(stats) as fh:
-        s = json.load(fh)
-    return {"cpu": cpu, "wall_sps": s["samples_per_second"], "cpu_sps": res * res * spp / cpu,
-            "fast_path": s["fast_path"], "render_s": s["seconds"]}
+# The child: one warm-up render (numba caches, imports), then the timed render, one thread.
+_CHILD = """
+import json, sys, time
+from renderer.render import RenderOptions, render
+stage, res, spp, fast = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4] == "1"
+render(stage, RenderOptions(spp=1, resolution=(16, 16), threads=1, fast_path=fast))
+c, w = time.process_time(), time.perf_counter()
+r = render(stage, RenderOptions(spp=spp, resolution=(res, res), threads=1, seed=1, fast_path=fast))
+print(json.dumps({"cpu": time.process_time() - c, "wall": time.perf_counter() - w, "fast_path": r.stats["fast_path"],
+                  "wall_sps": r.stats["samples_per_second"]}))
+"""
+
+
+def run(tree: str, res: int, spp: int, fast: bool) -> dict:
+    """One child process in checkout ``tree``: CPU and wall time of render() (load, build,
+    render) after a warm-up render."""
+    out = subprocess.run([sys.executable, "-c", _CHILD, os.path.join(ROOT, STAGE), str(res), str(spp),
+                          "1" if fast else "0"], check=True, cwd=tree, env={**os.environ, "PYTHONPATH": tree},
+                         capture_output=True, text=True).stdout
+    r = json.loads(out.strip().splitlines()[-1])
+    r["cpu_sps"] = res * res * spp / r["cpu"]
+    return r
 
 
 def main(argv=None) -> int:
@@ -57,15 +64,12 @@ def main(argv=None) -> int:
     if a.base:
         configs.insert(0, (f"base general ({os.path.basename(os.path.abspath(a.base))})", a.base, False))
     results = {name: [] for name, _, _ in configs}
-    with tempfile.TemporaryDirectory() as tmp:
-        for _, tree, fast in configs:  # warm-up: numba caches
-            run(tree, 16, 1, fast, tmp)
-        for _ in range(a.repeats):
-            for name, tree, fast in configs:
-                r = run(tree, a.res, a.spp, fast, tmp)
-                results[name].append(r)
-                print(f"{name}: {r['cpu_sps']:.0f} samples/CPU-s, {r['wall_sps']:.0f} samples/s wall "
-                      f"(fast_path: {r['fast_path']})", flush=True)
+    for _ in range(a.repeats):
+        for name, tree, fast in configs:
+            r = run(tree, a.res, a.spp, fast)
+            results[name].append(r)
+            print(f"{name}: {r['cpu_sps']:.0f} samples/CPU-s, {r['wall_sps']:.0f} samples/s wall "
+                  f"(fast_path: {r['fast_path']})", flush=True)
     rows = []
     ref = statistics.median(r["cpu_sps"] for r in results[configs[-2][0]])
     for name, _, _ in configs:
@@ -80,8 +84,9 @@ def main(argv=None) -> int:
             "# Materials in the compiled integrator: normal maps and cut-outs (#23)", "",
             f"`{STAGE}` (300 cut-out leaf cards, normal-mapped trunk and ground, ~900 triangles; a dome and a sun) "
             f"at {a.res}x{a.res}, {a.spp} spp, max depth 7 (default), one thread, median of {a.repeats} alternated "
-            "runs. samples/CPU-s: pixels x spp over the CPU time of the whole `illum render` process (load, "
-            "build, render); wall: the render's own `samples_per_second` stat.", "",
+            "runs, each in a fresh process after a warm-up render. samples/CPU-s: pixels x spp over the CPU "
+            "time of `render()` (load, build, render); wall: the render's own `samples_per_second` stat, "
+            "on a machine shared with other jobs (2 cores, load ~8), so wall numbers are several times low.", "",
             f"    .venv/bin/python {cmd}", "",
             "| integrator | stats fast_path | samples / CPU-s | samples / s (wall) | vs general |",
             "|---|---|---|---|---|", *rows, ""]))

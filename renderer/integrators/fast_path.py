@@ -132,19 +132,6 @@ class FastPath:
         # kernel reads per-hit rows; otherwise one packed row per material.
         self.per_hit = bool(mats.params_needed)
         self.cutouts = bool(mats.has_cutout)
-        # The compiled cut-out walks (_cutout_kernels) where Embree is called natively; else the
-        # numpy loops (_through_cutouts_numpy, the general path's _visible_through_cutouts).
-        self.walk = None
-        if self.cutouts and scene.accel._native is not None:
-            h = scene.accel.native_handles()
-            g = scene.geometry
-            self.walk = ((h.scene, h.intersect1, h.occluded1),
-                         (np.ascontiguousarray(g.vertices, dtype=np.float64),
-                          np.ascontiguousarray(g.face_normal, dtype=np.float64),
-                          np.ascontiguousarray(g.normals, dtype=np.float64), np.ascontiguousarray(g.st, dtype=np.float64),
-                          np.ascontiguousarray(g.material, dtype=np.int64), scene.accel.tri_mag),
-                         np.ascontiguousarray(mats.cutout_materials), mats.presence_table(),
-                         scene.accel.epsilon_terms())
         # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
         self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
         self.no_rows = np.zeros(0, dtype=np.int64)
@@ -157,6 +144,7 @@ class FastPath:
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
                     np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64),
                     scene.accel.tri_mag)
+        self.walk = self._cutout_walk() if self.cutouts else None
         from ..estimators import HEURISTICS
 
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
@@ -256,6 +244,21 @@ class FastPath:
         bent_ns = (np.ascontiguousarray(integ.bent_normals(k, mat, ns, ng, -d, params)) if mats.has_normal_map
                    else self.no_normals)
         return P, row, emission, bent_ns
+
+    def _cutout_walk(self):
+        """The compiled cut-out walks' scene record (_cutout_kernels: fns, geo, cut, tab, eps),
+        or None where accel.py traces through embreex only (the numpy loops serve then)."""
+        scene = self.integ.scene
+        try:
+            h = scene.accel.native_handles()
+        except RuntimeError:
+            return None
+        vertices, face_normal, normals, tri_mat, tri_mag = self.geo
+        mats = scene.materials
+        return ((h.scene, h.intersect1, h.occluded1),
+                (vertices, face_normal, normals, np.ascontiguousarray(scene.geometry.st, dtype=np.float64), tri_mat,
+                 tri_mag),
+                np.ascontiguousarray(mats.cutout_materials), mats.presence_table(), scene.accel.epsilon_terms())
 
     def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng) -> None:
         """Camera and extension rays pass through absent cut-out surfaces, as in the general
