@@ -308,6 +308,14 @@ def set_ray(rec, rec_i, lane, width, ox, oy, oz, dx, dy, dz, tnear, tfar, mask):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def ray_epsilon_row(px, py, pz, tri_mag_k, eps_rel, eps_floor, eps_add):
+    """Accel.ray_epsilon of one point (px, py, pz) on a triangle of vertex magnitude tri_mag_k,
+    from Accel.epsilon_terms (eps_rel, eps_floor, eps_add), for kernels offsetting origins."""
+    mag = max(max(max(abs(px), abs(py)), abs(pz)), tri_mag_k)
+    return eps_rel * max(mag, eps_floor) + eps_add
+
+
+@njit(cache=True, nogil=True, inline="always")
 def rtc_intersect1(fn, scene, rec):
     """rtcIntersect1(scene, rec, NULL): fn = NativeHandles.intersect1, rec an RTCRayHit record."""
     _call3(fn, scene, rec.ctypes.data, 0)

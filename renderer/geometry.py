@@ -326,6 +326,58 @@ def uv_tangents(vertices: np.ndarray, st: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.where(ok[:, None], tangent, 0.0), handed
 
 
+# The least elevation above the surface a corrected normal mirrors wo to: REFLECT_MIN, or less
+# (REFLECT_FRACTION of wo's own elevation) for a grazing wo, which can mirror no higher.
+REFLECT_MIN = 0.01
+REFLECT_FRACTION = 0.9
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _visible_reflection_normal(mx, my, mz, gx, gy, gz, ox, oy, oz):
+    """A bent shading normal m made usable for a viewer at wo (unit 3-vectors as scalars; ng the
+    geometric normal, facing wo): m itself where the mirror direction of wo about m rises at
+    least h = min(REFLECT_MIN, REFLECT_FRACTION wo.ng) above the surface; elsewhere the normal
+    n' = a x + b ng (a, b >= 0, x the unit direction of m's part along the surface, so m's
+    azimuth is kept) about which wo mirrors to exactly h. Returns (x, y, z).
+
+    Replacing such a normal by ng (the rule before) jumps from the bent shading to the flat one
+    at the view angle where m turns away, a bright rim at oblique views; this correction (the
+    idea of Cycles' ensure_valid_reflection) is continuous in wo and m: at the boundary m itself
+    solves the condition. With wo = (w_x, w_y, w_z) in the frame (x, y, ng), the mirror
+    direction's height is 2 (a w_x + b w_z) b - w_z; setting it to h and squaring gives, for
+    z = b^2, A z^2 - B z + C / 4 = 0 with A = w_x^2 + w_z^2, B = A + w_z h, C = (h + w_z)^2.
+    The root is the one with 2 a b w_x = h + w_z (1 - 2 z) (a >= 0): the larger where w_x < 0
+    (wo on the side m leans away from), else the smaller. n' faces wo and lies on ng's side.
+    """
+    wz = ox * gx + oy * gy + oz * gz
+    h = min(REFLECT_MIN, REFLECT_FRACTION * wz)
+    c = mx * ox + my * oy + mz * oz
+    mg = mx * gx + my * gy + mz * gz
+    if 2.0 * c * mg - wz >= h:  # the mirror direction's height above the surface
+        return mx, my, mz
+    # x: m's part along the surface, normalised.
+    xx = mx - mg * gx
+    xy = my - mg * gy
+    xz = mz - mg * gz
+    xl = np.sqrt(xx * xx + xy * xy + xz * xz)
+    if not xl > 1e-12:
+        return mx, my, mz  # m along ng: its mirror direction is wo's own, above h
+    xx /= xl
+    xy /= xl
+    xz /= xl
+    wx = ox * xx + oy * xy + oz * xz
+    A = wx * wx + wz * wz
+    if not A > 1e-12:
+        return gx, gy, gz  # wo along the surface and across x: no normal mirrors it upward
+    B = A + wz * h
+    root = np.sqrt(max(B * B - A * (h + wz) * (h + wz), 0.0))
+    z = (B + root) / (2.0 * A) if wx < 0.0 else (B - root) / (2.0 * A)
+    z = min(max(z, 0.0), 1.0)
+    a = np.sqrt(1.0 - z)
+    b = np.sqrt(z)
+    return a * xx + b * gx, a * xy + b * gy, a * xz + b * gz
+
+
 @njit(cache=True, nogil=True)
 def _perturb_kernel(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal, out):
     for i in range(ns.shape[0]):
@@ -370,14 +422,13 @@ def _perturb_kernel(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal
         mx *= r
         my *= r
         mz *= r
-        # The interaction's guards (_interaction_row): to the geometric normal's side, and the
-        # geometric normal where the bent one faces away from wo.
+        # To the geometric normal's side (as _interaction_row), then bent back where wo would
+        # mirror below the surface (_visible_reflection_normal).
         gx, gy, gz = ng[i, 0], ng[i, 1], ng[i, 2]
         if mx * gx + my * gy + mz * gz < 0.0:
             mx, my, mz = -mx, -my, -mz
-        if mx * wo[i, 0] + my * wo[i, 1] + mz * wo[i, 2] <= 0.0:
-            mx, my, mz = gx, gy, gz
-        out[i, 0], out[i, 1], out[i, 2] = mx, my, mz
+        out[i, 0], out[i, 1], out[i, 2] = _visible_reflection_normal(mx, my, mz, gx, gy, gz, wo[i, 0], wo[i, 1],
+                                                                     wo[i, 2])
 
 
 def perturb_normals(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal) -> np.ndarray:
@@ -388,7 +439,8 @@ def perturb_normals(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal
     texture delivers them; mapped: (n,) bool rows whose material is normal-mapped; prim: (n,)
     triangle ids; tangent, handed, face_normal: the per-triangle tables (``uv_tangents``).
     Returns (n, 3) n' = normalize(T x + B y + N z) on mapped rows with a UV frame, flipped to
-    ng's side and replaced by ng where it faces away from wo; ns itself elsewhere.
+    ng's side and bent back where wo would mirror below the surface (_visible_reflection_normal);
+    ns itself elsewhere.
     """
     out = np.empty(ns.shape)
     _perturb_kernel(np.ascontiguousarray(ns, dtype=np.float64), np.ascontiguousarray(ng, dtype=np.float64),

@@ -56,12 +56,13 @@ from dataclasses import dataclass, fields
 from typing import Optional
 
 import numpy as np
+from numba import njit
 
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
 from renderer.description import MaterialDesc, MaterialInput, TextureDesc, primvar_layout
 from renderer.errors import StageError
-from renderer.textures import TextureCache, output_channels
+from renderer.textures import TextureCache, lookup_row, output_channels
 
 # (attribute on MaterialDesc, SurfaceParams field, components, USD input name)
 _TEXTURABLE = (
@@ -120,12 +121,45 @@ def presence(params: SurfaceParams) -> np.ndarray:
     return _presence(params.opacity, params.opacity_threshold)
 
 
-def _presence(opacity: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+@njit(cache=True, nogil=True)
+def presence_row(opacity: float, threshold: float) -> float:
     """Cutout where threshold > 0 (opacity >= threshold -> 1, else 0), else clamp(opacity, 0, 1).
     A NaN opacity (e.g. from a texture's bias) counts as present."""
-    op = np.nan_to_num(opacity, nan=1.0)
-    cut = np.where(op >= threshold, 1.0, 0.0)
-    return np.where(threshold > 0.0, cut, np.clip(op, 0.0, 1.0))
+    if opacity != opacity:
+        return 1.0
+    if threshold > 0.0:
+        return 1.0 if opacity >= threshold else 0.0
+    return min(max(opacity, 0.0), 1.0)
+
+
+@njit(cache=True, nogil=True)
+def _presence_kernel(opacity, threshold, out):
+    for i in range(out.shape[0]):
+        out[i] = presence_row(opacity[i], threshold[i])
+
+
+def _presence(opacity: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    """presence_row over (n,) opacities and thresholds: (n,) float64."""
+    op, thr = np.broadcast_arrays(np.asarray(opacity, dtype=np.float64), np.asarray(threshold, dtype=np.float64))
+    out = np.empty(op.shape)
+    _presence_kernel(np.ascontiguousarray(op).reshape(-1), np.ascontiguousarray(thr).reshape(-1), out.reshape(-1))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def presence_hit(tab, m, s, t):
+    """presence_at for one hit of material m at st = (s, t), from MaterialTable.presence_table."""
+    op_c, thr, slot, chan, px, off, h, w, nc, ws, wt, xf, has_xf, scale, bias, fallback, loaded = tab
+    op = op_c[m]
+    j = slot[m]
+    if j >= 0:
+        c = chan[m]
+        if not loaded[j]:
+            op = fallback[j, c]
+        else:
+            op = lookup_row(px, off[j], h[j], w[j], nc[j], s, t, ws[j], wt[j], xf[j] if has_xf[j] else xf[j, :0], c,
+                            scale[j, c], bias[j, c], fallback[j, c])
+    return presence_row(op, thr[m])
 
 
 # The SurfaceParams fields the BSDF reads (the others: emission, opacity, opacity_threshold).
@@ -191,7 +225,8 @@ class MaterialTable:
     Constant arrays (m, 3) / (m,) named like the SurfaceParams fields; ``textures`` the distinct
     TextureDescs in use; ``has_emission`` / ``has_cutout`` table-level flags;
     ``emissive_materials`` (m,) bool: the material may emit (constant emission > 0 or an emission
-    texture); ``normal_mapped`` (m,) bool: the material bends shading normals (module docstring),
+    texture); ``cutout_materials`` (m,) bool: the material may be absent at a hit (opacity below 1
+    or textured), ``has_cutout`` any of them; ``normal_mapped`` (m,) bool: the material bends shading normals (module docstring),
     ``has_normal_map`` any of them; ``paths`` the material prim paths.
     """
 
@@ -211,6 +246,7 @@ class MaterialTable:
         self._varies: dict[str, np.ndarray] = {}  # per field: (m,) bool, textured or primvar-fed
         self.has_emission = False
         self.has_cutout = False
+        self.cutout_materials = np.zeros(0, dtype=bool)
         self.emissive_materials = np.zeros(0, dtype=bool)
         self.normal_mapped = np.zeros(0, dtype=bool)
         self.has_normal_map = False
@@ -307,7 +343,8 @@ class MaterialTable:
         emissive = np.any(const["emission"] > 0.0, axis=1) | varies["emission"]
         table.emissive_materials = emissive
         table.has_emission = bool(emissive.any())
-        table.has_cutout = bool(np.any(const["opacity"] < 1.0) or np.any(varies["opacity"]))
+        table.cutout_materials = (const["opacity"] < 1.0) | varies["opacity"]
+        table.has_cutout = bool(table.cutout_materials.any())
         table.normal_mapped = np.any(const["normal"] != np.array(_FLAT), axis=1) | varies["normal"]
         table.has_normal_map = bool(table.normal_mapped.any())
         return table
@@ -333,7 +370,7 @@ class MaterialTable:
         for (fname, cols), (mats_f, fallbacks) in self._primvar.items():
             if (only is not None and fname != only) or fname not in out:
                 continue
-            rows = np.nonzero(np.isin(mat, mats_f))[0]
+            rows = np.nonzero(self._has(mats_f)[mat])[0]
             if rows.size == 0:
                 continue
             fb = fallbacks[np.searchsorted(mats_f, mat[rows])] if mats_f.size > 1 else \
@@ -393,7 +430,7 @@ class MaterialTable:
                 if not binds:
                     continue
                 mats_t = np.unique(np.array([b.material for b in binds], dtype=np.int64))
-            rows = np.nonzero(np.isin(mat, mats_t))[0]
+            rows = np.nonzero(self._has(mats_t)[mat])[0]
             if rows.size == 0:
                 continue
             st_rows = self._texture_st(tex, st, rows)
@@ -408,7 +445,7 @@ class MaterialTable:
                 if len(mats) == mats_t.size:
                     r, vals = rows, rgba[:, list(chans)]
                 else:
-                    sel = np.isin(mat_rows, mats)
+                    sel = self._has(mats)[mat_rows]
                     r, vals = rows[sel], rgba[sel][:, list(chans)]
                 if arr.ndim == 1:
                     arr[r] = vals[:, 0]
@@ -430,6 +467,12 @@ class MaterialTable:
             out = np.where(np.isfinite(own).all(axis=1, keepdims=True), own, out)
         return out
 
+    def _has(self, mats) -> np.ndarray:
+        """(materials,) bool, True at the ids in mats: a gather per hit instead of np.isin's sort."""
+        mask = np.zeros(len(self), dtype=bool)
+        mask[np.asarray(mats, dtype=np.int64)] = True
+        return mask
+
     def presence_at(self, mat: np.ndarray, st: Optional[np.ndarray] = None) -> np.ndarray:
         """(n,) presence probability at hits without evaluating the other inputs (for shadow
         rays and any-hit style tests)."""
@@ -441,7 +484,65 @@ class MaterialTable:
             self._apply_primvars(out, mat, st, "opacity")
         return _presence(out["opacity"], self.const["opacity_threshold"][mat])
 
+    @property
+    def presence_compiled(self) -> bool:
+        """Whether presence_table describes presence exactly: no primvar reader feeds an
+        opacity, and every opacity texture reads the hits' first st set (columns 0-1)."""
+        if any(fname == "opacity" for fname, _ in self._primvar):
+            return False
+        return not any(any(b.field == "opacity" for b in binds) and self.textures[s].st_primvar in self.primvar_layout
+                       for s, (_, binds) in enumerate(self._by_texture))
+
+    def presence_table(self) -> tuple:
+        """presence_at's inputs as arrays, for compiled callers (presence_hit): (opacity (m,),
+        threshold (m,), slot (m,) int64 the texture feeding the material's opacity or -1, channel
+        (m,) int64 its channel, then per such texture (k,): pixels (all k images flat, float32),
+        offset, height, width, channels (int64), wrap_s, wrap_t (textures.WRAP_MODES codes), xf
+        (k, 6) st transform and has_xf (k,) bool, scale, bias, fallback (k, 4), loaded (k,) bool
+        (False: the file could not be read, fallback)."""
+        from renderer.textures import WRAP_MODES
+
+        m = len(self)
+        slot = np.full(m, -1, dtype=np.int64)
+        chan = np.zeros(m, dtype=np.int64)
+        texs: list[int] = []
+        for s, (_, binds) in enumerate(self._by_texture):
+            for b in binds:
+                if b.field == "opacity":
+                    if s not in texs:
+                        texs.append(s)
+                    slot[b.material], chan[b.material] = texs.index(s), b.channels[0]
+        k = len(texs)
+        images = [self.texture_cache.image(self.textures[s]) for s in texs]
+        shapes = np.array([im.shape if im is not None else (0, 0, 4) for im in images], dtype=np.int64).reshape(k, 3)
+        sizes = shapes.prod(axis=1)
+        offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if k else np.zeros(0, np.int64)
+        pixels = (np.concatenate([im.reshape(-1) for im in images if im is not None]).astype(np.float32)
+                  if any(im is not None for im in images) else np.zeros(0, np.float32))
+        modes = [self.texture_cache.wrap_modes(self.textures[s]) for s in texs]
+        xf = np.zeros((k, 6))
+        for j, s in enumerate(texs):
+            if self.textures[s].st_transform:
+                xf[j] = self.textures[s].st_transform
+        per_tex = lambda attr: np.array([np.ravel(getattr(self.textures[s], attr)) for s in texs],  # noqa: E731
+                                        dtype=np.float64).reshape(k, 4)
+        return (np.ascontiguousarray(self.const["opacity"], dtype=np.float64),
+                np.ascontiguousarray(self.const["opacity_threshold"], dtype=np.float64), slot, chan, pixels, offset,
+                np.ascontiguousarray(shapes[:, 0]), np.ascontiguousarray(shapes[:, 1]),
+                np.ascontiguousarray(shapes[:, 2]),
+                np.array([WRAP_MODES.index(a) for a, _ in modes], dtype=np.int64),
+                np.array([WRAP_MODES.index(b) for _, b in modes], dtype=np.int64), xf,
+                np.array([bool(self.textures[s].st_transform) for s in texs], dtype=np.bool_),
+                per_tex("scale"), per_tex("bias"), per_tex("fallback"),
+                np.array([im is not None for im in images], dtype=np.bool_))
+
     @staticmethod
     def presence(params: SurfaceParams) -> np.ndarray:
         """Same as the module-level ``presence``."""
         return presence(params)
+
+
+# presence_hit inlines textures.lookup_row: its cache follows that file (renderer/kernels).
+from renderer.kernels import guard_cache, module_dispatchers  # noqa: E402
+
+guard_cache(__name__, module_dispatchers(globals()), ["renderer/textures.py"])

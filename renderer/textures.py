@@ -44,11 +44,13 @@ Memory: decoded images are kept as float32 (H, W, 4); lookups compute in float64
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from typing import Iterable, Optional
 
 import numpy as np
+from numba import njit
 
 from renderer.assets import local_file
 from renderer.description import TextureDesc
@@ -182,53 +184,89 @@ def _wrap_metadata(spec) -> tuple[str, str] | None:
     return parts[0], parts[1]
 
 
-def _wrap(i: np.ndarray, n: int, mode: str) -> tuple[np.ndarray, Optional[np.ndarray]]:
-    """Integer texel coordinates i (m,) -> (indices in [0, n), inside mask or None)."""
-    if mode == "repeat":
-        return np.mod(i, n), None
-    if mode == "clamp":
-        return np.clip(i, 0, n - 1), None
-    if mode == "mirror":
-        m = np.mod(i, 2 * n)
-        return np.where(m >= n, 2 * n - 1 - m, m), None
-    if mode == "black":
-        inside = (i >= 0) & (i < n)
-        return np.clip(i, 0, n - 1), inside
-    raise StageError(f"unknown texture wrap mode {mode!r}")
+@njit(cache=True, nogil=True, inline="always")
+def _wrap_row(i, n, mode):
+    """Integer texel coordinate i on an axis of n texels under wrap mode code ``mode``
+    (WRAP_MODES.index): (index in [0, n), 1.0 if a texel of the image else 0.0 ('black'))."""
+    if mode == 2:  # repeat
+        return i % n, 1.0
+    if mode == 3:  # mirror, period 2n
+        m = i % (2 * n)
+        return (2 * n - 1 - m if m >= n else m), 1.0
+    k = min(max(i, 0), n - 1)
+    if mode == 1:  # clamp
+        return k, 1.0
+    return k, (1.0 if 0 <= i < n else 0.0)  # black: a texel outside contributes 0
+
+
+@njit(cache=True, nogil=True)
+def texel_row(px, off, h, w, nc, s, t, ws, wt, c):
+    """Bilinear value (float64) of channel c at (s, t) of an (h, w, nc) image stored flat from
+    px[off] (row 0 = t bottom; texel centres at ((i + 0.5)/w, (j + 0.5)/h)), wrap codes ws, wt.
+    s, t must be finite. The one bilinear formula (``bilinear`` and compiled callers)."""
+    # Keep coordinates where float64 -> int64 conversion is exact and harmless.
+    x = min(max(s, -1.0e9), 1.0e9) * w - 0.5
+    y = min(max(t, -1.0e9), 1.0e9) * h - 0.5
+    x0f = math.floor(x)
+    y0f = math.floor(y)
+    fx = x - x0f
+    fy = y - y0f
+    x0 = int(x0f)
+    y0 = int(y0f)
+    ix0, in_x0 = _wrap_row(x0, w, ws)
+    ix1, in_x1 = _wrap_row(x0 + 1, w, ws)
+    iy0, in_y0 = _wrap_row(y0, h, wt)
+    iy1, in_y1 = _wrap_row(y0 + 1, h, wt)
+    wx0 = (1.0 - fx) * in_x0
+    wx1 = fx * in_x1
+    wy0 = (1.0 - fy) * in_y0
+    wy1 = fy * in_y1
+    out = float(px[off + (iy0 * w + ix0) * nc + c]) * (wx0 * wy0)
+    out += px[off + (iy0 * w + ix1) * nc + c] * (wx1 * wy0)
+    out += px[off + (iy1 * w + ix0) * nc + c] * (wx0 * wy1)
+    out += px[off + (iy1 * w + ix1) * nc + c] * (wx1 * wy1)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def lookup_row(px, off, h, w, nc, s, t, ws, wt, xf, c, scale, bias, fallback):
+    """UsdUVTexture output channel c at st = (s, t): the st transform xf (6,) (m00, m01, m10,
+    m11, t0, t1; empty for none), bilinear (texel_row), then texel * scale + bias; fallback
+    where st is not finite (TextureCache.lookup's rules, one row)."""
+    if not (math.isfinite(s) and math.isfinite(t)):
+        return fallback
+    if xf.shape[0] > 0:
+        s, t = xf[0] * s + xf[1] * t + xf[4], xf[2] * s + xf[3] * t + xf[5]
+    return texel_row(px, off, h, w, nc, s, t, ws, wt, c) * scale + bias
+
+
+@njit(cache=True, nogil=True)
+def _lookup_kernel(px, h, w, nc, st, ws, wt, xf, scale, bias, fallback, out):
+    for i in range(st.shape[0]):
+        for c in range(out.shape[1]):
+            out[i, c] = lookup_row(px, 0, h, w, nc, st[i, 0], st[i, 1], ws, wt, xf, c, scale[c], bias[c], fallback[c])
 
 
 def bilinear(pixels: np.ndarray, st: np.ndarray, wrap_s: str, wrap_t: str) -> np.ndarray:
     """Bilinear lookup of pixels (H, W, C) (row 0 = t bottom) at st (n, 2) -> (n, C) float64.
 
-    st must be finite. Texel centres are at ((i + 0.5)/W, (j + 0.5)/H).
+    st must be finite. Texel centres at ((i + 0.5)/W, (j + 0.5)/H) (texel_row).
     """
+    c = pixels.shape[2]
+    return _lookup(pixels, st, wrap_s, wrap_t, np.zeros(0), np.ones(c), np.zeros(c), np.zeros(c))
+
+
+def _lookup(pixels, st, wrap_s, wrap_t, xf, scale, bias, fallback) -> np.ndarray:
+    """lookup_row over st (n, 2) and every channel of pixels (H, W, C): (n, C) float64."""
+    for mode in (wrap_s, wrap_t):
+        if mode not in WRAP_MODES:
+            raise StageError(f"unknown texture wrap mode {mode!r}")
     h, w, c = pixels.shape
-    # Keep coordinates where float64 -> int64 conversion is exact and harmless.
-    x = np.clip(st[:, 0], -1.0e9, 1.0e9) * w - 0.5
-    y = np.clip(st[:, 1], -1.0e9, 1.0e9) * h - 0.5
-    x0f = np.floor(x)
-    y0f = np.floor(y)
-    fx = (x - x0f)[:, None]
-    fy = (y - y0f)[:, None]
-    x0 = x0f.astype(np.int64)
-    y0 = y0f.astype(np.int64)
-    ix0, in_x0 = _wrap(x0, w, wrap_s)
-    ix1, in_x1 = _wrap(x0 + 1, w, wrap_s)
-    iy0, in_y0 = _wrap(y0, h, wrap_t)
-    iy1, in_y1 = _wrap(y0 + 1, h, wrap_t)
-    wx0, wx1 = 1.0 - fx, fx
-    wy0, wy1 = 1.0 - fy, fy
-    # 'black': a texel outside the image contributes 0 (its weight is zeroed).
-    if in_x0 is not None:
-        wx0 = wx0 * in_x0[:, None]
-        wx1 = wx1 * in_x1[:, None]
-    if in_y0 is not None:
-        wy0 = wy0 * in_y0[:, None]
-        wy1 = wy1 * in_y1[:, None]
-    out = pixels[iy0, ix0].astype(np.float64) * (wx0 * wy0)
-    out += pixels[iy0, ix1] * (wx1 * wy0)
-    out += pixels[iy1, ix0] * (wx0 * wy1)
-    out += pixels[iy1, ix1] * (wx1 * wy1)
+    out = np.empty((st.shape[0], c))
+    f64 = np.float64
+    _lookup_kernel(np.ascontiguousarray(pixels).reshape(-1), h, w, c, np.ascontiguousarray(st, dtype=f64),
+                   WRAP_MODES.index(wrap_s), WRAP_MODES.index(wrap_t), np.ascontiguousarray(xf, dtype=f64),
+                   np.asarray(scale, dtype=f64), np.asarray(bias, dtype=f64), np.asarray(fallback, dtype=f64), out)
     return out
 
 
@@ -353,18 +391,8 @@ class TextureCache:
         px = self.image(tex)
         if px is None or n == 0:
             return np.broadcast_to(fallback, (n, 4)).copy()
-        good = np.isfinite(st).all(axis=1)
-        all_good = bool(good.all())
-        st_use = st if all_good else np.where(good[:, None], st, 0.0)
-        if tex.st_transform:  # UsdTransform2d chain (TextureDesc.st_transform)
-            m00, m01, m10, m11, t0, t1 = tex.st_transform
-            st_use = np.stack([m00 * st_use[:, 0] + m01 * st_use[:, 1] + t0,
-                               m10 * st_use[:, 0] + m11 * st_use[:, 1] + t1], axis=1)
-        texel = bilinear(px, st_use, *self.wrap_modes(tex))
-        out = texel * np.asarray(tex.scale, dtype=np.float64) + np.asarray(tex.bias, dtype=np.float64)
-        if not all_good:
-            out[~good] = fallback
-        return out
+        xf = np.asarray(tex.st_transform if tex.st_transform else (), dtype=np.float64)
+        return _lookup(px, st, *self.wrap_modes(tex), xf, tex.scale, tex.bias, fallback)
 
     def lookup_output(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
         """The connected output only: (n, 3) for 'rgb', (n, 1) for 'r' / 'g' / 'b' / 'a'."""

@@ -182,6 +182,8 @@ ROUTES: tuple[Route, ...] = (
     Route("instanced.usda", (), "auto estimator, instancing"),
     Route("textured.usda", (), "textured materials, meshes with primvars"),
     Route("textured.usda", (("fast_path", False),), "textured materials, general path"),
+    Route("plant/plant.usda", (), "normal maps and cut-outs, fast path (compiled cut-out walks)"),
+    Route("plant/plant.usda", (("fast_path", False),), "normal maps and cut-outs, general path"),
     Route("zup_dome.usda", (), "textured dome light, metal"),
     Route("zup_dome.usda", (("fast_path", False),), "textured dome light, general path"),
     Route("dof.usda", (), "thin-lens camera, distant and constant dome lights"),

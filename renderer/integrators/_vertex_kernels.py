@@ -183,14 +183,17 @@ def _w3(W, c, i):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
-def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, vertices, face_normal, normals,
-                  tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W):
+def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, bent_ns, vertices, face_normal,
+                  normals, tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W):
     """Rows lo..hi of a bounce into the block state W (NW * BLK,), at column r - lo: the surface
     interaction, shading frame, the material's wo terms, and the BSDF sample with its throughput
-    update and Russian roulette. U: the block's uniforms (_uniform_pass), row r at column r - lo. One branch-free loop that LLVM vectorises; a row that missed
+    update and Russian roulette. U: the block's uniforms (_uniform_pass), row r at column r - lo.
+    bent_ns: (hits, 3) the normal-mapped shading normal of each hit (row mat_row[r]), or empty
+    where no material bends normals. One branch-free loop that LLVM vectorises; a row that missed
     (or will not scatter) is computed on triangle 0 and ignored by vertex_kernel, which also
     checks the sample's pdf and throughput are finite."""
     per_hit = mat_row.shape[0] > 0
+    bent = bent_ns.shape[0] > 0
     for r in range(lo, hi):
         i = r - lo
         k = max(hit_prim[r], 0)
@@ -210,6 +213,10 @@ def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, ve
         px, py, pz = pp
         gx, gy, gz = gg
         sx, sy, sz = ss
+        if bent:
+            # Normal maps: the shading normal FastPath._surfaces bent (geometry.perturb_normals).
+            q = max(mat_row[r], 0)
+            sx, sy, sz = bent_ns[q, 0], bent_ns[q, 1], bent_ns[q, 2]
         # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
         sign = 1.0 if sz >= 0.0 else -1.0
         fa = -1.0 / (sign + sz)
@@ -323,11 +330,18 @@ def _uniform_pass(key, lo, hi, UB):
     n_u = UB.shape[0]
     for c in range(n_u):
         for r in range(lo, hi):
-            z = key + np.uint64(r * n_u + c + 1) * _GAMMA
-            z = (z ^ (z >> np.uint64(30))) * _MIX1
-            z = (z ^ (z >> np.uint64(27))) * _MIX2
-            z = z ^ (z >> np.uint64(31))
-            UB[c, r - lo] = float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+            UB[c, r - lo] = splitmix_u01(key, r * n_u + c + 1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def splitmix_u01(key, i):
+    """SplitMix64's output number i (>= 1) after state ``key`` (uint64) as a 53-bit double in
+    [0, 1): the counter-based stream of _uniform_pass, for any kernel that draws its own."""
+    z = key + np.uint64(i) * _GAMMA
+    z = (z ^ (z >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    z = z ^ (z >> np.uint64(31))
+    return float(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
@@ -373,7 +387,7 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
 
 @njit(cache=True, nogil=True)
 def vertex_kernel(
-    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, key, n_u, Pm, mat_row, emission, max_depth,
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, key, n_u, surf, max_depth,
     vertices, face_normal, normals, tri_mat, tri_mag,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
@@ -391,11 +405,12 @@ def vertex_kernel(
     (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
     a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights): the
-    rows' uniforms are _uniform_pass's stream for key, drawn block by block; Pm:
-    (materials, K) packed BSDF rows, or with mat_row (n,)
-    non-empty, per-hit rows: ray r's row is mat_row[r], and emission (hits, 3) (if not empty) is
-    the radiance its surface emits (added in full: emitting surfaces are reached by BSDF samples
-    only, as in the general path); light tables: the
+    rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
+    (Pm, mat_row, emission, bent_ns) of FastPath._surfaces: Pm (materials, K) packed BSDF rows,
+    or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
+    (if not empty) the radiance its surface emits (added in full: emitting surfaces are reached
+    by BSDF samples only, as in the general path) and bent_ns (hits, 3) (if not empty) its
+    normal-mapped shading normal; light tables: the
     RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
     the infinite lights (i_*: i_dome True for a DomeLight, with i_tex its image in the ImageSet
     im_* or -1 for a constant one and i_rot (3, 3) its local -> world rotation; else a
@@ -412,6 +427,7 @@ def vertex_kernel(
     then one scalar pass per row adds emission, takes the other lights' light half and writes the
     rays compactly.
     """
+    Pm, mat_row, emission, bent_ns = surf
     n_rect = center.shape[0]
     n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
     n_fin = n_rs + d_center.shape[0]
@@ -438,8 +454,8 @@ def vertex_kernel(
         hi = min(n, lo + BLK)
         _uniform_pass(key, lo, hi, UB)
         if surfaces:
-            _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, UB, depth, Pm, mat_row, vertices, face_normal,
-                          normals, tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W)
+            _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, UB, depth, Pm, mat_row, bent_ns, vertices,
+                          face_normal, normals, tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W)
             # Light samples only for a block where some row scatters (none at the last bounce).
             sampled = False
             for r in range(lo, hi):

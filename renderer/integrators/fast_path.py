@@ -13,9 +13,20 @@ A scene qualifies when it has
   the exhaustive light sampler (every light at every vertex, pmf 1);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
-* UsdPreviewSurface materials without normal maps or cutouts: one packed BSDF row per material,
-  or, where inputs are textured or surfaces emit, rows evaluated per hit before the kernel runs, no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
+* UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
+  surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
+  kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
+  each hit); no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
   maximum depth of at least 2.
+
+Cut-outs (opacity as presence, renderer/materials.py) as in the general path: a camera or
+extension ray that finds a surface absent (one draw against its presence) goes on from just
+behind it with its state unchanged; ``_through_cutouts`` walks only those rays on before the
+kernel sees the bounce's hits, and hands the kernel the first present surface with its distance
+from the ray's origin, so the lights the ray crosses on the way are counted as on one segment.
+Shadow rays see cut-outs as the general path's ``_visible_through_cutouts`` does. Both walks are
+compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has native Embree,
+else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
 One difference in the order of work, not in the estimate: at the last scattering vertex
@@ -29,15 +40,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import surface_interaction
+from ..geometry import dot, offset_origin, surface_interaction
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
+from . import _cutout_kernels as ck
 from . import _vertex_kernels as vk
 
 # The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
 FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
+CUTOUT_PASSES = ck.CUTOUT_PASSES
 
 
 def fast_path_reason(integ) -> str:
@@ -72,12 +85,10 @@ def fast_path_reason(integ) -> str:
         # this one would trace one per pixel for the BSDF half (module docstring).
         return "max depth <= 1"
     mats = scene.materials
-    if getattr(mats, "has_normal_map", False):
-        return "normal-mapped materials"
-    if mats.has_cutout:
-        return "cut-out materials (opacity)"
     if not mats.params_needed and mats.packed_bsdf() is None:
         return "no packed UsdPreviewSurface rows"
+    if mats.has_cutout and not mats.presence_compiled:
+        return "cut-outs fed by a primvar reader or a second st set"
     return ""
 
 
@@ -122,15 +133,20 @@ class FastPath:
         # Textured inputs or emission: the material is evaluated per hit (st needed) and the
         # kernel reads per-hit rows; otherwise one packed row per material.
         self.per_hit = bool(mats.params_needed)
+        self.cutouts = bool(mats.has_cutout)
         # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
         self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
         self.no_rows = np.zeros(0, dtype=np.int64)
         self.no_emission = np.zeros((0, 3))
+        self.no_normals = np.zeros((0, 3))
+        # The kernel's surface record (vertex_kernel's surf) where it is fixed for the render.
+        self.surf = (self.Pm, self.no_rows, self.no_emission, self.no_normals)
         g = scene.geometry
         f64 = np.float64
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
                     np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64),
                     scene.accel.tri_mag)
+        self.walk = self._cutout_walk() if self.cutouts else None
         from ..estimators import HEURISTICS
 
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
@@ -173,8 +189,9 @@ class FastPath:
             if not n:
                 break
             prim, b1, b2 = accel.intersect_prepared(o32, d32, t32)
-            Pm, mat_row, emission = self._surfaces(prim, b1, b2, S) if self.per_hit else (
-                self.Pm, self.no_rows, self.no_emission)
+            if self.cutouts:
+                self._through_cutouts(prim, b1, b2, t32, d32, S, rng)
+            surf = self._surfaces(prim, b1, b2, S) if self.per_hit else self.surf
             # The kernel draws its uniforms from this key (a counter-based stream, _uniform_pass).
             key = np.uint64(keys[bounce])
             n_path = np.empty(n, dtype=np.int64)
@@ -188,13 +205,13 @@ class FastPath:
             sh_t = np.empty(n * nl, dtype=np.float32)
             sh_path = np.empty(n * nl, dtype=np.int64)
             sh_c = np.empty((n * nl, 3))
-            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, vk.U_LIGHT + 2 * nl, Pm, mat_row, emission, max_depth,
+            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, vk.U_LIGHT + 2 * nl, surf, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])
             pairs += int(counts[2]) * nl
             if k_sh:
-                blocked = accel.occluded_prepared(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh])
+                blocked = self._blocked(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], rng)
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
             integ.rays.add(shadow=k_sh, extension=k_next)
             path, depth, S = n_path[:k_next], n_depth[:k_next], n_S[:k_next]
@@ -204,22 +221,103 @@ class FastPath:
         return L
 
     def _surfaces(self, prim, b1, b2, S):
-        """Per-hit material rows for textured or emissive materials: (P (h, K) packed
-        UsdPreviewSurface rows of the h hits, row (n,) int64 index into P per ray (-1: missed),
-        emission (h, 3) radiance, or (0, 3) when no material emits)."""
-        scene = self.integ.scene
+        """The kernel's per-hit surface record (vertex_kernel's surf) for textured, emissive,
+        normal-mapped or cut-out materials: (P (h, K) packed UsdPreviewSurface rows of the h
+        hits, row (n,) int64 index into P per ray (-1: missed), emission (h, 3) radiance or (0, 3)
+        when no material emits, bent_ns (h, 3) the hits' shading normals or (0, 3) when no
+        material is normal-mapped)."""
+        integ = self.integ
+        scene = integ.scene
         g = scene.geometry
+        mats = scene.materials
         row = np.full(prim.shape[0], -1, dtype=np.int64)
         hit = np.nonzero(prim >= 0)[0]
         row[hit] = np.arange(hit.size)
         k = prim[hit].astype(np.int64)
-        # Only st is wanted here; the kernel recomputes p and the normals itself (~18 ns a hit),
-        # which keeps its per-row state small.
-        _, _, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, k, b1[hit], b2[hit],
-                                          np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
+        # st, and the normals where maps bend them; the kernel recomputes p and the normals
+        # itself (~18 ns a hit), which keeps its per-row state small.
+        d = np.ascontiguousarray(S[hit, vk.D:vk.D + 3])
+        _, ng, ns, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, k, b1[hit], b2[hit], d)
         mat = g.material[k]
-        params = scene.materials.evaluate(mat, st)
-        P = np.ascontiguousarray(scene.materials.bsdf(mat, params).packed)
-        emission = (np.ascontiguousarray(params.emission, dtype=np.float64) if scene.materials.has_emission
+        params = mats.evaluate(mat, st)
+        P = np.ascontiguousarray(mats.bsdf(mat, params).packed)
+        emission = (np.ascontiguousarray(params.emission, dtype=np.float64) if mats.has_emission
                     else self.no_emission)
-        return P, row, emission
+        bent_ns = (np.ascontiguousarray(integ.bent_normals(k, mat, ns, ng, -d, params)) if mats.has_normal_map
+                   else self.no_normals)
+        return P, row, emission, bent_ns
+
+    def _cutout_walk(self):
+        """The compiled cut-out walks' scene record (_cutout_kernels: fns, geo, cut, tab, eps),
+        or None where accel.py traces through embreex only (the numpy loops serve then)."""
+        scene = self.integ.scene
+        try:
+            h = scene.accel.native_handles()
+        except RuntimeError:
+            return None
+        vertices, face_normal, normals, tri_mat, tri_mag = self.geo
+        mats = scene.materials
+        return ((h.scene, h.intersect1, h.occluded1),
+                (vertices, face_normal, normals, np.ascontiguousarray(scene.geometry.st, dtype=np.float64), tri_mat,
+                 tri_mag),
+                np.ascontiguousarray(mats.cutout_materials), mats.presence_table(), scene.accel.epsilon_terms())
+
+    def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng) -> None:
+        """Camera and extension rays pass through absent cut-out surfaces, as in the general
+        path (PathIntegrator.trace): each hit on a material that may be cut out is present with
+        its presence (materials.presence_at) against one uniform; a ray whose surface is absent
+        is traced on from just behind it, until a present surface or a miss (at most
+        CUTOUT_PASSES surfaces). Updates in place the closest hits prim, b1, b2 (n,) and the hit
+        distances t32 (n,) float32, measured from the ray's origin S[:, O] along d32 (n, 3)."""
+        if self.walk is None:
+            self._through_cutouts_numpy(prim, b1, b2, t32, d32, S, rng)
+            return
+        fns, geo, cut, tab, eps = self.walk
+        key = np.uint64(rng.integers(0, 2 ** 63))
+        traced = ck.through_cutouts_kernel(fns, key, S, d32, prim, b1, b2, t32, geo, cut, tab, eps)
+        self.integ.rays.add(extension=traced)
+
+    def _through_cutouts_numpy(self, prim, b1, b2, t32, d32, S, rng) -> None:
+        """_through_cutouts without native Embree calls: numpy passes over the rays still on
+        absent surfaces, each re-traced as one batch."""
+        integ = self.integ
+        scene = integ.scene
+        g, mats, accel = scene.geometry, scene.materials, scene.accel
+        rows = np.nonzero(prim >= 0)[0]
+        for _ in range(CUTOUT_PASSES):
+            rows = rows[mats.cutout_materials[g.material[prim[rows]]]]
+            if not rows.size:
+                return
+            k = prim[rows].astype(np.int64)
+            d = np.ascontiguousarray(S[rows, vk.D:vk.D + 3])
+            p, ng, _, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, k, b1[rows], b2[rows], d)
+            through = rng.random(rows.size) >= mats.presence_at(g.material[k], st)
+            rows, k, p, ng, d = rows[through], k[through], p[through], ng[through], d[through]
+            if not rows.size:
+                return
+            # On from just behind the surface (ng faces the ray, so the offset goes past it); the
+            # distances stay measured from the ray's origin, where the kernel starts its light
+            # crossings and far clip.
+            o_next = offset_origin(p, ng, d, accel.ray_epsilon(p, k))
+            t0 = dot(o_next - S[rows, vk.O:vk.O + 3], d)
+            t_far = np.minimum(np.maximum(S[rows, vk.TMAX] - t0, 0.0), 1e37).astype(np.float32)
+            hp, hu, hv = accel.intersect_prepared(o_next.astype(np.float32), np.ascontiguousarray(d32[rows]), t_far)
+            integ.rays.add(extension=rows.size)
+            prim[rows], b1[rows], b2[rows] = hp, hu, hv
+            t32[rows] = (t0 + t_far).astype(np.float32)
+            rows = rows[hp >= 0]
+
+    def _blocked(self, sh_o, sh_d, sh_t, rng) -> np.ndarray:
+        """(k,) bool, True where the shadow rays sh_o, sh_d (k, 3), sh_t (k,) float32 (as the
+        kernel wrote them, origins offset) are blocked; through cut-outs as the general path's
+        PathIntegrator._visible_through_cutouts sees them."""
+        if not self.cutouts:
+            return self.integ.scene.accel.occluded_prepared(sh_o, sh_d, sh_t)
+        if self.walk is not None:
+            fns, geo, cut, tab, eps = self.walk
+            blocked = np.empty(sh_o.shape[0], dtype=bool)
+            ck.shadow_cutouts_kernel(fns, np.uint64(rng.integers(0, 2 ** 63)), sh_o, sh_d, sh_t, geo, cut, tab, eps,
+                                     blocked)
+            return blocked
+        return ~self.integ._visible_through_cutouts(sh_o.astype(np.float64), sh_d.astype(np.float64),
+                                                    sh_t.astype(np.float64), rng)

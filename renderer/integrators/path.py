@@ -555,13 +555,21 @@ class PathIntegrator:
         return Interaction(p=p, ng=ng, ns=ns, wo=-d, st=st, mat=g.material[prim], mesh=g.mesh[prim], prim=prim)
 
     def _apply_normal_maps(self, si: Interaction, prim: np.ndarray, params) -> None:
-        """Replace si.ns by the normal-mapped shading normals (geometry.perturb_normals) on rows
-        of normal-mapped materials with a UV frame; prim: (n,) the rows' triangles."""
+        """Replace si.ns by the normal-mapped shading normals (bent_normals); prim: (n,) the
+        rows' triangles."""
+        si.ns = self.bent_normals(prim, si.mat, si.ns, si.ng, si.wo, params)
+
+    def bent_normals(self, prim, mat, ns, ng, wo, params) -> np.ndarray:
+        """The shading normals (n, 3) of n hits on triangles prim (n,) of materials mat (n,), with
+        interpolated normals ns, geometric normals ng and directions to the viewer wo (n, 3),
+        bent by the normal maps of params (materials.evaluate at the hits) on rows of
+        normal-mapped materials with a UV frame (geometry.perturb_normals); ns elsewhere. The
+        one place both integrators (this one and fast_path.FastPath) bend normals."""
         g, mats = self.scene.geometry, self.scene.materials
         if g.tangent is None:  # no triangle of a normal-mapped material
-            return
-        si.ns = perturb_normals(si.ns, si.ng, si.wo, params.normal, mats.normal_mapped[si.mat], prim,
-                                g.tangent, g.handed, g.face_normal)
+            return ns
+        return perturb_normals(ns, ng, wo, params.normal, mats.normal_mapped[mat], prim, g.tangent, g.handed,
+                               g.face_normal)
 
     def _add_light_hits(self, L, em: "_Emission", o, t_limit, seen) -> None:
         """Add emission of every finite light crossed before t_limit by the rows in ``seen``
@@ -706,7 +714,9 @@ class PathIntegrator:
         visible = np.ones(o.shape[0], dtype=bool)
         o = np.array(o, dtype=np.float64)
         t_left = np.array(t_max, dtype=np.float64)
-        active = np.arange(o.shape[0])
+        # Rays an any-hit query finds clear are visible whatever the presence draws: only the
+        # others walk their closest hits (most shadow rays in an open scene are clear).
+        active = np.nonzero(accel.occluded(o, wi, t_left))[0]
         for _ in range(64):
             if not active.size:
                 break

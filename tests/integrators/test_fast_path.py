@@ -154,11 +154,11 @@ def _block_z(a, b, blocks=4):
     return z((slice(None), slice(None))), zs
 
 
-def _pair(stage, max_depth, spp, rr_depth=3):
+def _pair(stage, max_depth, spp, rr_depth=3, **opt):
     # Filter importance sampling: _block_z sums per-pixel variances, right only for pixels whose
-    # errors are independent (a splatting film correlates neighbours).
+    # errors are independent (a splatting film correlates neighbours). opt: more RenderOptions.
     common = dict(max_depth=max_depth, rr_depth=rr_depth, threads=1, estimator={"": "mis"}, spp=spp,
-                  pixel_filter_mode="importance")
+                  pixel_filter_mode="importance", **opt)
     fast = render(str(stage), RenderOptions(seed=1, **common))
     # (Seed 2 gave the general path a firefly-heavy block on the infinite-light room once the camera
     # stopped drawing unused numbers: 4.3 sigma against the general path itself at other seeds.)
@@ -203,7 +203,6 @@ def test_fast_path_on_the_cornell_box():
 
 @pytest.mark.parametrize("kw,opt,reason", [
     ({"portal": True}, {}, "dome portals"),
-    ({"cutout": True}, {}, "cut-out materials (opacity)"),
     ({}, {"max_depth": 1}, "max depth <= 1"),
     ({}, {"emitter_samples": 2}, "emitter samples > 1"),
     ({}, {"light_sampler": "power"}, "a stochastic light sampler"),

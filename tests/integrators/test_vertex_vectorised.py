@@ -34,7 +34,7 @@ def _surface_args(n=8):
     Pm[0, vk.ALPHA] = 0.5
     verts = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
     return (0, n, np.zeros(n, np.int32), np.full(n, 0.25, np.float32), np.full(n, 0.25, np.float32), S,
-            rng.random((6, n)), np.zeros(n, np.int64), Pm, np.zeros(0, np.int64), verts, np.array([[0.0, 0.0, 1.0]]),
+            rng.random((6, n)), np.zeros(n, np.int64), Pm, np.zeros(0, np.int64), np.zeros((0, 3)), verts, np.array([[0.0, 0.0, 1.0]]),
             np.repeat(np.array([[[0.0, 0.0, 1.0]]]), 3, axis=1), np.zeros(1, np.int64), np.ones(1), 3, 1e-6, 1e-3,
             1e-9, np.empty(vk.NW * vk.BLK))
 

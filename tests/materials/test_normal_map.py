@@ -238,27 +238,83 @@ def test_normal_map_without_st_warns_and_renders_unperturbed(tmp_path):
     assert np.array_equal(plain.film.mean(), mapped.film.mean())
 
 
-# ---- 5. the fast path does not serve normal maps -------------------------------------------------
-def test_fast_path_refuses_normal_mapped_materials(tmp_path):
-    def stage(path, mapped):
-        st = new_stage(path)
-        add_camera(st, pos=(0, 1.5, 5.0))
-        add_settings(st, (8, 8))
-        floor = _floor(st, "plain")
-        look = preview_material(st, "/World/Looks/Grey", roughness=0.5)
-        if mapped:
-            _add_normal_map(st, "/World/Looks/Grey", _write_exr(tmp_path / "flat.exr", (0, 0, 1)), encoded=False)
-        bind(floor.GetPrim(), look)
-        light = UsdLux.RectLight.Define(st, "/World/Light")
-        light.CreateIntensityAttr(5.0)
-        UsdGeom.Xformable(light).AddTranslateOp().Set(Gf.Vec3d(0, 2, 0))
-        UsdGeom.Xformable(light).AddRotateXOp().Set(-90.0)
-        st.GetRootLayer().Save()
-        return str(path)
+# ---- 5. the fast path serves normal maps (tests/integrators/test_fast_path_materials.py) ---------
+def test_fast_path_serves_normal_mapped_materials(tmp_path):
+    path = _sun_stage(tmp_path / "bent.usda", SUN_3, nmap=_tilt(30, "u"), tmp_path=tmp_path)
+    fast = render(path, RenderOptions(spp=4, max_depth=2, threads=1, seed=3, estimator={"": "mis"}))
+    assert fast.stats["fast_path"] == "on"
+    # One bounce off a lone floor under a delta sun: the closed form of the bent normal.
+    np.testing.assert_allclose(fast.film.mean()[..., 0], _closed_form(_expected_world("plain", _tilt(30, "u")), SUN_3),
+                               rtol=2e-3)
 
-    opt = RenderOptions(spp=1, max_depth=3, threads=1, estimator={"": "mis"})
-    assert render(stage(tmp_path / "plain.usda", False), opt).stats["fast_path"] == "on"
-    assert render(stage(tmp_path / "mapped.usda", True), opt).stats["fast_path"] == "normal-mapped materials"
+
+# ---- 6. oblique views: the bent normal is corrected continuously (issue 19, item 9) -------------
+def test_corrected_normal_is_continuous_and_mirrors_above_the_surface():
+    """A normal tilted 30, 60 or 80 degrees seen from every elevation on both sides: the shading
+    normal perturb_normals gives faces the viewer, mirrors wo at least min(0.01, 0.9 wo.ng)
+    above the surface, moves by at most ~ the step of wo between neighbouring views (replacing it
+    by ng where it faced away jumped by the whole tilt), and is the map's normal itself wherever
+    that already mirrors wo high enough."""
+    fn = np.array([[0.0, 0.0, 1.0]])
+    tangent, handed = uv_tangents(np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]]),
+                                  np.array([[[0.0, 0], [1, 0], [0, 1]]]))
+    # From grazing on the +u side over the top to grazing on the -u side.
+    phi = np.radians(np.linspace(0.5, 179.5, 3000))
+    wo = np.stack([np.cos(phi), np.zeros_like(phi), np.sin(phi)], axis=1)
+    m = wo.shape[0]
+    step = np.max(np.linalg.norm(np.diff(wo, axis=0), axis=1))
+    for tilt in (30, 60, 80):
+        t = np.radians(tilt)
+        nmap = np.tile([np.sin(t), 0.0, np.cos(t)], (m, 1))
+        n = perturb_normals(np.tile(fn, (m, 1)), np.tile(fn, (m, 1)), wo, nmap, np.ones(m, bool),
+                            np.zeros(m, np.int64), tangent, handed, fn)
+        np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+        cos_o = (n * wo).sum(1)
+        assert np.all(cos_o > 0.0)
+        r_z = 2.0 * cos_o * n[:, 2] - wo[:, 2]
+        assert np.all(r_z >= np.minimum(0.01, 0.9 * wo[:, 2]) - 1e-12)
+        assert np.max(np.linalg.norm(np.diff(n, axis=0), axis=1)) < 2.0 * step
+        r_m = 2.0 * (nmap * wo).sum(1) * nmap[:, 2] - wo[:, 2]
+        keep = r_m >= 0.01
+        assert keep.any() and not keep.all()
+        np.testing.assert_allclose(n[keep], nmap[keep], atol=1e-12)
+
+
+def test_rim_has_no_jump_where_the_bent_normal_turns_away(tmp_path):
+    """A floor whose map tilts every normal 60 degrees toward +u, seen from the -u side at
+    elevations 48-68 degrees (the bent normal turns away from the viewer at 60), under a delta sun
+    from that side at 40 degrees, one bounce: each pixel is E f cos of its corrected normal, and
+    the image's rows change smoothly. Snapping the normal to the geometric one where it turned
+    away lit the rows below 60 degrees at E f sin(40) and left the others black: a bright rim."""
+    stage = new_stage(tmp_path / "rim.usda")
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    cam.CreateFocalLengthAttr(100.0)
+    cam.CreateHorizontalApertureAttr(6.0)  # the 8 x 48 image's aspect: 20 degrees tall
+    cam.CreateVerticalApertureAttr(36.0)
+    cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
+    xf = UsdGeom.Xformable(cam)
+    xf.AddTranslateOp().Set(Gf.Vec3d(*(CENTER + (-0.375, 0.6, 0.0))))
+    xf.AddRotateYOp().Set(-90.0)
+    xf.AddRotateXOp().Set(-58.0)
+    add_settings(stage, (8, 48))
+    floor = _floor(stage, "plain", center=CENTER)
+    look = preview_material(stage, "/World/Looks/Grey", diffuse=(ALBEDO,) * 3, roughness=1.0)
+    _add_normal_map(stage, "/World/Looks/Grey", _write_exr(tmp_path / "n.exr", (np.array(_tilt(60, "u")) + 1) / 2))
+    bind(floor.GetPrim(), look)
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateAngleAttr(0.0)
+    sun.CreateIntensityAttr(E_SUN)
+    # Local -Z shines along (cos 40, -sin 40, 0): from the -x side, 40 degrees up.
+    UsdGeom.Xformable(sun).AddRotateYOp().Set(-90.0)
+    UsdGeom.Xformable(sun).AddRotateXOp().Set(-40.0)
+    stage.GetRootLayer().Save()
+    img = _render_sun(str(tmp_path / "rim.usda")).film.mean()[..., 0]
+    rows = img[:, 3:5].mean(axis=1)
+    scale = E_SUN * ALBEDO / np.pi
+    assert rows.max() > 0.2 * scale  # lit: the corrected normals lean toward the sun
+    assert np.all(rows <= scale * (1 + 1e-6))
+    # 48 rows over 20 degrees: a smooth profile moves a few percent of E f a row.
+    assert np.max(np.abs(np.diff(rows))) < 0.1 * scale, np.round(rows / scale, 3)
 
 
 # ---- reader and kernel details ------------------------------------------------------------------
