@@ -413,7 +413,8 @@ def write_exr(path: str, film: Film, metadata: dict | None = None, **kw) -> None
 
 
 def write_png(path: str, film_or_image, **kw) -> None:
-    """8-bit sRGB preview of the full image (display only: values are clamped to [0, 1])."""
+    """Display-referred preview of the full image, by extension (8-bit PNG/JPEG, 16-bit TIFF;
+    sRGB or the $OCIO display, output.display_encode; values clamped to [0, 1])."""
     img = film_or_image.image() if isinstance(film_or_image, Film) else np.asarray(film_or_image)
     write_image(path, img, **kw)
 

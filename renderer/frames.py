@@ -69,7 +69,7 @@ def frame_name(template: str, frame: float) -> str:
         if m.group(0) == "$FF":
             return f"{frame:g}"
         width = len(m.group(3)) if m.group(3) else int(m.group(1) or m.group(2) or 0)
-        n = int(round(frame))
+        n = math.floor(frame + 0.5)   # half up (Python's round() would send 2.5 to 2)
         return f"-{abs(n):0{max(width - 1, 0)}d}" if n < 0 else f"{n:0{width}d}"
 
     return _TOKEN.sub(sub, template)

@@ -32,6 +32,7 @@ def test_frame_specs_and_names():
     assert frame_name("a.####.exr", 3) == "a.0003.exr" and frame_name("a.#.exr", 12) == "a.12.exr"
     assert frame_name("a.$FF.exr", 12.5) == "a.12.5.exr" and frame_name("a.$F4.exr", -3) == "a.-003.exr"
     assert frame_name("plain.exr", 3) == "plain.exr"
+    assert [frame_name("$F", f) for f in (1.5, 2.5, -1.5)] == ["2", "3", "-1"]  # half up
 
 
 def test_range_matches_separate_frames_and_names_them(tmp_path):
