@@ -16,7 +16,9 @@ reader does (``Usd.Stage.Open``, everything loaded) and lists every asset path t
 * **asset-valued attributes** (``asset`` and ``asset[]``) on every prim, prototypes included,
   at the default time and at every time sample; and ``string``/``token`` ``inputs:*`` and
   ``illum:dome:irradiance`` values that hold an absolute path, because the reader takes a
-  plain string that names an existing file as that file (``ReadContext.resolve_asset``).
+  plain string that names an existing file as that file (``ReadContext.resolve_asset``);
+* **string primvars** (``string``/``token``, arrays too), anchored to their layer: a
+  UsdPrimvarReader_string can make one a texture's file (renderer/usd/materials.py).
 
 A path is judged by where it points, never by whether the file is there, so the answer gives
 away nothing about files outside the roots. Resolved paths are followed through symlinks
@@ -46,6 +48,7 @@ _STRING_ASSET_PREFIXES = ("inputs:",)
 _STRING_ASSET_NAMES = ("illum:dome:irradiance",)
 _ASSET_TYPES = (Sdf.ValueTypeNames.Asset, Sdf.ValueTypeNames.AssetArray)
 _STRING_TYPES = (Sdf.ValueTypeNames.String, Sdf.ValueTypeNames.Token)
+_STRING_PRIMVAR_TYPES = _STRING_TYPES + (Sdf.ValueTypeNames.StringArray, Sdf.ValueTypeNames.TokenArray)
 
 
 @dataclass(frozen=True)
@@ -209,6 +212,8 @@ class _Scan:
                         name = attr.GetName()
                         if name.startswith(_STRING_ASSET_PREFIXES) or name in _STRING_ASSET_NAMES:
                             self.string_attribute(prim, attr)
+                    if attr.GetName().startswith("primvars:") and type_name in _STRING_PRIMVAR_TYPES:
+                        self.string_primvar(prim, attr)
 
     def _values(self, attr: Usd.Attribute):
         yield attr.Get(Usd.TimeCode.Default())
@@ -251,6 +256,22 @@ class _Scan:
             if isinstance(value, str) and os.path.isabs(value):
                 layer, prim_path, _anchors = self._where(prim, attr)
                 self.judge(layer, prim_path, attr.GetName(), value, value)
+
+    def string_primvar(self, prim: Usd.Prim, attr: Usd.Attribute) -> None:
+        """A string primvar may name a texture file (UsdPrimvarReader_string feeding a
+        UsdUVTexture's file: the reader anchors it to the primvar's layer), so every value is
+        judged like an asset path."""
+        where = None
+        for value in self._values(attr):
+            items = [value] if isinstance(value, str) else list(value or [])
+            for text in items:
+                if not isinstance(text, str) or not text:
+                    continue
+                if where is None:
+                    where = self._where(prim, attr)
+                layer, prim_path, anchors = where
+                for anchor in anchors or [""]:
+                    self.judge(layer, prim_path, attr.GetName(), text, _target(text, anchor))
 
     def clips(self, prim: Usd.Prim) -> None:
         api = Usd.ClipsAPI(prim)

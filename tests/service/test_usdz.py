@@ -3,12 +3,10 @@ root, and the missing-asset policy is chosen per job (settings.strict)."""
 
 from __future__ import annotations
 
-import zipfile
-
 import numpy as np
 from pxr import Sdf, UsdUtils
 
-from tests.usd.test_usdz import _textured_stage
+from tests.usd.test_usdz import _textured_stage, package_without_albedo
 
 from .conftest import TINY, read_exr_bytes, wait_job
 
@@ -44,15 +42,7 @@ def test_uploaded_usdz_renders_like_the_unpacked_stage(client, stage_root, tmp_p
 
 
 def test_strict_is_per_job(client, tmp_path):
-    src = _textured_stage(tmp_path / "src")
-    pkg = str(tmp_path / "full.usdz")
-    assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(src), pkg)
-    broken = str(tmp_path / "broken.usdz")
-    with zipfile.ZipFile(pkg) as zin, zipfile.ZipFile(broken, "w", zipfile.ZIP_STORED) as zout:
-        for item in zin.infolist():
-            if not item.filename.endswith("albedo.png"):
-                zout.writestr(item, zin.read(item.filename))
-    upload = _upload(client, broken, "broken.usdz")
+    upload = _upload(client, package_without_albedo(tmp_path), "broken.usdz")
     ok = client.post("/jobs", json={"upload": upload, "settings": dict(SETTINGS)}).json()
     strict = client.post("/jobs", json={"upload": upload, "settings": {**SETTINGS, "strict": True}}).json()
     assert wait_job(client, ok["id"], timeout=180)["state"] == "succeeded"

@@ -73,6 +73,11 @@ def _escapes(path, root):
     ("", TEX_SHADER.format(decl='string inputs:file = "{outside}/secret.png"'),
      ("/Tex", "inputs:file", "{outside}/secret.png")),
     ("", 'def Material "M" {\n token inputs:tex = "/etc/passwd"\n}', ("/M", "inputs:tex", "/etc/passwd")),
+    # a string primvar can become a texture's file (UsdPrimvarReader_string), anchored to its layer
+    ("", 'def Mesh "G" {\n string primvars:texFile = "../../outside/secret.png"\n}',
+     ("/G", "primvars:texFile", "../../outside/secret.png")),
+    ("", 'def Mesh "G" {\n string[] primvars:maps = ["../ok.png", "{outside}/secret.png"]\n}',
+     ("/G", "primvars:maps", "{outside}/secret.png")),
 ])
 def test_escapes_are_found_and_located(tree, header, body, expected):
     root, outside = tree

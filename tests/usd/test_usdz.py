@@ -122,19 +122,24 @@ def test_packaged_stage_renders_as_unpacked(pair):
     assert np.array_equal(a, b)
 
 
-def test_missing_file_inside_a_package_uses_the_fallback(tmp_path):
+def package_without_albedo(tmp_path) -> str:
+    """The textured stage packaged, then repackaged with its albedo texture left out of the zip
+    (the material's path still points inside the package). Returns the broken package."""
+    import zipfile
+
     src = _textured_stage(tmp_path / "src")
     pkg = str(tmp_path / "scene.usdz")
     assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(src), pkg)
-    # Repackage with the texture left out of the zip (the path still points inside the package).
-    import zipfile
-
     broken = str(tmp_path / "broken.usdz")
     with zipfile.ZipFile(pkg) as zin, zipfile.ZipFile(broken, "w", zipfile.ZIP_STORED) as zout:
         for item in zin.infolist():
             if not item.filename.endswith("albedo.png"):
                 zout.writestr(item, zin.read(item.filename))
-    desc = load_stage(broken)
+    return broken
+
+
+def test_missing_file_inside_a_package_uses_the_fallback(tmp_path):
+    desc = load_stage(package_without_albedo(tmp_path))
     diffuse = desc.materials[0].diffuse_color
     assert diffuse.texture is None and diffuse.value == (1.0, 0.0, 1.0)
     hits = [w for w in desc.warnings if "albedo.png" in w]
