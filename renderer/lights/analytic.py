@@ -124,7 +124,9 @@ def _gl_tables():
 
 _GL_X, _GL_W, _GL_X01, _GL_W01 = _gl_tables()
 
-_jit = njit(cache=True, nogil=True)
+# error_model="numpy": IEEE results instead of ZeroDivisionError checks (no exception exits in
+# the callers' loops; the formulas guard their divisions themselves), as in renderer/kernels.
+_jit = njit(cache=True, nogil=True, error_model="numpy")
 
 
 # ----------------------------------------------------------------------------------------
@@ -791,6 +793,13 @@ def disk_F(p, nrm, center, e_n, radius, far_ratio=FAR_RATIO, kappa_max=KAPPA_MAX
 # ellipse (a disk under non-uniform scale or shear)
 # ----------------------------------------------------------------------------------------
 @_jit
+def _repulsion(zi, zj, other):
+    """1/(zi − zj) for another, distinct root estimate zj, else 0."""
+    d = zi - zj
+    return 1.0 / d if other and d != 0.0 else 0j
+
+
+@_jit
 def _quartic_roots(c4, c3, c2, c1, c0):
     """The four complex roots of c4 z⁴ + c3 z³ + c2 z² + c1 z + c0 (c4 ≠ 0) by the Aberth-Ehrlich
     iteration (simultaneous Newton with repulsion), from four points on the circle of radius
@@ -811,15 +820,8 @@ def _quartic_roots(c4, c3, c2, c1, c0):
             dp = ((4.0 * zi + 3.0 * b3) * zi + 2.0 * b2) * zi + b1
             if pz == 0.0:
                 continue
-            rep = 0j
-            if i != 0:
-                rep += 1.0 / (zi - z0)
-            if i != 1:
-                rep += 1.0 / (zi - z1)
-            if i != 2:
-                rep += 1.0 / (zi - z2)
-            if i != 3:
-                rep += 1.0 / (zi - z3)
+            rep = _repulsion(zi, z0, i != 0) + _repulsion(zi, z1, i != 1) + _repulsion(zi, z2, i != 2) \
+                + _repulsion(zi, z3, i != 3)
             ratio = pz / dp if dp != 0.0 else 1e-3 * (1.0 + abs(zi)) + 0j
             w = ratio / (1.0 - ratio * rep)
             zi = zi - w
@@ -839,7 +841,10 @@ def _quartic_roots(c4, c3, c2, c1, c0):
 
 @_jit
 def _pole(z):
-    """(Re t, |Im t|) of t = arg z − i ln|z|."""
+    """(Re t, |Im t|) of t = arg z − i ln|z| ((0, π), i.e. no breakpoints, if the root
+    iteration failed)."""
+    if not (math.isfinite(z.real) and math.isfinite(z.imag)):
+        return 0.0, _PI
     return math.atan2(z.imag, z.real), abs(math.log(max(abs(z), 1e-300)))
 
 

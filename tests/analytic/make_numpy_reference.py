@@ -70,7 +70,7 @@ def planar_rows(kind, rng, n, k=4):
                             int(rng.integers(N_PERMS)), rng.random(N_UNIFORMS), k=k)
         Q, T = _motion(rng, cfg.scale)
         p, nrm, en = cfg.world()
-        row = dict(p=Q @ p + T, nrm=Q @ nrm, en=Q @ en, scale=cfg.scale)
+        row = dict(p=Q @ p + T, nrm=Q @ nrm, en=Q @ en, scale=cfg.scale, mode=f"{cfg.p_mode}/{cfg.n_mode}")
         if kind == "rect":
             c, ex, ey = cfg.rect_world()
             row.update(c=Q @ c + T, ex=Q @ ex, ey=Q @ ey)
@@ -108,11 +108,12 @@ def main():
     for _ in range(N_PER_KIND):
         cfg = sphere_config(int(rng.integers(len(S_MODES))), rng.random(N_UNIFORMS))
         Q, T = _motion(rng, cfg.r)
-        rows.append((T, Q @ cfg.nrm, Q @ cfg.center + T, cfg.r))
+        rows.append((T, Q @ cfg.nrm, Q @ cfg.center + T, cfg.r, cfg.mode))
     data["sphere_p"] = np.array([r[0] for r in rows])
     data["sphere_nrm"] = np.array([r[1] for r in rows])
     data["sphere_c"] = np.array([r[2] for r in rows])
     data["sphere_R"] = np.array([r[3] for r in rows])
+    data["sphere_mode"] = np.array([r[4] for r in rows])
     data["sphere_G"] = old.projected_solid_angle_sphere(data["sphere_p"], data["sphere_nrm"], data["sphere_c"],
                                                         data["sphere_R"])
     OUT.parent.mkdir(parents=True, exist_ok=True)
