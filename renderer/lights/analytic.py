@@ -211,25 +211,26 @@ def _quad_order(r):
 # straight edges (shared by polygons and the disk's / ellipse's horizon chord)
 # ----------------------------------------------------------------------------------------
 @_jit
-def _edge_terms(delta, sa, L, h, c, m_n):
+def _edge_terms(delta, sa, L, h, c, m_n, diff_form):
     """Green's-theorem flux of one straight edge, in the in-plane frame of the foot point q.
 
     delta: signed distance of the edge's line from q along the outward normal n; sa: tangential
     coordinate of the edge start relative to the foot of the perpendicular from q (the end is
     sa + L); L: edge length (≤ 0 -> contributes 0); h: height of p above the plane (> 0);
     c = -nrm·N; m_n = m·n (lengths in any one unit; the terms are dimensionless).
-    Returns (linear, radial_direct, radial_minus_h0): the h-factored linear flux
-    -h (m·n) Δ/(2w), the radial flux c δ Δ/(2w), and the radial flux minus its h = 0 value
-    c·sign(δ)·Δ0/2 (evaluated without cancellation; sign(δ)·Δ0 is the signed in-plane angle the
-    edge subtends at q, and these sum to q's winding angle, 0 when q is outside the region).
+    Returns (linear, radial): the h-factored linear flux -h (m·n) Δ/(2w), and the radial flux
+    c δ Δ/(2w), or with diff_form that radial flux minus its h = 0 value c·sign(δ)·Δ0/2
+    (evaluated without cancellation; sign(δ)·Δ0 is the signed in-plane angle the edge subtends
+    at q, and these sum to q's winding angle, 0 when q is outside the region).
     """
     if not L > 0.0:
-        return 0.0, 0.0, 0.0
+        return 0.0, 0.0
     sb = sa + L
     w = math.hypot(delta, h)
     dw = math.atan2(w * L, w * w + sa * sb)          # angle subtended by the edge at p
     lin = -0.5 * h * m_n * dw / w
-    rad = 0.5 * c * delta * dw / w
+    if not diff_form:
+        return lin, 0.5 * c * delta * dw / w
     # Difference from h = 0:  δΔ_w/w − sign(δ)Δ_0
     #   = (δ/w − sδ)Δ_w + sδ(Δ_w − Δ_0),   δ/w − sδ = −sδ h²/(w(w+|δ|)),
     #   Δ_w − Δ_0 = T(s_b) − T(s_a),  T(s) = atan(s/w) − atan(s/|δ|) = atan2(−s h²/(w+|δ|), w|δ| + s²).
@@ -240,7 +241,7 @@ def _edge_terms(delta, sa, L, h, c, m_n):
     t1 = -sd * h2 / (w * wpd) * dw
     Tb = math.atan2(-sb * h2 / wpd, w * ad + sb * sb)
     Ta = math.atan2(-sa * h2 / wpd, w * ad + sa * sa)
-    return lin, rad, 0.5 * c * (t1 + sd * (Tb - Ta))
+    return lin, 0.5 * c * (t1 + sd * (Tb - Ta))
 
 
 @_jit
@@ -324,38 +325,33 @@ def _clip_count(V, R, o, has_rel, p, t1, t2, nrm, z_o, near):
 
 @_jit
 def _near_edge(ax, ay, a_x, bx, by, b_x, h, c, m, mm, orient):
-    """Terms of the clipped polygon's edge a → b (in-plane, relative to the foot q; a_x, b_x:
-    both ends are crossings, i.e. the edge runs along the horizon line). Returns
-    (lin, rad, diff, −δ or −inf for an empty edge)."""
+    """Geometry of the clipped polygon's edge a → b (in-plane, relative to the foot q; a_x, b_x:
+    both ends are crossings, i.e. the edge runs along the horizon line): (δ, s_a, L, m·n) for
+    _edge_terms, L = 0 for an empty edge."""
     ex = bx - ax
     ey = by - ay
     L = math.hypot(ex, ey)
     if not L > 0.0:
-        return 0.0, 0.0, 0.0, -np.inf
+        return 0.0, 0.0, 0.0, 0.0
     tx, ty = ex / L, ey / L
     nx, ny = orient * ty, -orient * tx               # outward normal (right of a CCW edge)
-    delta = ax * nx + ay * ny
-    sa = ax * tx + ay * ty
-    m_n = m[0] * nx + m[1] * ny
     if a_x and b_x and mm > 0.0:
         # the horizon edge lies on m·ρ + h c = 0: outward normal −m̂, distance c·h/|m| from q
         # exactly (recomputing it from its end points would bury a tiny h in their rounding)
-        delta = c * h / mm
-        m_n = -mm
-    lin, rad, diff = _edge_terms(delta, sa, L, h, c, m_n)
-    return lin, rad, diff, -delta
+        return c * h / mm, ax * tx + ay * ty, L, -mm
+    return ax * nx + ay * ny, ax * tx + ay * ty, L, m[0] * nx + m[1] * ny
 
 
 @_jit
-def _near_polygon(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient):
-    """Closed-form (Lambert/Green) G of the horizon-clipped polygon, in-plane coordinates
-    relative to the foot q of p. Returns (G, sum of |terms|, clipped vertex count)."""
-    count = _clip_count(V, R, o, has_rel, p, t1, t2, nrm, 0.0, True)
-    if count < 3:
-        return 0.0, 0.0, count
+def _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, mode):
+    """One pass over the edges of the horizon-clipped polygon (in-plane coordinates relative to
+    the foot q, straight from v − p: a vertex close to p keeps full relative precision).
+    mode 0: (margin, 0, 0, 0), margin = max over non-empty edges of −δ (how far q lies beyond
+    the worst edge line); mode 1 / 2: (Σ lin + radial, Σ |lin| + |radial|, 0, 0) with the plain /
+    the difference radial form."""
     mm = math.hypot(m[0], m[1])
-    s_lin = s_rad = s_diff = a_lin = a_rad = a_diff = 0.0
-    margin = -np.inf                                   # distance beyond the worst edge line
+    s_lin = s_rad = a_lin = a_rad = 0.0
+    margin = -np.inf
     fx = fy = px = py = 0.0
     f_x = p_x = False
     n_emit = 0
@@ -369,21 +365,36 @@ def _near_polygon(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient):
         if n_emit == 0:
             fx, fy, f_x = x, y, isx
         else:
-            lin, rad, diff, nd = _near_edge(px, py, p_x, x, y, isx, h, c, m, mm, orient)
-            s_lin += lin
-            s_rad += rad
-            s_diff += diff
-            a_lin += abs(lin)
-            a_rad += abs(rad)
-            a_diff += abs(diff)
-            margin = max(margin, nd)
+            delta, sa, L, m_n = _near_edge(px, py, p_x, x, y, isx, h, c, m, mm, orient)
+            if mode == 0:
+                if L > 0.0:
+                    margin = max(margin, -delta)
+            else:
+                lin, rad = _edge_terms(delta, sa, L, h, c, m_n, mode == 2)
+                s_lin += lin
+                s_rad += rad
+                a_lin += abs(lin)
+                a_rad += abs(rad)
         px, py, p_x = x, y, isx
         n_emit += 1
+    if mode == 0:
+        return margin, 0.0
+    return s_lin + s_rad, a_lin + a_rad
+
+
+@_jit
+def _near_polygon(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient):
+    """Closed-form (Lambert/Green) G of the horizon-clipped polygon. Returns (G, sum of |terms|,
+    clipped vertex count)."""
+    count = _clip_count(V, R, o, has_rel, p, t1, t2, nrm, 0.0, True)
+    if count < 3:
+        return 0.0, 0.0, count
+    margin = _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, 0)[0]
     # radial part: plain sum, or, for grazing points whose foot q is clearly outside the
     # clipped polygon, the difference form (its h = 0 winding term is exactly 0)
-    if _use_difference_form(margin, h):
-        return s_lin + s_diff, a_lin + a_diff, count
-    return s_lin + s_rad, a_lin + a_rad, count
+    mode = 2 if _use_difference_form(margin, h) else 1
+    g, mag = _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, mode)
+    return g, mag, count
 
 
 @_jit
@@ -665,7 +676,20 @@ def _near_disk(P, rho_c, R, h, c, m, mm, full, sa0, alpha0):
     q4 = 4.0 * h * h * R * R / (Y * YpX)              # = 1 − |ρh|, since Y² − X² = 4h²R²
     rho_h = X / Y
     one_m_rho = q4 if X > 0.0 else YpX / Y
-    rad_direct = 0.5 * c * 0.5 * (one_m_rho * dpsi - rho_h * dD)
+    # horizon chord (clipped rows): from the arc end (α0) back to its start (−α0), outward −m̂,
+    # at distance c h/|m| from q (bounded by P + R since |zc| < R|m|)
+    delta = 0.0 if full else c * h / mms
+    margin = P - R if full else max(P - R, -delta)
+    # radial part: plain, or for grazing points with q clearly outside, the difference form
+    diff_form = _use_difference_form(margin, h)
+    c_lin = c_rad = 0.0
+    if not full:
+        perp_rho = -my * rho_c[0] + mx * rho_c[1]      # m̂⊥·ρ_c
+        c_lin, c_rad = _edge_terms(delta, -perp_rho - R * sa0, 2.0 * R * sa0, h, c, -mm, diff_form)
+    mag_lin = 0.5 * R * h * (abs(m_u * C) + abs(m_v * K)) + abs(c_lin)
+    if not diff_form:
+        g = lin + c_lin + (0.5 * c * 0.5 * (one_m_rho * dpsi - rho_h * dD) + c_rad)
+        return g, mag_lin + 0.25 * abs(c) * (abs(one_m_rho * dpsi) + abs(rho_h * dD)) + abs(c_rad)
     # ... minus its h = 0 value: [(ρ0 − ρh)(Δψ + ΔD) + ρ0 ΔE]/2, ρ0 = sign(P − R)
     rho0 = _sign(P - R)
     if P > R:
@@ -678,26 +702,8 @@ def _near_disk(P, rho_c, R, h, c, m, mm, full, sa0, alpha0):
         r0_m_rh = -1.0 - rho_h
     mu = abs(P - R)
     dE = 0.0 if full else _disk_E(psi2, P, R, h, kappa, mu) - _disk_E(psi1, P, R, h, kappa, mu)
-    rad_diff = 0.5 * c * 0.5 * (r0_m_rh * (dpsi + dD) + rho0 * dE)
-    # horizon chord (clipped rows): from the arc end (α0) back to its start (−α0), outward −m̂,
-    # at distance c h/|m| from q (bounded by P + R since |zc| < R|m|)
-    c_lin = c_rad = c_diff = 0.0
-    margin = P - R
-    if not full:
-        delta = c * h / mms
-        perp_rho = -my * rho_c[0] + mx * rho_c[1]      # m̂⊥·ρ_c
-        c_lin, c_rad, c_diff = _edge_terms(delta, -perp_rho - R * sa0, 2.0 * R * sa0, h, c, -mm)
-        margin = max(margin, -delta)
-    # radial part: plain, or for grazing points with q clearly outside, the difference form
-    if _use_difference_form(margin, h):
-        g = lin + c_lin + (rad_diff + c_diff)
-        mag = (0.5 * R * h * (abs(m_u * C) + abs(m_v * K)) + abs(c_lin)
-               + 0.25 * abs(c) * (abs(r0_m_rh * (dpsi + dD)) + abs(dE)) + abs(c_diff))
-    else:
-        g = lin + c_lin + (rad_direct + c_rad)
-        mag = (0.5 * R * h * (abs(m_u * C) + abs(m_v * K)) + abs(c_lin)
-               + 0.25 * abs(c) * (abs(one_m_rho * dpsi) + abs(rho_h * dD)) + abs(c_rad))
-    return g, mag
+    g = lin + c_lin + (0.5 * c * 0.5 * (r0_m_rh * (dpsi + dD) + rho0 * dE) + c_rad)
+    return g, mag_lin + 0.25 * abs(c) * (abs(r0_m_rh * (dpsi + dD)) + abs(dE)) + abs(c_rad)
 
 
 @_jit
@@ -1026,7 +1032,22 @@ def _near_ellipse(rho_c, A1, A2, h, c, m, zc):
           ts + _TWO_PI * np.rint((mid - ts) / _TWO_PI))
     ws = (w0, w1, w2)
     J = int(min(max(math.ceil(math.log2(_TWO_PI / min(w0, w1, w2))) + 1.0, 1.0), 1100.0))
-    arc_lin = arc_rad = arc_diff = mag_lin = mag_rad = mag_diff = 0.0
+    # chord from the arc's end back to its start: a straight edge on the horizon line
+    # m·ρ + h c = 0, so (as for the disk) its outward normal is −m̂, its direction −m̂⊥ and
+    # its distance from q exactly c h/|m| (not recomputed from the end points, whose
+    # rounding would swamp a tiny h)
+    mm = math.hypot(m[0], m[1])
+    mms = mm if mm > 0.0 else 1.0
+    delta = c * h / mms
+    # radial part: plain, or (q outside the ellipse, or cut off by the chord: margin as for the
+    # disk) the difference form
+    xi = (-rho_c[0] * A2[1] + rho_c[1] * A2[0]) / det
+    eta = (-A1[0] * rho_c[1] + A1[1] * rho_c[0]) / det
+    margin = math.sqrt(dmin2) if xi * xi + eta * eta > 1.0 else -np.inf
+    if not full:
+        margin = max(margin, -delta)
+    diff_form = _use_difference_form(margin, h)
+    arc_lin = arc_rad = mag_lin = mag_rad = 0.0
     hh = h * h
     a = lo
     while a < hi:
@@ -1042,38 +1063,22 @@ def _near_ellipse(rho_c, A1, A2, h, c, m, zc):
             d2 = r2 + hh
             cr = R_[0] * dR[1] - R_[1] * dR[0]         # ρ × ρ'
             lin = -0.5 * h * (m[0] * dR[1] - m[1] * dR[0]) / d2
-            rad = 0.5 * c * cr / d2
-            diff = -0.5 * c * cr * hh / ((r2 if r2 > 0.0 else 1.0) * d2)
+            if diff_form:
+                rad = -0.5 * c * cr * hh / ((r2 if r2 > 0.0 else 1.0) * d2)
+            else:
+                rad = 0.5 * c * cr / d2
             arc_lin += lin * w
             arc_rad += rad * w
-            arc_diff += diff * w
             mag_lin += abs(lin) * w
             mag_rad += abs(rad) * w
-            mag_diff += abs(diff) * w
         a = b
-    # q outside the ellipse, or cut off by the chord: margin as for the disk
-    xi = (-rho_c[0] * A2[1] + rho_c[1] * A2[0]) / det
-    eta = (-A1[0] * rho_c[1] + A1[1] * rho_c[0]) / det
-    margin = math.sqrt(dmin2) if xi * xi + eta * eta > 1.0 else -np.inf
-    # chord from the arc's end back to its start: a straight edge on the horizon line
-    # m·ρ + h c = 0, so (as for the disk) its outward normal is −m̂, its direction −m̂⊥ and
-    # its distance from q exactly c h/|m| (not recomputed from the end points, whose
-    # rounding would swamp a tiny h)
-    c_lin = c_rad = c_diff = 0.0
+    c_lin = c_rad = 0.0
     if not full:
         pa = _ell_point(rho_c, A1, A2, hi)[0]
         pb = _ell_point(rho_c, A1, A2, lo)[0]
         L = math.hypot(pb[0] - pa[0], pb[1] - pa[1])
-        mm = math.hypot(m[0], m[1])
-        mms = mm if mm > 0.0 else 1.0
-        mx, my = m[0] / mms, m[1] / mms
-        delta = c * h / mms
-        sa = -(-my * pa[0] + mx * pa[1])              # pa·(−m̂⊥)
-        c_lin, c_rad, c_diff = _edge_terms(delta, sa, L, h, c, -mm)
-        margin = max(margin, -delta)
-    if _use_difference_form(margin, h):
-        return (arc_lin + c_lin + (arc_diff + c_diff),
-                mag_lin + abs(c_lin) + (mag_diff + abs(c_diff)))
+        sa = -(-(m[1] / mms) * pa[0] + (m[0] / mms) * pa[1])   # pa·(−m̂⊥)
+        c_lin, c_rad = _edge_terms(delta, sa, L, h, c, -mm, diff_form)
     return arc_lin + c_lin + (arc_rad + c_rad), mag_lin + abs(c_lin) + (mag_rad + abs(c_rad))
 
 
