@@ -1,8 +1,8 @@
 """Exact unshadowed cosine-weighted solid-angle integrals of light shapes (control-variate F).
 
-For a shading point p (n, 3) with unit normal nrm (n, 3) every function returns
+For a shading point p with unit normal nrm every function returns
 
-    G = ∫_{light ∩ upper hemisphere of nrm} max(0, nrm·ω) dω        (n,) in steradians,
+    G = ∫_{light ∩ upper hemisphere of nrm} max(0, nrm·ω) dω        in steradians,
 
 the *projected solid angle* of the part of the light that p sees and that lies above its
 horizon. A uniform emitter of radiance L gives irradiance E = L·G, and a Lambert lobe of albedo
@@ -10,8 +10,23 @@ horizon. A uniform emitter of radiance L gives irradiance E = L·G, and a Lamber
 
 Conventions
 -----------
-* float64 throughout, batch axis first, inputs broadcast against p's rows; nothing loops over
-  rows in Python (loops over polygon vertices / quadrature nodes only).
+* Each formula is one compiled row function, one shading point and one light per call:
+  ``rect_F``, ``polygon_F`` (a mesh light's triangle too), ``sphere_F``, ``disk_F``,
+  ``ellipse_F``, ``dome_constant_F``. Scalars and 3-tuples in (world units), G out;
+  ``@njit(cache=True, nogil=True, error_model="numpy")``, no allocation, no Python objects,
+  so other kernels call them (the fused path vertex: it must then list this file and
+  renderer/geometry.py, whose ``frame_row`` these inline, in its ``guard_cache``; see
+  renderer/kernels/__init__.py). The quadrature switches FAR_RATIO and KAPPA_MAX are
+  arguments defaulting to the module constants (the kernels' rule: no globals frozen across
+  files; the numpy API passes the module's current values, which tests patch).
+* The numpy API (``projected_solid_angle_*``: (n, 3) rows, parameters broadcast against p's
+  rows, (n,) out) is a compiled loop over rows calling the row functions.
+* All the kinds live in this one file rather than in renderer/lights/<kind>.py: they share
+  the Green's-theorem edge flux, the horizon clip, the grazing difference form, the sliver
+  test and the Gauss-Legendre area quadrature (rect/polygon/mesh, disk and ellipse), and
+  numba keys its on-disk cache on the defining file, so one file keeps each formula once
+  without cross-file cache guards. A light kind's file imports its row function from here.
+* float64 throughout.
 * One-sided emitters: a rect/disk emits along its unit normal e_n and p sees it iff
   dot(p − c, e_n) > 0 (p in the light's plane gets 0); a sphere emits outward, so a point on
   or inside it gets 0.
