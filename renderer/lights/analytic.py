@@ -1192,11 +1192,12 @@ def _ellipse_rows(p, nrm, center, e1, e2, e_n, far_ratio, kappa_max, out):
                            _row(e_n, i), far_ratio, kappa_max)
 
 
-def _rows(a, n: int, width: int | None = 3) -> np.ndarray:
-    """Broadcast an input to n rows: (width,) / (n, width) -> (n, width); scalar / (n,) -> (n,).
+def _rows(a, n: int, width: int | tuple | None = 3) -> np.ndarray:
+    """Broadcast an input to n rows: (width,) / (n, width) -> (n, width); scalar / (n,) -> (n,)
+    for width None; a tuple width is a row's whole shape (a polygon's (k, 3) vertices).
     Always a writable C-contiguous float64 array (a read-only one, e.g. a broadcast view, would
     be another numba type: another compilation of the loop)."""
-    shape = (n,) if width is None else (n, width)
+    shape = (n,) + (() if width is None else (width,) if isinstance(width, int) else tuple(width))
     a = np.asarray(a, dtype=np.float64)
     return _c_rows(a if a.shape == shape else np.broadcast_to(a, shape))
 
@@ -1212,6 +1213,16 @@ def _points(p) -> np.ndarray:
     return _c_rows(np.asarray(p, dtype=np.float64).reshape(-1, 3))
 
 
+def _over_rows(loop, p, params, *switches) -> np.ndarray:
+    """G (n,) from a compiled row loop: loop(p, *params broadcast to p's n rows, *switches, out).
+    params: (value, width) pairs, width 3 for vectors, None for scalars per row."""
+    p = _points(p)
+    n = p.shape[0]
+    out = np.zeros(n)
+    loop(p, *[_rows(a, n, w) for a, w in params], *switches, out)
+    return out
+
+
 def projected_solid_angle_polygon(p, nrm, verts, e_n=None) -> np.ndarray:
     """Projected solid angle (n,) [sr] of a planar convex polygon seen from p, horizon-clipped
     (polygon_F per row).
@@ -1223,15 +1234,9 @@ def projected_solid_angle_polygon(p, nrm, verts, e_n=None) -> np.ndarray:
         dot(p − centroid, e_n) ≤ 0 give 0. If None the polygon is two-sided (seen from either
         side). A point in the polygon's plane gives 0 in both cases.
     """
-    p = _points(p)
-    n = p.shape[0]
     verts = np.asarray(verts, dtype=np.float64)
-    shape = (n,) + verts.shape[-2:]
-    verts = _c_rows(verts if verts.shape == shape else np.broadcast_to(verts, shape))
-    out = np.zeros(n)
-    _polygon_rows(p, _rows(nrm, n), verts, _rows(0.0 if e_n is None else e_n, n), e_n is not None,
-                  float(FAR_RATIO), float(KAPPA_MAX), out)
-    return out
+    return _over_rows(_polygon_rows, p, ((nrm, 3), (verts, verts.shape[-2:]), (0.0 if e_n is None else e_n, 3)),
+                      e_n is not None, float(FAR_RATIO), float(KAPPA_MAX))
 
 
 def projected_solid_angle_rect(p, nrm, center, ex, ey, e_n) -> np.ndarray:
@@ -1243,12 +1248,8 @@ def projected_solid_angle_rect(p, nrm, center, ex, ey, e_n) -> np.ndarray:
     e_n: emitting normal; p sees the light iff dot(p − center, e_n) > 0.
     center, ex, ey, e_n: (n, 3) or (3,). p, nrm: (n, 3).
     """
-    p = _points(p)
-    n = p.shape[0]
-    out = np.zeros(n)
-    _rect_rows(p, _rows(nrm, n), _rows(center, n), _rows(ex, n), _rows(ey, n), _rows(e_n, n),
-               float(FAR_RATIO), float(KAPPA_MAX), out)
-    return out
+    return _over_rows(_rect_rows, p, ((nrm, 3), (center, 3), (ex, 3), (ey, 3), (e_n, 3)),
+                      float(FAR_RATIO), float(KAPPA_MAX))
 
 
 def projected_solid_angle_sphere(p, nrm, center, radius) -> np.ndarray:
@@ -1258,11 +1259,7 @@ def projected_solid_angle_sphere(p, nrm, center, radius) -> np.ndarray:
     p, nrm: (n, 3); center: (n, 3) or (3,); radius: (n,) or scalar (> 0).
     Points on or inside the sphere get 0.
     """
-    p = _points(p)
-    n = p.shape[0]
-    out = np.zeros(n)
-    _sphere_rows(p, _rows(nrm, n), _rows(center, n), _rows(radius, n, None), out)
-    return out
+    return _over_rows(_sphere_rows, p, ((nrm, 3), (center, 3), (radius, None)))
 
 
 def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
@@ -1272,12 +1269,8 @@ def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:
     p, nrm: (n, 3); center, e_n: (n, 3) or (3,) (e_n: emitting normal, normalised here);
     radius: (n,) or scalar. p sees the disk iff dot(p − center, e_n) > 0.
     """
-    p = _points(p)
-    n = p.shape[0]
-    out = np.zeros(n)
-    _disk_rows(p, _rows(nrm, n), _rows(center, n), _rows(e_n, n), _rows(radius, n, None),
-               float(FAR_RATIO), float(KAPPA_MAX), out)
-    return out
+    return _over_rows(_disk_rows, p, ((nrm, 3), (center, 3), (e_n, 3), (radius, None)),
+                      float(FAR_RATIO), float(KAPPA_MAX))
 
 
 def projected_solid_angle_ellipse(p, nrm, center, e1, e2, e_n) -> np.ndarray:
@@ -1288,12 +1281,8 @@ def projected_solid_angle_ellipse(p, nrm, center, e1, e2, e_n) -> np.ndarray:
     semi-diameters (see ellipse_F); e_n: emitting normal (normalised here); p sees the light
     iff dot(p − center, e_n) > 0.
     """
-    p = _points(p)
-    n = p.shape[0]
-    out = np.zeros(n)
-    _ellipse_rows(p, _rows(nrm, n), _rows(center, n), _rows(e1, n), _rows(e2, n), _rows(e_n, n),
-                  float(FAR_RATIO), float(KAPPA_MAX), out)
-    return out
+    return _over_rows(_ellipse_rows, p, ((nrm, 3), (center, 3), (e1, 3), (e2, 3), (e_n, 3)),
+                      float(FAR_RATIO), float(KAPPA_MAX))
 
 
 def projected_solid_angle_dome_constant() -> float:

@@ -29,6 +29,7 @@ if __package__ in (None, ""):
 
 from tests.analytic.configs import (N_MODES, N_PERMS, N_UNIFORMS, P_MODES, S_MODES,  # noqa: E402
                                     planar_config, sphere_config)
+from tests.analytic.test_properties import _random_rotation  # noqa: E402
 
 OLD_COMMIT = "0332038"
 OUT = Path(__file__).resolve().parent / "data" / "numpy_reference.npz"
@@ -47,20 +48,12 @@ def old_module():
     return mod
 
 
-def _rotation(rng):
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] *= -1
-    return q
-
-
 def _motion(rng, cfg_scale):
     """(Q, T): identity for half of the rows, else a random rotation and a translation up to 100
     sizes (which rounds the world coordinates: the comparison sees the same rounded inputs)."""
     if rng.random() < 0.5:
         return np.eye(3), np.zeros(3)
-    return _rotation(rng), rng.normal(size=3) * cfg_scale * 10.0 ** rng.uniform(-2, 2)
+    return _random_rotation(rng), rng.normal(size=3) * cfg_scale * 10.0 ** rng.uniform(-2, 2)
 
 
 def planar_rows(kind, rng, n, k=4):
