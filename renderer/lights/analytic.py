@@ -299,43 +299,18 @@ def _clip_vertex(V, R, o, has_rel, p, t1, t2, nrm, z_o, near, i):
 
 
 @_jit
-def _clip_slot(V, R, o, has_rel, p, t1, t2, nrm, z_o, near, s):
-    """Slot s of the Sutherland-Hodgman clip of the convex polygon to the half-plane z > 0:
-    slot 2i is vertex i (kept iff inside), slot 2i+1 the crossing of edge i → i+1 (if it
-    crosses). Returns (kept, x, y, is_crossing). A vertex on the line (z = 0) counts as
-    outside; the crossing of an edge from it is then the vertex itself, so nothing is lost."""
-    k = len(V)
-    i = s >> 1
-    x0, y0, z0 = _clip_vertex(V, R, o, has_rel, p, t1, t2, nrm, z_o, near, i)
-    ins = z0 > 0.0
-    if (s & 1) == 0:
-        return ins, x0, y0, False
-    x1, y1, z1 = _clip_vertex(V, R, o, has_rel, p, t1, t2, nrm, z_o, near, (i + 1) % k)
-    if ins == (z1 > 0.0):
+def _clip_emit(slot, x0, y0, z0, x1, y1, z1):
+    """Sutherland-Hodgman clip of a convex polygon to the half-plane z > 0, for its edge from
+    vertex 0 to vertex 1 (in-plane x, y and clip function z): slot 0 is vertex 0 (kept iff
+    inside), slot 1 the edge's crossing of the line (if it crosses). Returns (kept, x, y,
+    is_crossing). A vertex on the line (z = 0) counts as outside; the crossing of an edge from
+    it is then the vertex itself, so nothing is lost."""
+    if slot == 0:
+        return z0 > 0.0, x0, y0, False
+    if (z0 > 0.0) == (z1 > 0.0):
         return False, 0.0, 0.0, False
     t = z0 / (z0 - z1)
     return True, x0 + t * (x1 - x0), y0 + t * (y1 - y0), True
-
-
-@_jit
-def _clip_count(V, R, o, has_rel, p, t1, t2, nrm, z_o, near):
-    """Vertex count of the clipped polygon (kept vertices + crossings)."""
-    k = len(V)
-    count = 0
-    z_first = 0.0
-    z_prev = 0.0
-    for i in range(k):
-        z = _clip_vertex(V, R, o, has_rel, p, t1, t2, nrm, z_o, near, i)[2]
-        if z > 0.0:
-            count += 1
-        if i == 0:
-            z_first = z
-        elif (z > 0.0) != (z_prev > 0.0):
-            count += 1
-        z_prev = z
-    if (z_prev > 0.0) != (z_first > 0.0):
-        count += 1
-    return count
 
 
 @_jit
@@ -361,18 +336,29 @@ def _near_edge(ax, ay, a_x, bx, by, b_x, h, c, m, mm, orient):
 def _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, mode):
     """One pass over the edges of the horizon-clipped polygon (in-plane coordinates relative to
     the foot q, straight from v − p: a vertex close to p keeps full relative precision).
-    mode 0: (margin, 0, 0, 0), margin = max over non-empty edges of −δ (how far q lies beyond
-    the worst edge line); mode 1 / 2: (Σ lin + radial, Σ |lin| + |radial|, 0, 0) with the plain /
-    the difference radial form."""
+    mode 0: (margin, clipped vertex count), margin = max over non-empty edges of −δ (how far q
+    lies beyond the worst edge line); mode 1 / 2: (Σ lin + radial, Σ |lin| + |radial|) with the
+    plain / the difference radial form."""
+    k = len(V)
     mm = math.hypot(m[0], m[1])
     s_lin = s_rad = a_lin = a_rad = 0.0
     margin = -np.inf
     fx = fy = px = py = 0.0
     f_x = p_x = False
     n_emit = 0
-    for s in range(2 * len(V) + 1):
-        if s < 2 * len(V):
-            kept, x, y, isx = _clip_slot(V, R, o, has_rel, p, t1, t2, nrm, 0.0, True, s)
+    vx, vy, vz = _clip_vertex(V, R, o, has_rel, p, t1, t2, nrm, 0.0, True, 0)
+    x0, y0, z0 = vx, vy, vz                            # vertex i, carried along
+    x1 = y1 = z1 = 0.0
+    for s in range(2 * k + 1):
+        i = s >> 1
+        if s < 2 * k:
+            if (s & 1) == 0:                           # vertex i + 1 (vertex 0 again at the end)
+                x1, y1, z1 = vx, vy, vz
+                if i < k - 1:
+                    x1, y1, z1 = _clip_vertex(V, R, o, has_rel, p, t1, t2, nrm, 0.0, True, i + 1)
+            kept, x, y, isx = _clip_emit(s & 1, x0, y0, z0, x1, y1, z1)
+            if (s & 1) == 1:
+                x0, y0, z0 = x1, y1, z1
             if not kept:
                 continue
         else:                                          # closing edge back to the first vertex
@@ -393,7 +379,7 @@ def _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, mode):
         px, py, p_x = x, y, isx
         n_emit += 1
     if mode == 0:
-        return margin, 0.0
+        return margin, float(n_emit - 1)
     return s_lin + s_rad, a_lin + a_rad
 
 
@@ -401,15 +387,14 @@ def _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, mode):
 def _near_polygon(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient):
     """Closed-form (Lambert/Green) G of the horizon-clipped polygon. Returns (G, sum of |terms|,
     clipped vertex count)."""
-    count = _clip_count(V, R, o, has_rel, p, t1, t2, nrm, 0.0, True)
-    if count < 3:
-        return 0.0, 0.0, count
-    margin = _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, 0)[0]
+    margin, count = _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, 0)
+    if count < 3.0:
+        return 0.0, 0.0, int(count)
     # radial part: plain sum, or, for grazing points whose foot q is clearly outside the
     # clipped polygon, the difference form (its h = 0 winding term is exactly 0)
     mode = 2 if _use_difference_form(margin, h) else 1
     g, mag = _near_polygon_pass(V, R, o, has_rel, p, t1, t2, nrm, h, c, m, orient, mode)
-    return g, mag, count
+    return g, mag, int(count)
 
 
 @_jit
@@ -438,15 +423,23 @@ def _far_polygon(V, R, o, has_rel, t1, t2, nrm, z_o, D2, rho_o, m, h, orient, or
     """Area-quadrature G: Gauss-Legendre on each fan triangle of the clipped polygon
     (coordinates relative to the centre o; D2 = |o − p|², z_o = nrm·(o − p)). Returns
     (G, clipped vertex count)."""
+    k = len(V)
     p0 = (0.0, 0.0, 0.0)
-    count = _clip_count(V, R, o, has_rel, p0, t1, t2, nrm, z_o, False)
-    if count < 3:
-        return 0.0, count
     tot = 0.0
     fx = fy = px = py = 0.0
     n_emit = 0
-    for s in range(2 * len(V)):
-        kept, x, y, _ = _clip_slot(V, R, o, has_rel, p0, t1, t2, nrm, z_o, False, s)
+    vx, vy, vz = _clip_vertex(V, R, o, has_rel, p0, t1, t2, nrm, z_o, False, 0)
+    x0, y0, z0 = vx, vy, vz                            # vertex i, carried along
+    x1 = y1 = z1 = 0.0
+    for s in range(2 * k):
+        i = s >> 1
+        if (s & 1) == 0:                               # vertex i + 1 (vertex 0 again at the end)
+            x1, y1, z1 = vx, vy, vz
+            if i < k - 1:
+                x1, y1, z1 = _clip_vertex(V, R, o, has_rel, p0, t1, t2, nrm, z_o, False, i + 1)
+        kept, x, y, _ = _clip_emit(s & 1, x0, y0, z0, x1, y1, z1)
+        if (s & 1) == 1:
+            x0, y0, z0 = x1, y1, z1
         if not kept:
             continue
         if n_emit == 0:
@@ -455,7 +448,7 @@ def _far_polygon(V, R, o, has_rel, t1, t2, nrm, z_o, D2, rho_o, m, h, orient, or
             tot += _far_triangle(fx, fy, px, py, x, y, D2, rho_o, z_o, m, order)
         px, py = x, y
         n_emit += 1
-    return orient * h * tot, count
+    return orient * h * tot, n_emit
 
 
 @_jit
