@@ -41,20 +41,24 @@ def _normalize_kernel(a, out):
 
 
 @njit(cache=True, nogil=True)
+def frame_row(n):
+    """Orthonormal tangents (s, t) of one unit normal n (3-tuple), as 3-tuples, branchless (Duff
+    et al. 2017); (s, t, n) is right-handed. For other kernels (numba-inlined: list this file in
+    their ``guard_cache``)."""
+    nx, ny, nz = n[0], n[1], n[2]
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx), (b, sign + ny * ny * a, -ny)
+
+
+@njit(cache=True, nogil=True)
 def _frame_kernel(n, out_s, out_t):
     for i in range(n.shape[0]):
-        nx = n[i, 0]
-        ny = n[i, 1]
-        nz = n[i, 2]
-        sign = 1.0 if nz >= 0.0 else -1.0
-        a = -1.0 / (sign + nz)
-        b = nx * ny * a
-        out_s[i, 0] = 1.0 + sign * nx * nx * a
-        out_s[i, 1] = sign * b
-        out_s[i, 2] = -sign * nx
-        out_t[i, 0] = b
-        out_t[i, 1] = sign + ny * ny * a
-        out_t[i, 2] = -ny
+        s, t = frame_row((n[i, 0], n[i, 1], n[i, 2]))
+        for k in range(3):
+            out_s[i, k] = s[k]
+            out_t[i, k] = t[k]
 
 
 @njit(cache=True, nogil=True)
