@@ -180,110 +180,164 @@ def bvh_importance_kernel(p, nrm, has_n, c, b, out):
 
 
 @njit(cache=True, nogil=True)
+def bvh_pick_row(ur, px, py, pz, nx, ny, nz, hn, p_inf, infinite, pair_next, root_light, root_c, root_b, pair_c,
+                 pair_b):
+    """One row of BVHLightSampler.sample: (global light, pmf, remapped u, tree) for u = ur in
+    [0, 1) at the point (px, py, pz) with normal (nx, ny, nz) (used where hn; see _normal).
+    Infinite lights (global indices ``infinite``) are picked with probability p_inf uniformly
+    among themselves, or with probability 1 where the tree cannot give a light; otherwise the
+    tree is descended reusing u. pmf 0 (light 0): no light. tree: the light came from the tree,
+    and the remapped u (u rescaled into that leaf's interval, a fresh uniform in [0, 1)) is
+    meaningful. root_light: the global light of a one-light tree, else -1."""
+    k_inf = infinite.shape[0]
+    if k_inf > 0:
+        p_row = p_inf
+        if not _tree_alive(px, py, pz, nx, ny, nz, hn, root_light, root_c, root_b, pair_c, pair_b):
+            p_row = 1.0
+        if ur < p_row:
+            j = min(int(ur / p_row * k_inf), k_inf - 1)
+            return infinite[j], p_row / k_inf, ur, False
+    if not (root_light >= 0 or pair_c.shape[0] > 0):
+        return 0, 0.0, ur, False
+    uu = min((ur - p_inf) / (1.0 - p_inf), ONE_MINUS_EPSILON)
+    pr = 1.0 - p_inf
+    if root_light >= 0:
+        if _importance(px, py, pz, nx, ny, nz, hn, root_c, root_b, 0, 0) > 0.0:
+            return root_light, pr, uu, True
+        return 0, 0.0, ur, False
+    pair = 0
+    side = 0
+    while True:
+        i0, i1, tot, p0 = _pair_importances(pair, px, py, pz, nx, ny, nz, hn, pair_c, pair_b)
+        if not tot > 0.0:
+            return 0, 0.0, ur, False
+        # Go to the second child where u tot >= i0 (and it can be picked), and rescale the
+        # chosen sub-interval of u to [0, 1): one multiplication decides the branch, so
+        # the next level need not wait for a division (p0 only enters the pmf).
+        t = uu * tot
+        if t >= i0 and i1 > 0.0:
+            side = 1
+            pr = pr * (1.0 - p0)
+            uu = (t - i0) / i1
+        else:
+            side = 0
+            pr = pr * p0
+            uu = t / i0
+        uu = min(uu, ONE_MINUS_EPSILON)
+        nxt = pair_next[pair, side]
+        if nxt < 0:
+            break
+        pair = nxt
+    if pr > 0.0:
+        return -1 - pair_next[pair, side], pr, uu, True
+    return 0, 0.0, ur, False
+
+
+@njit(cache=True, nogil=True)
 def bvh_sample_kernel(u, p, ng, ns, p_inf, infinite, pair_next, root_light, root_c, root_b, pair_c, pair_b,
                       out_index, out_pmf, out_u):
     """BVHLightSampler.sample for rows of u (n,) in [0, 1) at points p with geometric and
-    shading normals ng, ns (n, 3) (see _normal). Infinite lights (global indices ``infinite``)
-    are picked with probability p_inf uniformly among themselves, or with probability 1 where
-    the tree cannot give a light; otherwise the tree is descended reusing u. Writes the global
-    index and the pmf (0, index 0: no light), and on rows given a tree light, out_u: u rescaled
-    into that leaf's interval (a fresh uniform in [0, 1); other rows of out_u are left as they
-    are). root_light: the global light of a one-light tree, else -1."""
-    k_inf = infinite.shape[0]
-    has_tree = root_light >= 0 or pair_c.shape[0] > 0
+    shading normals ng, ns (n, 3) (see _normal): bvh_pick_row per row. Writes the global index
+    and the pmf (0, index 0: no light), and on rows given a tree light, out_u: the remapped u
+    (other rows of out_u are left as they are)."""
     for row in range(u.shape[0]):
-        out_index[row] = 0
-        out_pmf[row] = 0.0
-        px, py, pz = p[row, 0], p[row, 1], p[row, 2]
         nx, ny, nz, hn = _normal(ng, ns, row)
-        ur = u[row]
-        if k_inf > 0:
-            p_row = p_inf
-            if not _tree_alive(px, py, pz, nx, ny, nz, hn, root_light, root_c, root_b, pair_c, pair_b):
-                p_row = 1.0
-            if ur < p_row:
-                j = min(int(ur / p_row * k_inf), k_inf - 1)
-                out_index[row] = infinite[j]
-                out_pmf[row] = p_row / k_inf
-                continue
-        if not has_tree:
-            continue
-        uu = min((ur - p_inf) / (1.0 - p_inf), ONE_MINUS_EPSILON)
-        pr = 1.0 - p_inf
-        if root_light >= 0:
-            if _importance(px, py, pz, nx, ny, nz, hn, root_c, root_b, 0, 0) > 0.0:
-                out_index[row] = root_light
-                out_pmf[row] = pr
-                out_u[row] = uu
-            continue
-        pair = 0
-        side = 0
-        while True:
-            i0, i1, tot, p0 = _pair_importances(pair, px, py, pz, nx, ny, nz, hn, pair_c, pair_b)
-            if not tot > 0.0:
-                pr = 0.0
-                break
-            # Go to the second child where u tot >= i0 (and it can be picked), and rescale the
-            # chosen sub-interval of u to [0, 1): one multiplication decides the branch, so
-            # the next level need not wait for a division (p0 only enters the pmf).
-            t = uu * tot
-            if t >= i0 and i1 > 0.0:
-                side = 1
-                pr = pr * (1.0 - p0)
-                uu = (t - i0) / i1
-            else:
-                side = 0
-                pr = pr * p0
-                uu = t / i0
-            uu = min(uu, ONE_MINUS_EPSILON)
-            nxt = pair_next[pair, side]
-            if nxt < 0:
-                break
-            pair = nxt
-        if pr > 0.0:
-            out_index[row] = -1 - pair_next[pair, side]
-            out_pmf[row] = pr
+        li, pr, uu, tree = bvh_pick_row(u[row], p[row, 0], p[row, 1], p[row, 2], nx, ny, nz, hn, p_inf, infinite,
+                                        pair_next, root_light, root_c, root_b, pair_c, pair_b)
+        out_index[row] = li
+        out_pmf[row] = pr
+        if tree:
             out_u[row] = uu
+
+
+@njit(cache=True, nogil=True)
+def bvh_pmf_row(li, px, py, pz, nx, ny, nz, hn, p_inf, is_inf, k_inf, slot, depth, trail, pair_next, root_light,
+                root_c, root_b, pair_c, pair_b):
+    """One row of BVHLightSampler.pmf: the probability that bvh_pick_row picks global light li
+    at the point (px, py, pz) with normal (nx, ny, nz) (used where hn), replaying the light's
+    root-to-leaf trail with the same arithmetic. is_inf (count,) bool marks the infinite lights
+    (k_inf of them)."""
+    if li < 0 or li >= slot.shape[0]:
+        return 0.0
+    if is_inf[li]:
+        if _tree_alive(px, py, pz, nx, ny, nz, hn, root_light, root_c, root_b, pair_c, pair_b):
+            return p_inf / k_inf
+        return 1.0 / k_inf
+    s = slot[li]
+    if s < 0:
+        return 0.0
+    pr = 1.0 - p_inf
+    if root_light >= 0:
+        return pr if _importance(px, py, pz, nx, ny, nz, hn, root_c, root_b, 0, 0) > 0.0 else 0.0
+    pair = 0
+    for level in range(depth[s]):
+        side = (trail[s, level >> 6] >> np.uint64(level & 63)) & np.uint64(1)
+        i0, i1, tot, p0 = _pair_importances(pair, px, py, pz, nx, ny, nz, hn, pair_c, pair_b)
+        if not tot > 0.0:
+            return 0.0
+        if side:
+            pr = pr * (1.0 - p0)
+        else:
+            pr = pr * p0
+        pair = pair_next[pair, side]
+    return pr
 
 
 @njit(cache=True, nogil=True)
 def bvh_pmf_kernel(index, p, ng, ns, p_inf, is_inf, k_inf, slot, depth, trail, pair_next, root_light, root_c,
                    root_b, pair_c, pair_b, out):
-    """BVHLightSampler.pmf: the probability (n,) that bvh_sample_kernel picks global light
-    index (n,) at p, ng, ns, replaying the light's root-to-leaf trail with the same
-    arithmetic. is_inf (count,) bool marks the infinite lights (k_inf of them)."""
-    count = slot.shape[0]
+    """BVHLightSampler.pmf: bvh_pmf_row for each global light index (n,) at p, ng, ns."""
     for row in range(index.shape[0]):
-        out[row] = 0.0
-        li = index[row]
-        if li < 0 or li >= count:
-            continue
-        px, py, pz = p[row, 0], p[row, 1], p[row, 2]
         nx, ny, nz, hn = _normal(ng, ns, row)
-        if is_inf[li]:
-            if _tree_alive(px, py, pz, nx, ny, nz, hn, root_light, root_c, root_b, pair_c, pair_b):
-                out[row] = p_inf / k_inf
-            else:
-                out[row] = 1.0 / k_inf
-            continue
-        s = slot[li]
-        if s < 0:
-            continue
-        pr = 1.0 - p_inf
-        if root_light >= 0:
-            if _importance(px, py, pz, nx, ny, nz, hn, root_c, root_b, 0, 0) > 0.0:
-                out[row] = pr
-            continue
-        pair = 0
-        for level in range(depth[s]):
-            side = (trail[s, level >> 6] >> np.uint64(level & 63)) & np.uint64(1)
-            i0, i1, tot, p0 = _pair_importances(pair, px, py, pz, nx, ny, nz, hn, pair_c, pair_b)
-            if not tot > 0.0:
-                pr = 0.0
-                break
-            if side:
-                pr = pr * (1.0 - p0)
-            else:
-                pr = pr * p0
-            pair = pair_next[pair, side]
-        out[row] = pr
+        out[row] = bvh_pmf_row(index[row], p[row, 0], p[row, 1], p[row, 2], nx, ny, nz, hn, p_inf, is_inf, k_inf,
+                               slot, depth, trail, pair_next, root_light, root_c, root_b, pair_c, pair_b)
+
+
+@njit(cache=True, nogil=True)
+def _sphere_crossed(ox, oy, oz, dx, dy, dz, t_max, c, b, pair, side):
+    """Whether the segment o + t d, 0 <= t <= t_max (d unit; t_max may be inf), comes within the
+    bounding sphere of node (pair, side) (radius rounded up to float32; a relative margin of
+    1e-6 against rounding, conservative: the caller confirms each light exactly)."""
+    vx = c[pair, side, 0] - ox
+    vy = c[pair, side, 1] - oy
+    vz = c[pair, side, 2] - oz
+    t = min(max(vx * dx + vy * dy + vz * dz, 0.0), t_max)
+    qx = vx - t * dx
+    qy = vy - t * dy
+    qz = vz - t * dz
+    r = np.float64(b[pair, side, 0])
+    return qx * qx + qy * qy + qz * qz <= r * r * (1.0 + 1e-6) + D2_MIN
+
+
+@njit(cache=True, nogil=True)
+def bvh_crossed_row(ox, oy, oz, dx, dy, dz, t_max, pair_next, root_light, root_c, root_b, pair_c, pair_b, stack,
+                    out):
+    """The tree lights whose node spheres the segment o + t d, 0 <= t <= t_max, meets: their
+    global indices into out[:k], k returned (every light the segment crosses is among them; the
+    caller runs the exact test). A depth-first walk of the sibling pairs, pruning subtrees whose
+    bounding sphere the segment misses: O(log lights) for a ray that passes few lights, where a
+    loop over the lights is O(lights). stack: int32/int64 scratch of at least the tree's depth
+    + 2 entries; out: at least as many entries as the tree has lights."""
+    if root_light >= 0:
+        if _sphere_crossed(ox, oy, oz, dx, dy, dz, t_max, root_c, root_b, 0, 0):
+            out[0] = root_light
+            return 1
+        return 0
+    if pair_c.shape[0] == 0:
+        return 0
+    k = 0
+    top = 1
+    stack[0] = 0
+    while top > 0:
+        top -= 1
+        pair = stack[top]
+        for side in range(2):
+            if _sphere_crossed(ox, oy, oz, dx, dy, dz, t_max, pair_c, pair_b, pair, side):
+                nxt = pair_next[pair, side]
+                if nxt < 0:
+                    out[k] = -1 - nxt
+                    k += 1
+                else:
+                    stack[top] = nxt
+                    top += 1
+    return k
