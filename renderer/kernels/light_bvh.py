@@ -294,37 +294,55 @@ def bvh_pmf_kernel(index, p, ng, ns, p_inf, is_inf, k_inf, slot, depth, trail, p
 
 
 @njit(cache=True, nogil=True)
-def _sphere_crossed(ox, oy, oz, dx, dy, dz, t_max, c, b, pair, side):
-    """Whether the segment o + t d, 0 <= t <= t_max (d unit; t_max may be inf), comes within the
-    bounding sphere of node (pair, side) (radius rounded up to float32; a relative margin of
-    1e-6 against rounding, conservative: the caller confirms each light exactly)."""
-    vx = c[pair, side, 0] - ox
-    vy = c[pair, side, 1] - oy
-    vz = c[pair, side, 2] - oz
-    t = min(max(vx * dx + vy * dy + vz * dz, 0.0), t_max)
-    qx = vx - t * dx
-    qy = vy - t * dy
-    qz = vz - t * dz
-    r = np.float64(b[pair, side, 0])
-    return qx * qx + qy * qy + qz * qz <= r * r * (1.0 + 1e-6) + D2_MIN
+def node_boxes_kernel(pair_next, light_lo, light_hi, out):
+    """The AABB of every node of the sibling pairs, out (P, 2, 6) float64 (lo, hi), from the
+    AABBs light_lo, light_hi (count, 3) of the global lights at the leaves: children pairs come
+    after their parents (bvh.py ``_finish``), so one backward sweep unions them bottom-up."""
+    for pair in range(pair_next.shape[0] - 1, -1, -1):
+        for side in range(2):
+            nxt = pair_next[pair, side]
+            for k in range(3):
+                if nxt < 0:
+                    out[pair, side, k] = light_lo[-1 - nxt, k]
+                    out[pair, side, 3 + k] = light_hi[-1 - nxt, k]
+                else:
+                    out[pair, side, k] = min(out[nxt, 0, k], out[nxt, 1, k])
+                    out[pair, side, 3 + k] = max(out[nxt, 0, 3 + k], out[nxt, 1, 3 + k])
 
 
 @njit(cache=True, nogil=True)
-def bvh_crossed_row(ox, oy, oz, dx, dy, dz, t_max, pair_next, root_light, root_c, root_b, pair_c, pair_b, stack,
-                    out):
-    """The tree lights whose node spheres the segment o + t d, 0 <= t <= t_max, meets: their
+def _box_crossed(ox, oy, oz, ix, iy, iz, t_max, boxes, pair, side):
+    """Whether the segment o + t d, 0 <= t <= t_max, meets the AABB of node (pair, side) (slab
+    test with i = 1 / d, a zero component of d replaced by a tiny one; boxes padded outward by
+    ``node_boxes``, and the caller confirms each light exactly)."""
+    ax = (boxes[pair, side, 0] - ox) * ix
+    bx = (boxes[pair, side, 3] - ox) * ix
+    ay = (boxes[pair, side, 1] - oy) * iy
+    by = (boxes[pair, side, 4] - oy) * iy
+    az = (boxes[pair, side, 2] - oz) * iz
+    bz = (boxes[pair, side, 5] - oz) * iz
+    t0 = max(max(min(ax, bx), min(ay, by)), max(min(az, bz), 0.0))
+    t1 = min(min(max(ax, bx), max(ay, by)), min(max(az, bz), t_max))
+    return t0 <= t1
+
+
+@njit(cache=True, nogil=True)
+def bvh_crossed_row(ox, oy, oz, dx, dy, dz, t_max, pair_next, root_light, boxes, stack, out):
+    """The tree lights whose node boxes the segment o + t d, 0 <= t <= t_max, meets: their
     global indices into out[:k], k returned (every light the segment crosses is among them; the
     caller runs the exact test). A depth-first walk of the sibling pairs, pruning subtrees whose
-    bounding sphere the segment misses: O(log lights) for a ray that passes few lights, where a
-    loop over the lights is O(lights). stack: int32/int64 scratch of at least the tree's depth
-    + 2 entries; out: at least as many entries as the tree has lights."""
+    AABB (boxes (P, 2, 6), node_boxes_kernel) the segment misses: a few dozen box tests for a
+    ray that passes few lights, where a loop over the lights is O(lights). A one-light tree
+    gives its light. stack: int64 scratch of at least the tree's depth + 2 entries; out: at
+    least as many entries as the tree has lights."""
     if root_light >= 0:
-        if _sphere_crossed(ox, oy, oz, dx, dy, dz, t_max, root_c, root_b, 0, 0):
-            out[0] = root_light
-            return 1
+        out[0] = root_light
+        return 1
+    if pair_next.shape[0] == 0:
         return 0
-    if pair_c.shape[0] == 0:
-        return 0
+    ix = 1.0 / (dx if dx != 0.0 else 1e-300)
+    iy = 1.0 / (dy if dy != 0.0 else 1e-300)
+    iz = 1.0 / (dz if dz != 0.0 else 1e-300)
     k = 0
     top = 1
     stack[0] = 0
@@ -332,7 +350,7 @@ def bvh_crossed_row(ox, oy, oz, dx, dy, dz, t_max, pair_next, root_light, root_c
         top -= 1
         pair = stack[top]
         for side in range(2):
-            if _sphere_crossed(ox, oy, oz, dx, dy, dz, t_max, pair_c, pair_b, pair, side):
+            if _box_crossed(ox, oy, oz, ix, iy, iz, t_max, boxes, pair, side):
                 nxt = pair_next[pair, side]
                 if nxt < 0:
                     out[k] = -1 - nxt

@@ -7,7 +7,7 @@ numbers. Each service's tables travel as one record, ``PickTables``
 (renderer/light_samplers/__init__.py ``pick_tables`` builds it), a tuple:
 
     (mode, cand, pmf, alias_q, alias_i, p_inf, infinite, is_inf, slot, depth, trail,
-     pair_next, root_light, root_c, root_b, pair_c, pair_b)
+     pair_next, root_light, root_c, root_b, pair_c, pair_b, boxes)
 
 * mode: EXHAUSTIVE, UNIFORM, POWER or BVH (below);
 * cand (k,) int64: the uniform service's candidates (lights with power > 0);
@@ -16,7 +16,9 @@ numbers. Each service's tables travel as one record, ``PickTables``
 * alias_q, alias_i (count,): the power service's alias table (sampling.AliasTable), empty when
   no light has power;
 * p_inf ... pair_b: BVHLightSampler's traversal tables (renderer/kernels/light_bvh.py), the
-  tree also serving ``crossed_row`` for the uniform and power services.
+  tree also serving ``crossed_row`` for the uniform and power services;
+* boxes (P, 2, 6) float64: the AABB of each node of the tree's sibling pairs
+  (light_bvh.node_boxes_kernel), which ``crossed_row`` walks.
 
 Each formula is the numpy service's own: ``pick_row`` reproduces UniformLightSampler.sample
 and AliasTable.sample on one u, and calls light_bvh.bvh_pick_row, the function behind
@@ -85,8 +87,7 @@ def crossed_row(sp, ox, oy, oz, dx, dy, dz, t_max, stack, out):
     """The finite lights the segment o + t d, 0 <= t <= t_max, may cross: their global indices
     into out[:k], k returned, a superset the caller confirms with each light's exact hit test
     (light_bvh.bvh_crossed_row on the record's tree; stack, out: its scratch)."""
-    return bvh_crossed_row(ox, oy, oz, dx, dy, dz, t_max, sp[11], sp[12], sp[13], sp[14], sp[15], sp[16], stack,
-                           out)
+    return bvh_crossed_row(ox, oy, oz, dx, dy, dz, t_max, sp[11], sp[12], sp[17], stack, out)
 
 
 guard_cache(__name__, module_dispatchers(globals()), ["renderer/kernels/light_bvh.py"])

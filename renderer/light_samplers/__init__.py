@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SettingsError
-from .bvh import BVHLightSampler
+from .bvh import BVHLightSampler, light_bounds
 from .exhaustive import ExhaustiveLightSampler
 from .power import PowerLightSampler
 from .uniform import UniformLightSampler
@@ -106,4 +106,27 @@ def pick_tables(sampler, lights) -> tuple:
         BVHLightSampler(lights) if sampler.name != "exhaustive" else BVHLightSampler(None))
     return (mode, cand, pmf, alias_q, alias_i, float(tree.p_infinite), np.ascontiguousarray(tree.infinite, dtype=i64),
             np.ascontiguousarray(tree._is_inf), tree.slot, tree.depth, np.ascontiguousarray(tree.trail),
-            tree.pair_next, int(tree.root_light), tree.root_c, tree.root_b, tree.pair_c, tree.pair_b)
+            tree.pair_next, int(tree.root_light), tree.root_c, tree.root_b, tree.pair_c, tree.pair_b,
+            node_boxes(tree, lights))
+
+
+def node_boxes(tree, lights) -> np.ndarray:
+    """(P, 2, 6) float64 AABBs (lo, hi) of the nodes of a BVHLightSampler's sibling pairs, for
+    finding the lights a ray crosses (renderer/kernels/light_bvh.py bvh_crossed_row): its
+    lights' bounds (bvh.light_bounds) unioned bottom-up, each padded outward by 1e-9 of its
+    extent and scale so rounding in the slab test never drops a light the ray crosses."""
+    from ..kernels.light_bvh import node_boxes_kernel
+
+    P = tree.pair_next.shape[0]
+    out = np.zeros((P, 2, 6))
+    if P == 0:
+        return out
+    b = light_bounds(lights)
+    lo = np.zeros((int(lights.count), 3))
+    hi = np.zeros((int(lights.count), 3))
+    lo[b.light], hi[b.light] = b.lo, b.hi
+    node_boxes_kernel(tree.pair_next, lo, hi, out)
+    pad = 1e-9 * (np.abs(out[..., 0:3]) + np.abs(out[..., 3:6]) + (out[..., 3:6] - out[..., 0:3])) + 1e-12
+    out[..., 0:3] -= pad
+    out[..., 3:6] += pad
+    return out
