@@ -4,8 +4,11 @@ One call per bounce does, for every live ray, all the work between two embree ca
 general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
 lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
 material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
-for every light (the rect and sphere lights' samples drawn block by block by the vectorised
-batch kernels of kernels/lights.py, the others' row by row), and the BSDF sample with the throughput update
+for every light (the exhaustive lighting service: the rect and sphere lights' samples drawn
+block by block by the vectorised batch kernels of kernels/lights.py, the others' row by row) or
+for the one light a uniform, power or bvh service picks per row (kernels/light_pick.py: the
+pick, its pmf replayed for the emission weight, and the lights a ray crosses found by a walk of
+the light BVH instead of a loop over every light), and the BSDF sample with the throughput update
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
@@ -33,7 +36,7 @@ this file's cache whenever any of the files it inlines from changes.
 Shapes: n live rays; S (n, 17) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
 ``D`` (unit direction), ``TMAX``, ``PP`` (the previous vertex's point, for the light pdf of
 continuation MIS), ``PB`` (the BSDF pdf of d there) and ``PN`` (its shading normal, for the
-light BVH's pmf replay). A block's uniforms UB (4 + 2 lights,
+light BVH's pmf replay). A block's uniforms UB (4 + 2 lights or 4 + 3,
 BLK) come from a counter-based generator inside the kernel (_uniform_pass), batch axis last (the
 rect and sphere lights' batch samplers need unit stride along the batch); columns ``U_*``.
 """
@@ -446,9 +449,11 @@ def vertex_kernel(
     to ``eps_add`` describe the scene and stay fixed for a render (FastPath.tables).
 
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
-    (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
+    (camera rays: emission counts fully; all others carry continuation MIS for every light, with
+    the pick pmf of the service at the vertex they left); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
-    a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights): the
+    a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights, or 4 + 3
+    with a picking service: the pick's u, then the light sample's two): the
     rows' uniforms are _uniform_pass's stream for key, drawn block by block; Pm:
     (materials, K) packed BSDF rows, or with mat_row (n,)
     non-empty, per-hit rows: ray r's row is mat_row[r], and emission (hits, 3) (if not empty) is
@@ -459,16 +464,19 @@ def vertex_kernel(
     im_* or -1 for a constant one and i_rot (3, 3) its local -> world rotation; else a
     DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
-    its power flag); power: (lights,) bool heuristic. L (m, 3)
+    its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
+    light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
+    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
-    sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
+    sh_c (capacity n * lights, or n with a picking service), sh_c (k, 3) being the radiance each
+    adds if unblocked. counts[0],
     counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
 
-    The rows go in blocks of BLK: vectorised passes (_surface_pass; when a row of the block
-    scatters, each rect and sphere light's batch sampler and _light_pass) fill the block's state,
-    then one scalar pass per row adds emission, takes the other lights' light half and writes the
-    rays compactly.
+    The rows go in blocks of BLK: vectorised passes (_surface_pass; with the exhaustive service,
+    when a row of the block scatters, each rect and sphere light's batch sampler and _light_pass)
+    fill the block's state, then one scalar pass per row adds emission, takes the other lights'
+    light half (or the picked light's: _sample_light_row) and writes the rays compactly.
     """
     n_rect = center.shape[0]
     n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
