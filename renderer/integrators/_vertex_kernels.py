@@ -378,7 +378,7 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
             X[r - lo] = 1.0 if crossed else X[r - lo]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _light_of(g, n_rect, n_rs, n_fin, rect_light, sphere_light, disk_light, inf_light):
     """The global light index of the kernel's light g (rect, sphere, disk, then infinite)."""
     if g < n_rect:
@@ -390,7 +390,7 @@ def _light_of(g, n_rect, n_rs, n_fin, rect_light, sphere_light, disk_light, inf_
     return inf_light[g - n_fin]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _sample_light_row(g, p, u0, u1, n_rect, n_rs, n_fin, rect, sph, disk, inf, img, close_ratio, min_sa, graz):
     """One light sample of the kernel's light g (rect, sphere, disk, then infinite) from the
     point p with (u0, u1), through the light kind's own row sampler (kernels/lights.py):
@@ -399,7 +399,9 @@ def _sample_light_row(g, p, u0, u1, n_rect, n_rs, n_fin, rect, sph, disk, inf, i
     edge_len, nrm, area, radiance, is_rect), sph (center, radius, radiance, delta), disk
     (center, nrm, u1, u2, e1, e2, s1, s2, area, radiance), inf (dome, axis, omc, delta,
     radiance, tex, rot) and img (texels, offset, height, width, weight, total, row_cdf,
-    row_cdf_start, col_cdf, col_cdf_start)."""
+    row_cdf_start, col_cdf, col_cdf_start). Without reference counting (_nrt=False): the five
+    records' 41 arrays would otherwise be incref'd and decref'd on every call (see
+    kernels/light_bvh.py)."""
     if g < n_rect:
         j = g
         wi, dist, pdf_l, _pl, _ok = _rect_sample_row(
