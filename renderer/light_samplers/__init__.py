@@ -22,6 +22,10 @@ choice follows the light count (finite and infinite lights together):
   change moved bvh's pick variance from 9.6 to 2.4 on fireflies and from 3.5 to 3.8 on
   city_lights, ``bench_light_samplers.py pick``). The build is ~0.06 s for 5000 lights,
   ~1 s for 100k.
+
+``pick_tables(sampler, lights)`` hands a sampler's tables to the compiled per-row service
+(renderer/kernels/light_pick.py) that the fast path's vertex kernel runs: the same picks and
+pmfs, one row at a time.
 """
 
 from __future__ import annotations
