@@ -88,9 +88,10 @@ def make_light_sampler(name: str, lights):
 def pick_tables(sampler, lights) -> tuple:
     """The sampler's tables as the one record the compiled per-row service takes
     (renderer/kernels/light_pick.py, which lists its fields). The light BVH's traversal tables
-    are always filled: the bvh service's own tree, and for the others a tree built over the same
-    lights (~0.06 s for 5000) that only finds the lights a ray crosses (light_pick.crossed_row).
-    The exhaustive service needs no tree (its integrator visits every light)."""
+    are filled for the picking services: the bvh service's own tree, and for uniform and power a
+    tree built over the same lights (~0.06 s for 5000) that only finds the lights a ray crosses
+    (light_pick.crossed_row). The exhaustive service gets empty ones (its integrator visits
+    every light)."""
     from ..kernels.light_pick import MODES
 
     count = int(lights.count)
@@ -106,8 +107,14 @@ def pick_tables(sampler, lights) -> tuple:
         pmf = np.ascontiguousarray(sampler.table.pmf, dtype=f64)
         alias_q = np.ascontiguousarray(sampler.table.q, dtype=f64)
         alias_i = np.ascontiguousarray(sampler.table.alias, dtype=i64)
-    tree = sampler if sampler.name == "bvh" else (
-        BVHLightSampler(lights) if sampler.name != "exhaustive" else BVHLightSampler(None))
+    if sampler.name == "exhaustive":
+        # No tree (a scene of a few lights builds none): empty tables of the same types.
+        f32, i32 = np.float32, np.int32
+        return (mode, cand, pmf, alias_q, alias_i, 0.0, np.zeros(0, i64), np.zeros(count, bool),
+                np.full(count, -1, i32), np.zeros(0, i32), np.zeros((0, 1), np.uint64), np.zeros((0, 2), i32), -1,
+                np.zeros((1, 1, 3)), np.zeros((1, 1, 8), f32), np.zeros((0, 2, 3)), np.zeros((0, 2, 8), f32),
+                np.zeros((0, 2, 6)))
+    tree = sampler if sampler.name == "bvh" else BVHLightSampler(lights)
     return (mode, cand, pmf, alias_q, alias_i, float(tree.p_infinite), np.ascontiguousarray(tree.infinite, dtype=i64),
             np.ascontiguousarray(tree._is_inf), tree.slot, tree.depth, np.ascontiguousarray(tree.trail),
             tree.pair_next, int(tree.root_light), tree.root_c, tree.root_b, tree.pair_c, tree.pair_b,
