@@ -73,7 +73,10 @@ OUT = os.path.join(ROOT, "bench", "out")
 STAGES = {
     "fireflies": os.path.join(ROOT, "stages", "fireflies", "fireflies.usda"),
     "city_lights": os.path.join(ROOT, "stages", "city_lights", "city_lights.usda"),
+    "many_lights": os.path.join(ROOT, "stages", "many_lights", "many_lights.usda"),
 }
+# The stages ``--stages`` takes by default (many_lights is asked for by name).
+DEFAULT_STAGES = ["fireflies", "city_lights"]
 REL_EPS = 1e-2
 # The bench's default resolution; quality runs at another one (e.g. the stages' own 480x270)
 # keep their JSON and error maps under names with the resolution, so both stay reportable.
@@ -222,12 +225,13 @@ def emitter_mask(stage: str, res: tuple[int, int], margin_px: float = 2.5) -> np
 
 
 def reference(stage: str, res: tuple[int, int], spp: int, seed: int = 987_654,
-              threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+              threads: int | None = None, extra: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(H, W, 3) bvh render with spp samples per pixel and the (H, W, 3) variance of each pixel's
     mean (from the film's per-pixel second moments; an over-estimate where the stratified pixel
     samples beat independent ones), cached in bench/out/ as .npz. The variance gives the
     reference's own relMSE (the *floor* every measurement contains, since the reference's
-    noise adds to the measured error)."""
+    noise adds to the measured error). extra: more RenderOptions (e.g. an estimator the fast
+    path takes: any unbiased route renders the same image, so the cache ignores it)."""
     from renderer.render import RenderOptions, render
 
     os.makedirs(OUT, exist_ok=True)
@@ -240,7 +244,8 @@ def reference(stage: str, res: tuple[int, int], spp: int, seed: int = 987_654,
         return z["image"], z["var"]
     print(f"rendering reference {path} (bvh, {spp} spp) ...", flush=True)
     t0 = time.perf_counter()
-    r = render(stage, RenderOptions(spp=spp, resolution=res, light_sampler="bvh", seed=seed, threads=threads))
+    r = render(stage, RenderOptions(spp=spp, resolution=res, light_sampler="bvh", seed=seed, threads=threads,
+                                    **(extra or {})))
     img = r.film.image().astype(np.float64)
     var = np.zeros_like(img)
     x0, y0, x1, y1 = r.film.window
@@ -286,7 +291,8 @@ def _error_maps_png(path: str, ref: np.ndarray, images: dict, errs: dict, mask: 
     write_png(path, np.power(out, 2.2).astype(np.float32))
 
 
-def _equal_time_render(stage: str, res, sampler: str, seed: int, budget: float, threads, equal: str):
+def _equal_time_render(stage: str, res, sampler: str, seed: int, budget: float, threads, equal: str,
+                       extra: dict | None = None):
     """One measured render of ``budget`` seconds: (RenderResult, CPU seconds of its render loop).
 
     The scene is loaded by a 1-spp warm-up render first (kept in a scene cache, which also
@@ -299,7 +305,7 @@ def _equal_time_render(stage: str, res, sampler: str, seed: int, budget: float, 
     from renderer.render import RenderOptions, render
 
     cache: dict = {}
-    base = dict(resolution=res, light_sampler=sampler, threads=threads)
+    base = dict(resolution=res, light_sampler=sampler, threads=threads, **(extra or {}))
     render(stage, RenderOptions(spp=1, seed=seed + 50_000, **base), scene_cache=cache)
     if equal == "wall":
         c0 = time.process_time()
@@ -315,7 +321,7 @@ def _equal_time_render(stage: str, res, sampler: str, seed: int, budget: float, 
 
 
 def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("uniform", "power", "bvh"),
-                  threads: int | None = 1, equal: str = "cpu") -> list[dict]:
+                  threads: int | None = 1, equal: str = "cpu", extra: dict | None = None) -> list[dict]:
     """Equal-time relMSE per stage, sampler and seed, with the decomposition of the error: the
     reference's floor, the share of the whole-image error sum carried by emitter-visible pixels
     and by the worst 1 % of pixels, and error maps (bench/out/light_samplers_errmaps_STAGE.png)."""
@@ -325,7 +331,7 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
     info = {}
     for name in stages:
         stage = STAGES[name]
-        ref, ref_var = reference(stage, res, ref_spp, threads=threads)
+        ref, ref_var = reference(stage, res, ref_spp, threads=threads, extra=extra)
         m = emitter_mask(stage, res)
         keep = ~m
         floor_px = np.mean(ref_var / (ref * ref + REL_EPS), axis=2)
@@ -336,7 +342,7 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
         # Seeds outermost, so that changing load on the machine hits every sampler alike.
         for seed in seeds:
             for sampler in samplers:
-                r, cpu = _equal_time_render(stage, res, sampler, seed, budget, threads, equal)
+                r, cpu = _equal_time_render(stage, res, sampler, seed, budget, threads, equal, extra)
                 img = r.film.image().astype(np.float64)
                 ep = _pixel_rel_err(img, ref)
                 e = float(ep.mean())
@@ -346,6 +352,7 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
                 if seed == seeds[0]:
                     images[sampler], errs[sampler] = img, ep
                 rows.append({"stage": name, "sampler": sampler, "seed": seed, "spp": r.stats["spp"],
+                             "fast_path": r.stats.get("fast_path", ""),
                              "render_s": r.stats["seconds"]["render"], "cpu_s": cpu, "equal": equal,
                              "samples_per_s": r.stats["samples_per_second"], "relMSE": e,
                              "relMSE_surfaces": e_s, "relMSE_emitter_px": float(ep[m].mean()),
@@ -354,7 +361,7 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
                              "relMSE_x_spp": e * r.stats["spp"], "relMSE_surf_x_spp": e_s * r.stats["spp"],
                              "mean_ratio": float(img.mean() / ref.mean())})
                 x = rows[-1]
-                print(f"  {name:12} {sampler:8} seed {seed}: spp {x['spp']:4d}  relMSE {e:.4g}  surfaces {e_s:.4g}"
+                print(f"  {name:12} {sampler:8} seed {seed} ({x['fast_path']}): spp {x['spp']:4d}  relMSE {e:.4g}  surfaces {e_s:.4g}"
                       f"  emitter px {x['relMSE_emitter_px']:.4g} ({100 * x['emitter_share']:.0f} % of the sum)"
                       f"  worst 1 % px: {100 * x['top1pct_share']:.0f} %", flush=True)
         _error_maps_png(os.path.join(OUT, f"light_samplers_errmaps_{name}{_res_suffix(res)}.png"), ref, images, errs, m)
@@ -366,8 +373,9 @@ def bench_quality(stages, res, budget: float, ref_spp: int, seeds, samplers=("un
         aa_cache: dict = {}
         for sampler in samplers:
             spp = int(np.median([r["spp"] for r in rows if r["stage"] == name and r["sampler"] == sampler]))
+            aa_opt = {k: v for k, v in (extra or {}).items() if k not in ("max_depth", "fast_path")}
             ab = np.stack([render(stage, RenderOptions(spp=spp, resolution=res, max_depth=0, seed=1001 + k,
-                                                       threads=threads), scene_cache=aa_cache)
+                                                       threads=threads, **aa_opt), scene_cache=aa_cache)
                            .film.image().astype(np.float64) for k in range(AA_RENDERS)])
             aa = float(np.mean(np.var(ab, axis=0, ddof=1) / (ref * ref + REL_EPS)))
             for r in rows:
@@ -554,55 +562,66 @@ def bench_pick(stages, res, stride: int, samplers=("uniform", "power", "bvh"), c
 # ----------------------------------------------------------------------------------------
 _THROUGHPUT_CHILD = """
 import json, os, sys, time
-tree, stage, w, h, budget, sampler, depth = sys.argv[1:8]
+tree, stage, w, h, budget, sampler, depth, extra = sys.argv[1:9]
 sys.path.insert(0, tree)
 os.chdir(tree)
 import renderer
 assert os.path.abspath(renderer.__file__).startswith(os.path.abspath(tree)), renderer.__file__
 from renderer.render import RenderOptions, render
 cache = {}
-opt = dict(resolution=(int(w), int(h)), threads=1, max_depth=int(depth), light_sampler=sampler)
+opt = dict(resolution=(int(w), int(h)), threads=1, max_depth=int(depth), light_sampler=sampler, **json.loads(extra))
 render(stage, RenderOptions(spp=2, seed=99, **opt), scene_cache=cache)   # warm-up: numba, lazy tables
 c0 = time.process_time()
 r = render(stage, RenderOptions(time_budget=float(budget), seed=1, **opt), scene_cache=cache)
 cpu = time.process_time() - c0
 w, h = r.film.shape[1], r.film.shape[0]
 print(json.dumps({"samples_per_s": r.stats["samples_per_second"], "spp": r.stats["spp"],
+                  "fast_path": r.stats.get("fast_path", ""),
                   "samples_per_cpu_s": r.stats["passes_this_run"] * w * h / cpu,
                   "mrays_per_s": r.stats["mrays_per_second"], "render_s": r.stats["seconds"]["render"]}))
 """
 
 
 def bench_throughput(stage_names, res, budget: float, rounds: int, samplers, baseline: str | None,
-                     max_depth: int = 8, current: str = ROOT) -> list[dict]:
+                     max_depth: int = 8, current: str = ROOT, extra: dict | None = None,
+                     paths=("default",)) -> list[dict]:
     """samples/s of render() (threads 1, max depth 8, after a warm-up render), for the current
     tree (this one, or ``current``) and optionally a baseline tree (e.g. ``git archive REV | tar
     -x -C /tmp/base``), each run in its own process, alternating current / baseline (order
     flipped every round) so that load from other processes on the machine hits both alike.
     Both render this tree's stage files. samples/s is by wall time (what render() reports) and
     by the process's CPU time (with one render thread, the work done; less sensitive to the
-    other jobs on a shared machine)."""
+    other jobs on a shared machine). extra: more RenderOptions for every render (e.g. the
+    estimator); paths: 'fast' and / or 'general' (fast_path True / False) measured as separate
+    trees of the same source, alternated like a baseline, or 'default' (the render's own
+    choice)."""
     import subprocess
 
     trees = [("current", os.path.abspath(current))] + ([("baseline", os.path.abspath(baseline))] if baseline else [])
+    if tuple(paths) != ("default",):
+        trees = [(f"{label}/{p}", tree) for label, tree in trees for p in paths]
     rows = []
     for rnd in range(rounds):
         for name in stage_names:
             for sampler in samplers:
                 for label, tree in (trees if rnd % 2 == 0 else trees[::-1]):
+                    opt = dict(extra or {})
+                    if label.endswith("/fast") or label.endswith("/general"):
+                        opt["fast_path"] = label.endswith("/fast")
                     out = subprocess.run([sys.executable, "-c", _THROUGHPUT_CHILD, tree, STAGES[name], str(res[0]),
-                                          str(res[1]), str(budget), sampler, str(max_depth)],
+                                          str(res[1]), str(budget), sampler, str(max_depth), json.dumps(opt)],
                                          capture_output=True, text=True, check=True)
                     r = json.loads(out.stdout.strip().splitlines()[-1])
                     r.update({"tree": label, "stage": name, "sampler": sampler, "round": rnd,
                               "load_avg_1min": os.getloadavg()[0]})
                     rows.append(r)
-                    print(f"  round {rnd} {name:12} {sampler:8} {label:8}: {r['samples_per_s']:9.0f} samples/s "
+                    print(f"  round {rnd} {name:12} {sampler:8} {label:8} ({r['fast_path']}): "
+                          f"{r['samples_per_s']:9.0f} samples/s "
                           f"({r['samples_per_cpu_s']:.0f} per CPU s) "
                           f"({r['spp']} spp, {r['mrays_per_s']:.3f} Mrays/s, load {r['load_avg_1min']:.2f})",
                           flush=True)
     print(f"\nsamples/s, median over {rounds} rounds ({res[0]}x{res[1]}, {budget:g} s, threads 1, "
-          f"max depth {max_depth})")
+          f"max depth {max_depth}{', ' + json.dumps(extra) if extra else ''})")
     print(format_throughput_table(rows))
     return rows
 
@@ -815,7 +834,7 @@ def main(argv=None):
                     default="all")
     ap.add_argument("--sizes", type=int, nargs="+", default=[1_000, 10_000, 100_000])
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--stages", nargs="+", default=list(STAGES), choices=list(STAGES))
+    ap.add_argument("--stages", nargs="+", default=DEFAULT_STAGES, choices=list(STAGES))
     ap.add_argument("--samplers", nargs="+", default=["uniform", "power", "bvh"])
     ap.add_argument("--res", type=int, nargs=2, default=list(DEFAULT_RES))
     ap.add_argument("--budget", type=float, default=30.0, help="seconds of rendering per sampler and seed")
@@ -829,6 +848,11 @@ def main(argv=None):
     ap.add_argument("--baseline", default=None, help="throughput: another source tree to compare with")
     ap.add_argument("--current", default=ROOT, help="throughput: the tree measured as 'current' (default: this one)")
     ap.add_argument("--note", default="", help="throughput: what the trees are (printed in the report)")
+    ap.add_argument("--max-depth", type=int, default=8, help="throughput: max depth")
+    ap.add_argument("--paths", nargs="+", default=["default"], choices=["default", "fast", "general"],
+                    help="throughput: measure the fast path and / or the general one (fast_path on / off)")
+    ap.add_argument("--extra", default="{}",
+                    help='quality, throughput: more RenderOptions as JSON, e.g. \'{"estimator": {"": "mis"}}\'')
     args = ap.parse_args(argv)
     if args.what == "report":
         write_report()
@@ -845,13 +869,15 @@ def main(argv=None):
         report["build"] = bench_build(tuple(args.sizes), args.repeats)
     if args.what in ("quality", "all"):
         report["quality"] = bench_quality(args.stages, tuple(args.res), args.budget, args.ref_spp, args.seeds,
-                                          tuple(args.samplers), args.threads, args.equal)
+                                          tuple(args.samplers), args.threads, args.equal, json.loads(args.extra))
         report["res"], report["ref_spp"] = list(args.res), args.ref_spp
     if args.what == "pick":
         report["pick"] = bench_pick(args.stages, tuple(args.res), args.stride, tuple(args.samplers))
     if args.what == "throughput":
         report["throughput"] = bench_throughput(args.stages, tuple(args.res), args.budget, args.rounds,
-                                                tuple(args.samplers), args.baseline, current=args.current)
+                                                tuple(args.samplers), args.baseline, args.max_depth,
+                                                current=args.current, extra=json.loads(args.extra),
+                                                paths=args.paths)
     if args.what == "profile":
         report["profile"] = {s: bench_profile(args.stages[0], args.res, args.budget, s) for s in args.samplers}
     report["machine"]["load_avg_after"] = os.getloadavg()
@@ -860,7 +886,7 @@ def main(argv=None):
     if args.what == "quality":
         # Runs at another resolution, or of a subset of the stages, keep their own file.
         suffix = _res_suffix(args.res)
-        if list(args.stages) != list(STAGES):
+        if list(args.stages) != DEFAULT_STAGES:
             suffix += "_" + "_".join(args.stages)
     path = os.path.join(OUT, f"light_samplers_{args.what}{suffix}.json")
     with open(path, "w") as fh:

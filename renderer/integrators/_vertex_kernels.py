@@ -4,8 +4,11 @@ One call per bounce does, for every live ray, all the work between two embree ca
 general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
 lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
 material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
-for every light (the rect and sphere lights' samples drawn block by block by the vectorised
-batch kernels of kernels/lights.py, the others' row by row), and the BSDF sample with the throughput update
+for every light (the exhaustive lighting service: the rect and sphere lights' samples drawn
+block by block by the vectorised batch kernels of kernels/lights.py, the others' row by row) or
+for the one light a uniform, power or bvh service picks per row (kernels/light_pick.py: the
+pick, its pmf replayed for the emission weight, and the lights a ray crosses found by a walk of
+the light BVH instead of a loop over every light), and the BSDF sample with the throughput update
 and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
@@ -30,9 +33,10 @@ The maths is not restated here: it calls the per-row helpers of the surface inte
 on-disk cache is keyed on this file only, so ``guard_cache`` (renderer/kernels/__init__.py) flushes
 this file's cache whenever any of the files it inlines from changes.
 
-Shapes: n live rays; S (n, 14) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
+Shapes: n live rays; S (n, 17) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
 ``D`` (unit direction), ``TMAX``, ``PP`` (the previous vertex's point, for the light pdf of
-continuation MIS) and ``PB`` (the BSDF pdf of d there). A block's uniforms UB (4 + 2 lights,
+continuation MIS), ``PB`` (the BSDF pdf of d there) and ``PN`` (its shading normal, for the
+light BVH's pmf replay). A block's uniforms UB (4 + 2 lights or 4 + 3,
 BLK) come from a counter-based generator inside the kernel (_uniform_pass), batch axis last (the
 rect and sphere lights' batch samplers need unit stride along the batch); columns ``U_*``.
 """
@@ -51,9 +55,10 @@ from renderer.bsdfs._preview_kernels import (
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
+from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
-    _row, _sphere_hit_row, _sphere_pdf_row, _uniform_sphere_row,
+    _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
 )
 
 _INV_PI = 1.0 / math.pi
@@ -66,8 +71,10 @@ D = 6
 TMAX = 9
 PP = 10
 PB = 13
-NS = 14
-# Uniform columns: lobe choice, direction (2), roulette, then (2 per light) light samples.
+PN = 14
+NS = 17
+# Uniform columns: lobe choice, direction (2), roulette, then (2 per light) light samples, or
+# with a lighting service that picks (uniform, power, bvh), the pick's u and one light sample.
 U_LOBE = 0
 U_DIR = 1
 U_RR = 3
@@ -385,6 +392,62 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
             X[r - lo] = 1.0 if crossed else X[r - lo]
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def _light_of(g, n_rect, n_rs, n_fin, rect_light, sphere_light, disk_light, inf_light):
+    """The global light index of the kernel's light g (rect, sphere, disk, then infinite)."""
+    if g < n_rect:
+        return rect_light[g]
+    if g < n_rs:
+        return sphere_light[g - n_rect]
+    if g < n_fin:
+        return disk_light[g - n_rs]
+    return inf_light[g - n_fin]
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _sample_light_row(g, p, u0, u1, n_rect, n_rs, n_fin, rect, sph, disk, inf, img, close_ratio, min_sa, graz):
+    """One light sample of the kernel's light g (rect, sphere, disk, then infinite) from the
+    point p with (u0, u1), through the light kind's own row sampler (kernels/lights.py):
+    (wi, distance (inf for infinite lights), solid-angle pdf (0: unusable), radiance Le, delta).
+    The light tables as the records vertex_kernel packs: rect (center, ex, ey, x_hat, y_hat,
+    edge_len, nrm, area, radiance, is_rect), sph (center, radius, radiance, delta), disk
+    (center, nrm, u1, u2, e1, e2, s1, s2, area, radiance), inf (dome, axis, omc, delta,
+    radiance, tex, rot) and img (texels, offset, height, width, weight, total, row_cdf,
+    row_cdf_start, col_cdf, col_cdf_start). Without reference counting (_nrt=False): the five
+    records' 41 arrays would otherwise be incref'd and decref'd on every call (see
+    kernels/light_bvh.py)."""
+    if g < n_rect:
+        j = g
+        wi, dist, pdf_l, _pl, _ok = _rect_sample_row(
+            p, u0, u1, _row(rect[0], j), _row(rect[1], j), _row(rect[2], j), _row(rect[3], j), _row(rect[4], j),
+            rect[5][j, 0], rect[5][j, 1], _row(rect[6], j), rect[7][j], False, rect[9][j], 0.0, 0.0, 0.0, min_sa,
+            graz)
+        return wi, dist, pdf_l, _row(rect[8], j), False
+    if g < n_rs:
+        j = g - n_rect
+        wi, dist, pdf_l, _pl, _ok, sc = _sphere_sample_row(p, u0, u1, _row(sph[0], j), sph[1][j], sph[3][j])
+        Le = _row(sph[2], j)
+        return wi, dist, (pdf_l if _ok else 0.0), (Le[0] * sc, Le[1] * sc, Le[2] * sc), sph[3][j]
+    if g < n_fin:
+        j = g - n_rs
+        wi, dist, pdf_l, _pl, _ok = _disk_sample_row(
+            p, u0, u1, _row(disk[0], j), _row(disk[1], j), _row(disk[2], j), _row(disk[3], j), _row(disk[4], j),
+            _row(disk[5], j), disk[6][j], disk[7][j], disk[8][j], close_ratio, min_sa, graz)
+        return wi, dist, (pdf_l if _ok else 0.0), _row(disk[9], j), False
+    j = g - n_fin
+    Le = _row(inf[4], j)
+    if inf[0][j] and inf[5][j] >= 0:
+        wi, pdf_l, kt = _dome_sample_row(u0, u1, inf[5][j], inf[6][j], img[2], img[3], img[6], img[7], img[8],
+                                         img[9], img[4], img[5], img[1])
+        Le = (Le[0] * img[0][kt, 0], Le[1] * img[0][kt, 1], Le[2] * img[0][kt, 2])
+    elif inf[0][j]:
+        wi = _uniform_sphere_row(u0, u1)
+        pdf_l = _INV_4PI
+    else:
+        wi, pdf_l = _distant_sample_row(u0, u1, _row(inf[1], j), inf[2][j], inf[3][j])
+    return wi, math.inf, pdf_l, Le, inf[3][j] and not inf[0][j]
+
+
 @njit(cache=True, nogil=True)
 def vertex_kernel(
     path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, key, n_u, surf, max_depth,
@@ -395,16 +458,18 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
     to ``eps_add`` describe the scene and stay fixed for a render (FastPath.tables).
 
     path, depth: (n,) int64 (the path's row in L, scattering events so far); unsampled: (n,) bool
-    (camera rays: emission counts fully; all others carry continuation MIS for every light); hit_*:
+    (camera rays: emission counts fully; all others carry continuation MIS for every light, with
+    the pick pmf of the service at the vertex they left); hit_*:
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
-    a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights): the
+    a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights, or 4 + 3
+    with a picking service: the pick's u, then the light sample's two): the
     rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
     (Pm, mat_row, emission, bent_ns) of FastPath._surfaces: Pm (materials, K) packed BSDF rows,
     or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
@@ -416,16 +481,19 @@ def vertex_kernel(
     im_* or -1 for a constant one and i_rot (3, 3) its local -> world rotation; else a
     DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
-    its power flag); power: (lights,) bool heuristic. L (m, 3)
+    its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
+    light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
+    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
-    sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
+    sh_c (capacity n * lights, or n with a picking service), sh_c (k, 3) being the radiance each
+    adds if unblocked. counts[0],
     counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
 
-    The rows go in blocks of BLK: vectorised passes (_surface_pass; when a row of the block
-    scatters, each rect and sphere light's batch sampler and _light_pass) fill the block's state,
-    then one scalar pass per row adds emission, takes the other lights' light half and writes the
-    rays compactly.
+    The rows go in blocks of BLK: vectorised passes (_surface_pass; with the exhaustive service,
+    when a row of the block scatters, each rect and sphere light's batch sampler and _light_pass)
+    fill the block's state, then one scalar pass per row adds emission, takes the other lights'
+    light half (or the picked light's: _sample_light_row) and writes the rays compactly.
     """
     Pm, mat_row, emission, bent_ns = surf
     n_rect = center.shape[0]
@@ -436,13 +504,27 @@ def vertex_kernel(
     k_sh = 0
     n_vertices = 0
     n = path.shape[0]
+    # A lighting service that picks (uniform, power, bvh): one light per vertex, sampled by its
+    # row sampler, and the lights a ray crosses found through the light BVH (light_pick.py);
+    # the exhaustive one: every light, the rect and sphere lights sampled block-wise.
+    picks = sp[0] != EXHAUSTIVE
+    n_batch = 0 if picks else n_rs
+    rect_t = (center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect)
+    sph_t = (s_center, s_radius, s_radiance, s_delta)
+    disk_t = (d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance)
+    inf_t = (i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex, i_rot)
+    img_t = (im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
+             im_col_cdf, im_col_cdf_start)
+    # Scratch of the light BVH walk (crossed_row): its stack (tree depth + 2) and the lights found.
+    stack = np.empty((sp[9].max() if sp[9].shape[0] else 0) + 2, dtype=np.int64)
+    found = np.empty(max(n_fin, 1), dtype=np.int64)
     W = np.empty(NW * BLK)
     # The block state as (NW, BLK) rows: its first three (W_P = 0) are the hit points the batch
     # samplers read.
     W2 = W.reshape((NW, BLK))
-    C = np.empty((n_rs, 4 * BLK))
+    C = np.empty((n_batch, 4 * BLK))
     # The block's rect and sphere light samples (wi, distance, pdf, radiance scale).
-    R = np.empty((n_rs, 6, BLK))
+    R = np.empty((n_batch, 6, BLK))
     # 1.0 for the block's rows that may cross a rect or sphere light (_cross_pass).
     X = np.empty(BLK)
     # The block's uniforms, (n_u, BLK): columns U_* of the module docstring.
@@ -460,7 +542,7 @@ def vertex_kernel(
             sampled = False
             for r in range(lo, hi):
                 sampled = sampled or (hit_prim[r] >= 0 and depth[r] < max_depth)
-            if sampled:
+            if sampled and not picks:
                 for j in range(n_rect):
                     rect_sample_batch_kernel(W2, UB, U_LIGHT + 2 * rect_light[j], 0, hi - lo, _row(center, j),
                                              _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
@@ -473,7 +555,7 @@ def vertex_kernel(
                                                s_radius[j], s_delta[j], R[g])
                     _light_pass(lo, hi, R[g], True, s_radiance[j, 0], s_radiance[j, 1], s_radiance[j, 2],
                                 s_delta[j], power[sphere_light[j]], S, W, Pm, C[g])
-        if n_rs:
+        if n_rs and not picks:
             _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_radius, s_delta, X)
         for r in range(lo, hi):
             i = r - lo
@@ -487,8 +569,16 @@ def vertex_kernel(
             t_hit = float(hit_t[r]) if k >= 0 else math.inf
             t_geo = min(t_hit, S[r, TMAX])
             # ---- emission of the lights crossed before the surface (lights are transparent) ----
-            # The rect and sphere lights only where _cross_pass found the row may cross one.
-            for g in range(0 if n_rs and X[i] != 0.0 else n_rs, n_fin):
+            # Picking services: the lights whose BVH nodes the ray meets. Exhaustive: every light,
+            # the rect and sphere lights only where _cross_pass found the row may cross one.
+            if picks:
+                n_c = crossed_row(sp, o[0], o[1], o[2], d[0], d[1], d[2], t_geo, stack, found) if n_fin else 0
+                g0 = 0
+            else:
+                g0 = 0 if n_rs and X[i] != 0.0 else n_rs
+                n_c = n_fin - g0
+            for c_ in range(n_c):
+                g = fast_of[found[c_]] if picks else g0 + c_
                 if g < n_rect:
                     j = g
                     tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
@@ -517,7 +607,8 @@ def vertex_kernel(
                 if unsampled[r]:
                     w = 1.0
                 else:
-                    # h(p_b, p_l): p_l from the vertex the ray left, as the light half there used.
+                    # h(p_b, pmf p_l): p_l and the service's pmf from the vertex the ray left, as
+                    # the light half there used.
                     pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
                     if g < n_rect:
                         p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
@@ -529,7 +620,8 @@ def vertex_kernel(
                                             min_sa, graz)
                     else:
                         p_l = _sphere_pdf_row(pv, d, _row(s_center, j), s_radius[j], s_delta[j])
-                    w = _mis_weight(S[r, PB], p_l, power[gl])
+                    pmf = pick_pmf_row(sp, gl, pv[0], pv[1], pv[2], S[r, PN], S[r, PN + 1], S[r, PN + 2])
+                    w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
                 L[pr_path, 0] += b0 * Le[0] * w
                 L[pr_path, 1] += b1 * Le[1] * w
                 L[pr_path, 2] += b2 * Le[2] * w
@@ -551,7 +643,12 @@ def vertex_kernel(
                         if p_l <= 0.0:
                             continue  # outside the cone (a delta light is never seen)
                         Le = _row(i_radiance, j)
-                    w = 1.0 if unsampled[r] else _mis_weight(S[r, PB], p_l, power[inf_light[j]])
+                    if unsampled[r]:
+                        w = 1.0
+                    else:
+                        pmf = pick_pmf_row(sp, inf_light[j], S[r, PP], S[r, PP + 1], S[r, PP + 2], S[r, PN],
+                                           S[r, PN + 1], S[r, PN + 2])
+                        w = _mis_weight(S[r, PB], p_l * pmf, power[inf_light[j]])
                     L[pr_path, 0] += b0 * Le[0] * w
                     L[pr_path, 1] += b1 * Le[1] * w
                     L[pr_path, 2] += b2 * Le[2] * w
@@ -568,9 +665,23 @@ def vertex_kernel(
             py = W[(W_P + 1) * BLK + i]
             pz = W[(W_P + 2) * BLK + i]
             eps = W[W_EPS * BLK + i]
-            # ---- the light half of continuation MIS, every light (the exhaustive sampler) ------
-            for g in range(nl):
-                if g < n_rs:
+            # ---- the light half of continuation MIS: every light (exhaustive), or the picked one --
+            for q in range(1 if picks else nl):
+                if picks:
+                    gl, pmf = pick_row(sp, UB[U_LIGHT, i], px, py, pz, W[W_N * BLK + i], W[(W_N + 1) * BLK + i],
+                                       W[(W_N + 2) * BLK + i])
+                    if not pmf > 0.0:
+                        continue
+                    g = fast_of[gl]
+                    u0 = UB[U_LIGHT + 1, i]
+                    u1 = UB[U_LIGHT + 2, i]
+                else:
+                    g = q
+                    pmf = 1.0
+                    gl = _light_of(g, n_rect, n_rs, n_fin, rect_light, sphere_light, disk_light, inf_light)
+                    u0 = UB[U_LIGHT + 2 * gl, i]
+                    u1 = UB[U_LIGHT + 2 * gl + 1, i]
+                if g < n_batch:
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
                     wi = (R[g, 0, i], R[g, 1, i], R[g, 2, i])
                     dist = R[g, 3, i]
@@ -581,41 +692,20 @@ def vertex_kernel(
                     c1 = C[g, 1 * BLK + i]
                     c2 = C[g, 2 * BLK + i]
                 else:
-                    if g >= n_fin:
-                        j = g - n_fin
-                        gl = inf_light[j]
-                        Le = _row(i_radiance, j)
-                        if i_dome[j] and i_tex[j] >= 0:
-                            wi, pdf_l, kt = _dome_sample_row(
-                                UB[U_LIGHT + 2 * gl, i], UB[U_LIGHT + 2 * gl + 1, i], i_tex[j], i_rot[j], im_height,
-                                im_width, im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight,
-                                im_total, im_offset)
-                            Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
-                        elif i_dome[j]:
-                            wi = _uniform_sphere_row(UB[U_LIGHT + 2 * gl, i], UB[U_LIGHT + 2 * gl + 1, i])
-                            pdf_l = _INV_4PI
-                        else:
-                            wi, pdf_l = _distant_sample_row(UB[U_LIGHT + 2 * gl, i], UB[U_LIGHT + 2 * gl + 1, i],
-                                                            _row(i_axis, j), i_omc[j], i_delta[j])
-                        dist = math.inf
-                        delta = i_delta[j] and not i_dome[j]
-                    else:
-                        j = g - n_rs
-                        gl = disk_light[j]
-                        wi, dist, pdf_l, _pl, _ok = _disk_sample_row(
-                            (px, py, pz), UB[U_LIGHT + 2 * gl, i], UB[U_LIGHT + 2 * gl + 1, i], _row(d_center, j),
-                            _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j), _row(d_e1, j), _row(d_e2, j), d_s1[j],
-                            d_s2[j], d_area[j], close_ratio, min_sa, graz)
-                        pdf_l = pdf_l if _ok else 0.0
-                        Le = _row(d_radiance, j)
-                        delta = False
+                    wi, dist, pdf_l, Le, delta = _sample_light_row(g, (px, py, pz), u0, u1, n_rect, n_rs, n_fin,
+                                                                   rect_t, sph_t, disk_t, inf_t, img_t, close_ratio,
+                                                                   min_sa, graz)
                     if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
                         continue
+                    # Divided by the pick's pmf: a delta light's weight is 1 (its radiance is
+                    # divided), the others' h(pmf p_l, p_b) / (pmf p_l).
+                    if delta:
+                        Le = (Le[0] / pmf, Le[1] / pmf, Le[2] / pmf)
                     a, j0, fy, kd, f0, f90 = _mat(Pm, int(W[W_M * BLK + i]))
                     ok, c0, c1, c2 = _light_contrib(
-                        wi, pdf_l, Le, delta, power[gl], _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
-                        _w3(W, W_G, i), _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], a, j0, fy, kd, f0,
-                        f90, (b0, b1, b2))
+                        wi, pdf_l if delta else pdf_l * pmf, Le, delta, power[gl], _w3(W, W_FS, i), _w3(W, W_FT, i),
+                        _w3(W, W_N, i), _w3(W, W_G, i), _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i],
+                        W[W_PD * BLK + i], a, j0, fy, kd, f0, f90, (b0, b1, b2))
                     if not ok:
                         continue
                 # The sample is above the geometric normal (ok): the shadow ray leaves on its side.
@@ -644,6 +734,7 @@ def vertex_kernel(
                 n_S[k_next, O + c] = W[(W_P + c) * BLK + i] + W[(W_G + c) * BLK + i] * eps
                 n_S[k_next, D + c] = W[(W_WN + c) * BLK + i]
                 n_S[k_next, PP + c] = W[(W_P + c) * BLK + i]
+                n_S[k_next, PN + c] = W[(W_N + c) * BLK + i]
                 n_o32[k_next, c] = n_S[k_next, O + c]
                 n_d32[k_next, c] = n_S[k_next, D + c]
             n_S[k_next, TMAX] = math.inf
@@ -666,6 +757,7 @@ def start_kernel(o, d, tmax, S, o32, d32, t32):
             S[r, O + c] = o[r, c]
             S[r, D + c] = d[r, c]
             S[r, PP + c] = 0.0
+            S[r, PN + c] = 0.0
             o32[r, c] = o[r, c]
             d32[r, c] = d[r, c]
         S[r, TMAX] = tmax[r]
@@ -686,4 +778,5 @@ def add_unblocked_kernel(L, sh_path, sh_c, blocked):
 
 guard_cache(__name__, module_dispatchers(globals()),
             ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py",
-             "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py"])
+             "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
+             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py"])

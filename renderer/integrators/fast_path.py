@@ -9,8 +9,11 @@ z-test the two against each other and render with each on the same stages.
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
-  light linking, with unit diffuse/specular multipliers, few enough for
-  the exhaustive light sampler (every light at every vertex, pmf 1);
+  light linking, with unit diffuse/specular multipliers, under any lighting service: exhaustive
+  (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
+  (renderer/kernels/light_pick.py: one pick per vertex, divided by its pmf, and the pmf replayed
+  at the previous vertex for the MIS weight of a light the continuation ray reaches, as the
+  general path's _Emission does; the lights a ray crosses come from a walk of the light BVH);
 * every light on the `mis` estimator with one sample (the default `auto` picks it for such
   lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
@@ -70,8 +73,6 @@ def fast_path_reason(integ) -> str:
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
-    if not getattr(scene.light_sampler, "exhaustive", False):
-        return "a stochastic light sampler"
     if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
         return "ShapingAPI, ShadowAPI or light linking"
     if not np.all(integ.cont_ok) or not np.all(integ.samples_one):
@@ -150,6 +151,15 @@ class FastPath:
         from ..estimators import HEURISTICS
 
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
+        # The lighting service's record (light_pick.py), and each global light's index in the
+        # kernel's order (rect, sphere, disk, then infinite lights).
+        from ..light_samplers import pick_tables
+
+        self.picks = not getattr(scene.light_sampler, "exhaustive", False)
+        self.sp = pick_tables(scene.light_sampler, lights)
+        fast_of = np.full(lights.count, -1, dtype=np.int64)
+        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
+        fast_of[order] = np.arange(order.size)
         rl, sl, dl = self.rect, self.sphere, self.disk
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         self.tables = (
@@ -158,7 +168,7 @@ class FastPath:
             rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
-            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms())
+            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp)
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
@@ -167,6 +177,10 @@ class FastPath:
         integ = self.integ
         accel = integ.scene.accel
         nl = integ.lights.count
+        # Shadow rays per vertex: every light, or the one a picking service chose; and the
+        # uniforms per row: two per light, or the pick's and one light sample's.
+        per_vertex = 1 if self.picks else nl
+        n_u = vk.U_LIGHT + (3 if self.picks else 2 * nl)
         m = o.shape[0]
         L = np.zeros((m, 3))
         path = np.arange(m, dtype=np.int64)
@@ -200,16 +214,16 @@ class FastPath:
             n_o32 = np.empty((n, 3), dtype=np.float32)
             n_d32 = np.empty((n, 3), dtype=np.float32)
             n_t32 = np.empty(n, dtype=np.float32)
-            sh_o = np.empty((n * nl, 3), dtype=np.float32)
-            sh_d = np.empty((n * nl, 3), dtype=np.float32)
-            sh_t = np.empty(n * nl, dtype=np.float32)
-            sh_path = np.empty(n * nl, dtype=np.int64)
-            sh_c = np.empty((n * nl, 3))
-            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, vk.U_LIGHT + 2 * nl, surf, max_depth,
+            sh_o = np.empty((n * per_vertex, 3), dtype=np.float32)
+            sh_d = np.empty((n * per_vertex, 3), dtype=np.float32)
+            sh_t = np.empty(n * per_vertex, dtype=np.float32)
+            sh_path = np.empty(n * per_vertex, dtype=np.int64)
+            sh_c = np.empty((n * per_vertex, 3))
+            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, n_u, surf, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts)
             k_next, k_sh = int(counts[0]), int(counts[1])
-            pairs += int(counts[2]) * nl
+            pairs += int(counts[2]) * per_vertex
             if k_sh:
                 blocked = self._blocked(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], rng)
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
