@@ -104,6 +104,7 @@ class ReadContext:
             "materials": 0,
             "subdivided_meshes": 0,  # meshes refined (renderer/subdiv.py)
             "subdivided_faces": 0,  # their refined faces
+            "skinned_meshes": 0,  # meshes deformed by UsdSkel (renderer/usd/skinning.py)
         }
         self.up_axis = str(UsdGeom.GetStageUpAxis(stage))
 

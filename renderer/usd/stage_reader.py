@@ -47,6 +47,7 @@ from .estimator_api import check_light_api_target
 from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
 from .mesh import expand_primvar, primvar_element_count, triangulate
+from .skinning import Skinning
 from .subdiv_mesh import SubdivPolicy, read_subdivided
 from .render_settings import find_settings_prim, read_render_settings
 
@@ -307,6 +308,7 @@ class _Traversal:
                  subdiv_policy: SubdivPolicy | None = None):
         self.ctx = ctx
         self.subdiv = subdiv_policy or SubdivPolicy(None, None)
+        self.skinning = Skinning(ctx)
         self.included = frozenset(included)
         self.materials = MaterialTable(ctx, binding_purposes)
         self.meshes: list[MeshDesc] = []
@@ -565,6 +567,7 @@ class _Traversal:
             return self._read_mesh(prim, material, st_name or "st", subsets)
         if any(prim.IsA(t) for t in _IMPLICIT_TYPES):
             material, _st = self.materials.index_for(prim)
+            self.skinning.warn_unsupported(prim)
             return self._read_implicit(prim, material)
         self.ctx.warn(f"gprim-{prim.GetTypeName()}",
                       f"{prim.GetPath()}: {prim.GetTypeName()} prims are not supported; skipped")
@@ -609,6 +612,8 @@ class _Traversal:
         if not np.isfinite(points).all():
             bad = int(np.nonzero(~np.isfinite(points).all(axis=1))[0][0])
             raise ctx.error(f"point {bad} is not finite ({tuple(points[bad])})", prim, "points")
+        # UsdSkel: blend shapes and joints at the render time (the rest pose when not skinned).
+        points, skinned_normals = self.skinning.deform_mesh(prim, mesh, points)
         raw = ctx.get_attr(mesh.GetFaceVertexCountsAttr())
         counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
         raw = ctx.get_attr(mesh.GetFaceVertexIndicesAttr())
@@ -647,7 +652,11 @@ class _Traversal:
         if mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded:
             tri_corners = tri_corners[:, [0, 2, 1]]  # front faces wind clockwise: make them CCW
         sizes = (len(points), len(counts), len(indices))
-        normals = self._mesh_normals(prim, mesh, tri_corners, tri_face, indices, sizes)
+        if skinned_normals is not None:
+            normals = self._expand(prim, "normals", skinned_normals[0], None, skinned_normals[1], tri_corners,
+                                   tri_face, indices, sizes, 3)
+        else:
+            normals = self._mesh_normals(prim, mesh, tri_corners, tri_face, indices, sizes)
         if normals is None and scheme in (UsdGeom.Tokens.catmullClark, UsdGeom.Tokens.loop):
             # UsdGeom: a subdivided mesh is a smooth surface whose normals the subdivision defines
             # ("normals should not be authored on any Mesh that is subdivided"). Rendering the
