@@ -319,6 +319,16 @@ def _limit(P, indices, starts, counts, corner_edge, edge_v, edge_sharp, vert_sha
     LP = P.copy()
     N = np.zeros((V, 3))
     m = 3 if is_loop else 4
+    max_n = 0
+    for v in range(V):
+        max_n = max(max_n, n_edges[v])
+    # per-vertex scratch, allocated once (this loop runs over every refined vertex)
+    ring_e = np.empty(max_n, np.int64)
+    ring_f = np.empty(max_n, np.int64)  # Catmull-Clark: the diagonal vertex of face i
+    used = np.zeros(max_n, np.bool_)
+    acc = np.empty(k)
+    t1 = np.empty(3)
+    t2 = np.empty(3)
     for v in range(V):
         n = n_edges[v]
         nf = deg[v + 1] - deg[v]
@@ -331,18 +341,17 @@ def _limit(P, indices, starts, counts, corner_edge, edge_v, edge_sharp, vert_sha
             e2 = sharp2[v]
             o1 = edge_v[e1, 1] if edge_v[e1, 0] == v else edge_v[e1, 0]
             o2 = edge_v[e2, 1] if edge_v[e2, 0] == v else edge_v[e2, 0]
-            LP[v] = (P[o1] + 4.0 * P[v] + P[o2]) / 6.0
+            for d in range(k):
+                LP[v, d] = (P[o1, d] + 4.0 * P[v, d] + P[o2, d]) / 6.0
             continue
         if nf != n:
             continue
         # Order the ring: face i's "next" corner vertex is e_i, its "previous" one is e_{i+1}.
-        ring_e = np.empty(n, np.int64)
-        ring_f = np.empty(n, np.int64)  # Catmull-Clark: the diagonal vertex of face i
-        used = np.zeros(n, np.bool_)
-        first = inc[deg[v]]
-        cur = first
-        ok = True
+        for q in range(n):
+            used[q] = False
+        cur = inc[deg[v]]
         used[0] = True
+        ok = True
         for i in range(n):
             f_start = cur - corner_local[cur]
             jl = corner_local[cur]
@@ -350,15 +359,14 @@ def _limit(P, indices, starts, counts, corner_edge, edge_v, edge_sharp, vert_sha
             ring_f[i] = indices[f_start + (jl + 2) % m]
             prev_v = indices[f_start + (jl + m - 1) % m]
             if i == n - 1:
-                ok = ok and prev_v == ring_e[0]
+                ok = prev_v == ring_e[0]
                 break
             found = -1
             for q in range(n):
                 cq = inc[deg[v] + q]
-                if used[q] or cq == cur:
+                if used[q]:
                     continue
-                fq = cq - corner_local[cq]
-                if indices[fq + (corner_local[cq] + 1) % m] == prev_v:
+                if indices[cq - corner_local[cq] + (corner_local[cq] + 1) % m] == prev_v:
                     found = q
                     break
             if found < 0:
@@ -368,30 +376,42 @@ def _limit(P, indices, starts, counts, corner_edge, edge_v, edge_sharp, vert_sha
             cur = inc[deg[v] + found]
         if not ok:
             continue
-        t1 = np.zeros(3)
-        t2 = np.zeros(3)
+        for d in range(3):
+            t1[d] = 0.0
+            t2[d] = 0.0
         if is_loop:
             c0 = 0.375 + 0.25 * math.cos(2.0 * math.pi / n)
             beta = (0.625 - c0 * c0) / n
             chi = 1.0 / (n + 3.0 / (8.0 * beta))
-            acc = np.zeros(k)
+            for d in range(k):
+                acc[d] = 0.0
             for i in range(n):
-                acc += P[ring_e[i]]
                 th = 2.0 * math.pi * i / n
-                t1 += math.cos(th) * P[ring_e[i], :3]
-                t2 += math.sin(th) * P[ring_e[i], :3]
-            LP[v] = (1.0 - n * chi) * P[v] + chi * acc
+                ct, sn = math.cos(th), math.sin(th)
+                for d in range(k):
+                    acc[d] += P[ring_e[i], d]
+                for d in range(3):
+                    t1[d] += ct * P[ring_e[i], d]
+                    t2[d] += sn * P[ring_e[i], d]
+            for d in range(k):
+                LP[v, d] = (1.0 - n * chi) * P[v, d] + chi * acc[d]
         else:
-            acc = n * n * P[v]
+            for d in range(k):
+                acc[d] = n * n * P[v, d]
             a_n = 1.0 + math.cos(2.0 * math.pi / n) + math.cos(math.pi / n) * math.sqrt(
                 2.0 * (9.0 + math.cos(2.0 * math.pi / n)))
             for i in range(n):
-                acc = acc + 4.0 * P[ring_e[i]] + P[ring_f[i]]
                 th0 = 2.0 * math.pi * i / n
                 th1 = 2.0 * math.pi * (i + 1) / n
-                t1 += a_n * math.cos(th0) * P[ring_e[i], :3] + (math.cos(th0) + math.cos(th1)) * P[ring_f[i], :3]
-                t2 += a_n * math.sin(th0) * P[ring_e[i], :3] + (math.sin(th0) + math.sin(th1)) * P[ring_f[i], :3]
-            LP[v] = acc / (n * (n + 5.0))
+                ce, se = a_n * math.cos(th0), a_n * math.sin(th0)
+                cf, sf = math.cos(th0) + math.cos(th1), math.sin(th0) + math.sin(th1)
+                for d in range(k):
+                    acc[d] += 4.0 * P[ring_e[i], d] + P[ring_f[i], d]
+                for d in range(3):
+                    t1[d] += ce * P[ring_e[i], d] + cf * P[ring_f[i], d]
+                    t2[d] += se * P[ring_e[i], d] + sf * P[ring_f[i], d]
+            for d in range(k):
+                LP[v, d] = acc[d] / (n * (n + 5.0))
         nx = t1[1] * t2[2] - t1[2] * t2[1]
         ny = t1[2] * t2[0] - t1[0] * t2[2]
         nz = t1[0] * t2[1] - t1[1] * t2[0]
