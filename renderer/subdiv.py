@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-__all__ = ["SCHEMES", "Creases", "Refinement", "refine", "refine_face_varying", "choose_level",
+__all__ = ["SCHEMES", "Creases", "corner_tables", "Refinement", "refine", "refine_face_varying", "choose_level",
            "TARGET_EDGE_PX", "MAX_AUTO_LEVEL", "MAX_AUTO_FACES", "INFINITE_SHARPNESS"]
 
 SCHEMES = ("catmullClark", "loop", "bilinear")
@@ -109,7 +109,7 @@ class Refinement:
 # --------------------------------------------------------------------------------------
 # Topology helpers (numpy)
 # --------------------------------------------------------------------------------------
-def _corner_tables(counts: np.ndarray):
+def corner_tables(counts: np.ndarray):
     """starts (F,), corner_face (C,), next and previous corner in the same face (C,)."""
     starts = np.cumsum(counts) - counts
     corner_face = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
@@ -468,7 +468,7 @@ def refine(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, scheme: 
     counts = np.asarray(counts, np.int64)
     indices = np.asarray(indices, np.int64)
     V = len(P)
-    starts, corner_face, nxt, prv = _corner_tables(counts)
+    starts, corner_face, nxt, prv = corner_tables(counts)
     corner_edge, edge_v, edge_key = _edges(indices, nxt, V)
     edge_nf = _edge_face_counts(corner_edge, len(edge_v))
     boundary_sharp = sid != 2
@@ -510,7 +510,7 @@ def refine(points: np.ndarray, counts: np.ndarray, indices: np.ndarray, scheme: 
         if sid == 1:
             drop_face = np.repeat(drop_face, 4)
         nV = len(newP)
-        new_starts, new_corner_face, new_nxt, new_prv = _corner_tables(new_counts)
+        new_starts, new_corner_face, new_nxt, new_prv = corner_tables(new_counts)
         new_corner_edge, new_edge_v, new_edge_key = _edges(new_idx, new_nxt, nV)
         new_nf = _edge_face_counts(new_corner_edge, len(new_edge_v))
         new_sharp = np.zeros(len(new_edge_v))
@@ -544,8 +544,7 @@ def _fill_normals(P: np.ndarray, N: np.ndarray, counts, indices, corner_face) ->
     missing = ~np.any(N != 0.0, axis=1)
     if not missing.any():
         return N
-    starts = np.cumsum(counts) - counts
-    nxt = starts[corner_face] + (np.arange(len(indices)) - starts[corner_face] + 1) % counts[corner_face]
+    nxt = corner_tables(counts)[2]
     # Newell's normal of each face: the sum over its corners of p_c x p_next.
     cross = np.cross(P[indices], P[indices[nxt]])
     face_n = np.stack([np.bincount(corner_face, weights=cross[:, i], minlength=len(counts)) for i in range(3)], 1)

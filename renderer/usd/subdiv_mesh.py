@@ -33,9 +33,7 @@ class SubdivPolicy:
         if self.view is None or len(indices) == 0:
             return None
         cam, width = self.view
-        starts = np.cumsum(counts) - counts
-        face = np.repeat(np.arange(len(counts)), counts)
-        nxt = starts[face] + (np.arange(len(indices)) - starts[face] + 1) % counts[face]
+        nxt = subdiv.corner_tables(counts)[2]
         length = float(np.median(np.linalg.norm(world_points[indices] - world_points[indices[nxt]], axis=1)))
         if cam.projection == "orthographic":
             return length * width / cam.horizontal_aperture

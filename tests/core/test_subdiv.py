@@ -22,7 +22,8 @@ CUBE_F = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2
 def _grid(n, m):
     """(points, counts, indices) of an n x m vertex grid of unit quads in z = 0, CCW from +Z."""
     pts = np.array([[i, j, 0.0] for j in range(m) for i in range(n)])
-    quads = [[j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i] for j in range(m - 1) for i in range(n - 1)]
+    quads = [[j * n + i, j * n + i + 1, (j + 1) * n + i + 1, (j + 1) * n + i]
+             for j in range(m - 1) for i in range(n - 1)]
     return pts, np.full(len(quads), 4), np.array(quads).ravel()
 
 
