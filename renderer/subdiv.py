@@ -172,17 +172,22 @@ def _vertex_sharp_edges(edge_v, edge_sharp, n_vertices):
 def _refine_points(P, starts, counts, indices, corner_edge, edge_v, edge_sharp, vert_sharp, scheme):
     """New points of one level: [vertex points (V)][edge points (E)][face points (F), Catmull-Clark
     and bilinear only]. scheme 0 catmullClark, 1 loop, 2 bilinear. Also returns, per edge, the
-    Chaikin sharpness of its two child edges (at edge_v[e, 0] and at edge_v[e, 1])."""
+    Chaikin sharpness of its two child edges (at edge_v[e, 0] and at edge_v[e, 1]).
+    Written with scalar loops over the k columns: no temporaries per element."""
     V, k = P.shape
     F = counts.shape[0]
     E = edge_v.shape[0]
     quads = scheme != 1
-    fp = np.zeros((F, k))
+    n_out = V + E + (F if quads else 0)
+    out = np.zeros((n_out, k))
+    fp = out[V + E:]  # face points (empty for Loop)
     if quads:
         for f in range(F):
+            inv = 1.0 / counts[f]
             for j in range(counts[f]):
-                fp[f] += P[indices[starts[f] + j]]
-            fp[f] /= counts[f]
+                c = indices[starts[f] + j]
+                for d in range(k):
+                    fp[f, d] += P[c, d] * inv
     # Per edge: the sum of its faces' points (CC) or opposite vertices (Loop), and face count.
     e_acc = np.zeros((E, k))
     e_nf = np.zeros(E, np.int64)
@@ -192,79 +197,92 @@ def _refine_points(P, starts, counts, indices, corner_edge, edge_v, edge_sharp, 
             e = corner_edge[starts[f] + j]
             e_nf[e] += 1
             if quads:
-                e_acc[e] += fp[f]
+                for d in range(k):
+                    e_acc[e, d] += fp[f, d]
             else:
-                e_acc[e] += P[indices[starts[f] + (j + 2) % n]]
+                o = indices[starts[f] + (j + 2) % n]
+                for d in range(k):
+                    e_acc[e, d] += P[o, d]
     n_edges, n_sharp, s_sum, sharp1, sharp2 = _vertex_sharp_edges(edge_v, edge_sharp, V)
 
-    ep = np.empty((E, k))
+    ep = out[V:V + E]
     for e in range(E):
         a = edge_v[e, 0]
         b = edge_v[e, 1]
-        mid = 0.5 * (P[a] + P[b])
         s = edge_sharp[e]
-        if scheme == 2 or e_nf[e] != 2 or s >= 1.0:
-            ep[e] = mid
-            continue
-        if quads:
-            smooth = 0.25 * (P[a] + P[b] + e_acc[e])
-        else:
-            smooth = 0.375 * (P[a] + P[b]) + 0.125 * e_acc[e]
-        ep[e] = smooth if s <= 0.0 else (1.0 - s) * smooth + s * mid
+        sharp = scheme == 2 or e_nf[e] != 2 or s >= 1.0
+        w = 1.0 if sharp else max(s, 0.0)  # weight of the midpoint
+        for d in range(k):
+            mid = 0.5 * (P[a, d] + P[b, d])
+            if sharp:
+                ep[e, d] = mid
+                continue
+            if quads:
+                smooth = 0.25 * (P[a, d] + P[b, d] + e_acc[e, d])
+            else:
+                smooth = 0.375 * (P[a, d] + P[b, d]) + 0.125 * e_acc[e, d]
+            ep[e, d] = (1.0 - w) * smooth + w * mid
 
-    # Vertex points.
-    q_acc = np.zeros((V, k))  # sum of incident face points (CC)
+    # Vertex points: sums of incident face points (CC) and of edge midpoints (CC) or neighbours (Loop).
+    q_acc = np.zeros((V, k))
     n_faces = np.zeros(V, np.int64)
     if quads:
         for f in range(F):
             for j in range(counts[f]):
                 v = indices[starts[f] + j]
-                q_acc[v] += fp[f]
                 n_faces[v] += 1
-    r_acc = np.zeros((V, k))  # sum of edge midpoints (CC) or of neighbours (Loop)
+                for d in range(k):
+                    q_acc[v, d] += fp[f, d]
+    r_acc = np.zeros((V, k))
     for e in range(E):
         a = edge_v[e, 0]
         b = edge_v[e, 1]
-        if quads:
-            mid = 0.5 * (P[a] + P[b])
-            r_acc[a] += mid
-            r_acc[b] += mid
-        else:
-            r_acc[a] += P[b]
-            r_acc[b] += P[a]
-    vp = np.empty((V, k))
+        for d in range(k):
+            if quads:
+                mid = 0.5 * (P[a, d] + P[b, d])
+                r_acc[a, d] += mid
+                r_acc[b, d] += mid
+            else:
+                r_acc[a, d] += P[b, d]
+                r_acc[b, d] += P[a, d]
+    vp = out[:V]
     for v in range(V):
         n = n_edges[v]
         if scheme == 2 or n == 0:
-            vp[v] = P[v]
+            for d in range(k):
+                vp[v, d] = P[v, d]
             continue
-        if quads:
-            if n_faces[v] == n:
-                smooth = (q_acc[v] / n + 2.0 * r_acc[v] / n + (n - 3.0) * P[v]) / n
-            else:  # a boundary vertex whose boundary edges are not sharp cannot occur; be safe
-                smooth = P[v].copy()
-        else:
-            c = 0.375 + 0.25 * math.cos(2.0 * math.pi / n)
-            beta = (0.625 - c * c) / n
-            smooth = (1.0 - n * beta) * P[v] + beta * r_acc[v]
-        pos = smooth
         ns = n_sharp[v]
-        if ns >= 2:
-            if ns == 2:
-                e1 = sharp1[v]
-                e2 = sharp2[v]
-                o1 = edge_v[e1, 1] if edge_v[e1, 0] == v else edge_v[e1, 0]
-                o2 = edge_v[e2, 1] if edge_v[e2, 0] == v else edge_v[e2, 0]
-                sharp_rule = (6.0 * P[v] + P[o1] + P[o2]) / 8.0
+        w_sharp = min(s_sum[v] / ns, 1.0) if ns >= 2 else 0.0
+        o1 = -1
+        o2 = -1
+        if ns == 2:
+            e1 = sharp1[v]
+            e2 = sharp2[v]
+            o1 = edge_v[e1, 1] if edge_v[e1, 0] == v else edge_v[e1, 0]
+            o2 = edge_v[e2, 1] if edge_v[e2, 0] == v else edge_v[e2, 0]
+        w_corner = min(vert_sharp[v], 1.0) if vert_sharp[v] > 0.0 else 0.0
+        beta = 0.0
+        if not quads:
+            c0 = 0.375 + 0.25 * math.cos(2.0 * math.pi / n)
+            beta = (0.625 - c0 * c0) / n
+        interior = n_faces[v] == n
+        for d in range(k):
+            if quads:
+                if interior:
+                    smooth = (q_acc[v, d] / n + 2.0 * r_acc[v, d] / n + (n - 3.0) * P[v, d]) / n
+                else:  # a boundary vertex whose boundary edges are not sharp cannot occur; be safe
+                    smooth = P[v, d]
             else:
-                sharp_rule = P[v].copy()
-            w = min(s_sum[v] / ns, 1.0)
-            pos = (1.0 - w) * smooth + w * sharp_rule
-        cs = vert_sharp[v]
-        if cs > 0.0:
-            w = min(cs, 1.0)
-            pos = (1.0 - w) * pos + w * P[v]
-        vp[v] = pos
+                smooth = (1.0 - n * beta) * P[v, d] + beta * r_acc[v, d]
+            pos = smooth
+            if ns >= 2:
+                if ns == 2:
+                    sharp_rule = (6.0 * P[v, d] + P[o1, d] + P[o2, d]) / 8.0
+                else:
+                    sharp_rule = P[v, d]
+                pos = (1.0 - w_sharp) * smooth + w_sharp * sharp_rule
+            vp[v, d] = (1.0 - w_corner) * pos + w_corner * P[v, d]
 
     # Chaikin child sharpness.
     child = np.zeros((E, 2))
@@ -284,11 +302,6 @@ def _refine_points(P, starts, counts, indices, corner_edge, edge_v, edge_sharp, 
                 child[e, side] = max(0.0, (3.0 * s + so) / 4.0 - 1.0)
             else:
                 child[e, side] = max(0.0, s - 1.0)
-    out = np.empty((V + E + (F if quads else 0), k))
-    out[:V] = vp
-    out[V:V + E] = ep
-    if quads:
-        out[V + E:] = fp
     return out, child
 
 
