@@ -20,20 +20,30 @@ __all__ = ["Skinning"]
 
 
 class Skinning:
-    """One per stage read: the UsdSkel cache, populated once for every SkelRoot."""
+    """One per stage read: the UsdSkel cache, each SkelRoot populated when its first bound prim
+    is read (no extra traversal for stages without skinning)."""
 
     def __init__(self, ctx):
         self.ctx = ctx
         self.cache = UsdSkel.Cache()
-        self.has_roots = False
-        for prim in ctx.stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-            if prim.IsA(UsdSkel.Root):
-                self.cache.Populate(UsdSkel.Root(prim), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
-                self.has_roots = True
+        self.populated: set = set()
+
+    def _bound(self, prim: Usd.Prim) -> bool:
+        """Whether the prim is bound to skinning under a SkelRoot (populating that root once)."""
+        if not prim.HasAPI(UsdSkel.BindingAPI):
+            return False
+        root = UsdSkel.Root.Find(prim)
+        if not root:
+            return False
+        key = root.GetPrim().GetPath()
+        if key not in self.populated:
+            self.cache.Populate(root, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+            self.populated.add(key)
+        return True
 
     def _query(self, prim: Usd.Prim):
         """(skinning query, skeleton query) of a skinned prim, else None."""
-        if not self.has_roots or not prim.HasAPI(UsdSkel.BindingAPI):
+        if not self._bound(prim):
             return None
         sq = self.cache.GetSkinningQuery(prim)
         if not sq:
@@ -48,7 +58,7 @@ class Skinning:
 
     def warn_unsupported(self, prim: Usd.Prim) -> None:
         """A skinned gprim that is not a Mesh (UsdSkel skins points-based prims only)."""
-        if self.has_roots and prim.HasAPI(UsdSkel.BindingAPI) and self.cache.GetSkinningQuery(prim):
+        if self._bound(prim) and self.cache.GetSkinningQuery(prim):
             self.ctx.warn(f"skel-gprim-{prim.GetPath()}", f"{prim.GetPath()}: skinning of a {prim.GetTypeName()} "
                                                           "is not supported (only Mesh points); rendered unskinned")
 
@@ -56,7 +66,7 @@ class Skinning:
         """(points, normals) of a Mesh at the render time: points (V, 3) float64 in its own space,
         skinned when it is; normals (values, interpolation) of its skinned authored ``normals``,
         or None when they were not skinned (read them as authored)."""
-        if not self.has_roots or self._query(prim) is None:
+        if self._query(prim) is None:
             return points, None
         authored = None
         pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals")
