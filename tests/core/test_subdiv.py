@@ -146,3 +146,19 @@ def test_edge_and_corner_pins_boundary_corners_and_edge_only_rounds_them():
     rounded = subdiv.refine(pts, counts, idx, "catmullClark", 2, interpolate_boundary="edgeOnly")
     np.testing.assert_array_equal(pinned.points[0], [0.0, 0.0, 0.0])
     assert np.linalg.norm(rounded.points[0]) > 0.1
+
+
+def test_loop_crease_keeps_its_edge():
+    # the tent as triangles: each quad split along its diagonal, the ridge x = 2 creased
+    pts, counts, idx = _grid(5, 5)
+    pts[:, 2] = 2.0 - np.abs(pts[:, 0] - 2.0)
+    q = idx.reshape(-1, 4)
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    ridge = np.array([2 + 5 * j for j in range(5)])
+    creases = subdiv.Creases(np.stack([ridge[:-1], ridge[1:]], 1), np.full(4, 10.0))
+    r = subdiv.refine(pts, np.full(len(tris), 3), tris.ravel(), "loop", 3, creases)
+    on_ridge = np.abs(r.points[:, 0] - 2.0) < 1e-12
+    assert on_ridge.sum() > 10
+    np.testing.assert_allclose(r.points[on_ridge, 2], 2.0, atol=1e-12)
+    smooth = subdiv.refine(pts, np.full(len(tris), 3), tris.ravel(), "loop", 3)
+    assert smooth.points[:, 2].max() < 2.0 - 0.1

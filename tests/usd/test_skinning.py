@@ -114,3 +114,11 @@ def test_skinned_implicit_prim_warns(stage):
     b.CreateJointWeightsPrimvar(True, 1).Set(Vt.FloatArray([1.0]))
     d = read(stage, frame=10.0)
     assert "/Arm/Ball: skinning of a Sphere is not supported (only Mesh points); rendered unskinned" in d.warnings
+
+
+def test_binding_to_a_missing_skeleton_warns(stage):
+    m = _arm(stage)
+    UsdSkel.BindingAPI(m.GetPrim()).GetSkeletonRel().SetTargets(["/Arm/Nope"])
+    d = read(stage, frame=10.0)
+    assert any(w.startswith("/Arm/Skin: skel binding without a valid Skeleton") for w in d.warnings)
+    np.testing.assert_allclose(mesh(d, "/Arm/Skin").points[:, 1].max(), 4.0 + 2.0, atol=1e-6)  # rest pose
