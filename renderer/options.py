@@ -224,6 +224,9 @@ OPTIONS: tuple[Option, ...] = (
            "sublayer, reference, payload) and a sublayer cycle an error naming the layer, prim and attribute "
            "(default: one warning per file, and the texture's fallback, an untextured or unshaped light, or the "
            "arc skipped)", flags=("--strict",), example=True),
+    Option("subdiv_level", "int", None, "subdivision level of every catmullClark, loop and bilinear mesh (0: "
+           "the control cage; default: per mesh, from its projected edge length, renderer/subdiv.py)",
+           flags=("--subdiv-level",), metavar="N", lo=0, hi=8, example=2),
     Option("light_samples", "per_light", {}, "light samples per shading point for all lights, or /Light=N for "
            "one (repeatable)", flags=("--light-samples",), metavar="[/Light=|*=]N", item="int", lo=1, hi=4096,
            example={"": 2}),

@@ -109,12 +109,13 @@ def render(
 
     # ---- load + build (cached for resident workers) --------------------------------------
     key = (os.path.abspath(stage_path), os.path.getmtime(stage_path) if os.path.exists(stage_path) else 0,
-           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads, opt.strict)
+           opt.camera, opt.settings, opt.frame, opt.purposes, opt.light_sampler, threads, opt.strict,
+           opt.subdiv_level)
     cached = scene_cache.get(key) if scene_cache is not None else None
     if cached is None:
         t0 = time.perf_counter()
         where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes,
-                     strict=opt.strict)
+                     strict=opt.strict, subdiv_level=opt.subdiv_level)
         opened = shared.get("stage") if shared is not None else None
         desc = (load_stage(stage_path, **where) if opened is None
                 else read_stage(opened, source=stage_path, **where))

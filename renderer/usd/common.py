@@ -102,6 +102,9 @@ class ReadContext:
             "instanced_lights": 0,  # LightDescs made from PointInstancer prototype lights
             "lights": 0,
             "materials": 0,
+            "subdivided_meshes": 0,  # meshes refined (renderer/subdiv.py)
+            "subdivided_faces": 0,  # their refined faces
+            "skinned_meshes": 0,  # meshes deformed by UsdSkel (renderer/usd/skinning.py)
         }
         self.up_axis = str(UsdGeom.GetStageUpAxis(stage))
 

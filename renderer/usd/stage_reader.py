@@ -47,6 +47,8 @@ from .estimator_api import check_light_api_target
 from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
 from .mesh import expand_primvar, primvar_element_count, triangulate
+from .skinning import Skinning
+from .subdiv_mesh import SubdivPolicy, read_subdivided
 from .render_settings import find_settings_prim, read_render_settings
 
 __all__ = ["load_stage", "read_stage"]
@@ -62,7 +64,7 @@ _IMPLICIT_TYPES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylin
 # --------------------------------------------------------------------------------------
 def load_stage(path: str, *, camera: str | None = None, settings: str | None = None,
                frame: float | None = None, purposes: tuple[str, ...] | None = None,
-               strict: bool = False) -> SceneDescription:
+               strict: bool = False, subdiv_level: int | None = None) -> SceneDescription:
     """Open a USD stage file and read it into a SceneDescription.
 
     camera: camera prim path (or a unique camera prim name); default: the RenderSettings
@@ -75,12 +77,14 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
         reference, payload) and a sublayer cycle is a StageError naming the layer, prim and
         attribute; by default each gives one warning and its fallback (a UsdUVTexture's
         ``fallback``, an untextured or unshaped light, a skipped arc).
+    subdiv_level: refinement level of subdivision meshes (0: the control cage); None: chosen
+        per mesh from its projected size (renderer/subdiv.py, ``choose_level``).
 
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
     values that cannot be rendered.
     """
     return read_stage(open_stage(path), source=path, camera=camera, settings=settings, frame=frame,
-                      purposes=purposes, strict=strict)
+                      purposes=purposes, strict=strict, subdiv_level=subdiv_level)
 
 
 def open_stage(path: str) -> Usd.Stage:
@@ -99,7 +103,7 @@ def open_stage(path: str) -> Usd.Stage:
 
 def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
                frame: float | None = None, purposes: tuple[str, ...] | None = None,
-               strict: bool = False) -> SceneDescription:
+               strict: bool = False, subdiv_level: int | None = None) -> SceneDescription:
     """Read an already open stage (same options as ``load_stage``; ``source`` names it in errors)."""
     source = source or stage.GetRootLayer().identifier
     if frame is not None:
@@ -117,18 +121,24 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         ctx.warn("default-time", f"the stage has time samples but no startTimeCode: read at time "
                                  f"{time.GetValue():g} (the startTimeCode fallback, as usdrecord does)")
     try:
-        return _read(ctx, camera, settings, purposes)
+        return _read(ctx, camera, settings, purposes, subdiv_level)
     except Tf.ErrorException as exc:  # anything pxr itself refuses, as one line naming the file
         raise ctx.error(one_line(exc)) from None
 
 
 def _read(ctx: ReadContext, camera: str | None, settings: str | None,
-          purposes: tuple[str, ...] | None) -> SceneDescription:
+          purposes: tuple[str, ...] | None, subdiv_level: int | None = None) -> SceneDescription:
     # Missing sublayers/references still give a stage; say so (or fail under strict).
     check_composition(ctx)
     settings_prim = find_settings_prim(ctx, settings)
     settings_desc, dof_off = read_render_settings(ctx, settings_prim, purposes)
-    reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes)
+    view = None
+    if subdiv_level is None:  # the automatic subdivision level needs the render camera up front
+        pre = find_camera(ctx, camera, settings_desc.camera, settings_desc.path, None)
+        if pre is not None:
+            view = (read_camera(pre, ctx), int(settings_desc.resolution[0]))
+    reader = _Traversal(ctx, settings_desc.included_purposes, settings_desc.material_binding_purposes,
+                        SubdivPolicy(subdiv_level, view))
     reader.run()
     cam_prim = find_camera(ctx, camera, settings_desc.camera, settings_desc.path, reader.first_camera)
     if cam_prim is None:
@@ -294,8 +304,11 @@ def _place(lm: _LocalMesh, mats: np.ndarray) -> MeshDesc:
 class _Traversal:
     """One pass over the stage collecting meshes, lights and the first camera."""
 
-    def __init__(self, ctx: ReadContext, included: tuple[str, ...], binding_purposes: tuple[str, ...]):
+    def __init__(self, ctx: ReadContext, included: tuple[str, ...], binding_purposes: tuple[str, ...],
+                 subdiv_policy: SubdivPolicy | None = None):
         self.ctx = ctx
+        self.subdiv = subdiv_policy or SubdivPolicy(None, None)
+        self.skinning = Skinning(ctx)
         self.included = frozenset(included)
         self.materials = MaterialTable(ctx, binding_purposes)
         self.meshes: list[MeshDesc] = []
@@ -554,6 +567,7 @@ class _Traversal:
             return self._read_mesh(prim, material, st_name or "st", subsets)
         if any(prim.IsA(t) for t in _IMPLICIT_TYPES):
             material, _st = self.materials.index_for(prim)
+            self.skinning.warn_unsupported(prim)
             return self._read_implicit(prim, material)
         self.ctx.warn(f"gprim-{prim.GetTypeName()}",
                       f"{prim.GetPath()}: {prim.GetTypeName()} prims are not supported; skipped")
@@ -598,6 +612,8 @@ class _Traversal:
         if not np.isfinite(points).all():
             bad = int(np.nonzero(~np.isfinite(points).all(axis=1))[0][0])
             raise ctx.error(f"point {bad} is not finite ({tuple(points[bad])})", prim, "points")
+        # UsdSkel: blend shapes and joints at the render time (the rest pose when not skinned).
+        points, skinned_normals = self.skinning.deform_mesh(prim, mesh, points)
         raw = ctx.get_attr(mesh.GetFaceVertexCountsAttr())
         counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
         raw = ctx.get_attr(mesh.GetFaceVertexIndicesAttr())
@@ -613,20 +629,34 @@ class _Traversal:
         if len(counts) and counts.min() < 3:
             ctx.warn("mesh-small-faces", f"{prim.GetPath()}: faces with fewer than 3 vertices are skipped")
 
-        scheme = mesh.GetSubdivisionSchemeAttr().Get(t)
-        if scheme != UsdGeom.Tokens.none:
-            # one key for the whole stage: reported once, with the count of further meshes
-            ctx.warn("subdivision", f"{prim.GetPath()}: subdivisionScheme '{scheme}' (catmullClark is the "
-                                    "fallback when unauthored): illum renders subdivision meshes as their "
-                                    "control cage (smooth vertex normals unless normals are authored)")
+        scheme = str(mesh.GetSubdivisionSchemeAttr().Get(t))
         holes = mesh.GetHoleIndicesAttr().Get(t)
         holes = np.asarray(holes, dtype=np.int64) if holes is not None and len(holes) else None
+        sub = read_subdivided(self, prim, mesh, scheme, points, counts, indices, holes)
+        if sub is not None:  # refined: the limit surface, its normals and refined primvars
+            triangles, _corners, normals, corners_of, tri_face_control, points = sub
+            st = corners_of(st_name, 2)
+            primvars = {}
+            for name, width in self._primvars_read(material, subsets).items():
+                values = corners_of(name, width)
+                if values is not None:
+                    primvars[name] = values.astype(np.float32)
+            return _LocalMesh(
+                path=str(prim.GetPath()), points=points, triangles=triangles, normals=normals,
+                st=None if st is None else st.astype(np.float32), material=material,
+                double_sided=bool(mesh.GetDoubleSidedAttr().Get(t)),
+                tri_material=self._triangle_materials(subsets, material, len(counts), tri_face_control),
+                primvars=primvars)
 
         tri_corners, tri_face = triangulate(points, counts, indices, holes)
         if mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded:
             tri_corners = tri_corners[:, [0, 2, 1]]  # front faces wind clockwise: make them CCW
         sizes = (len(points), len(counts), len(indices))
-        normals = self._mesh_normals(prim, mesh, tri_corners, tri_face, indices, sizes)
+        if skinned_normals is not None:
+            normals = self._expand(prim, "normals", skinned_normals[0], None, skinned_normals[1], tri_corners,
+                                   tri_face, indices, sizes, 3)
+        else:
+            normals = self._mesh_normals(prim, mesh, tri_corners, tri_face, indices, sizes)
         if normals is None and scheme in (UsdGeom.Tokens.catmullClark, UsdGeom.Tokens.loop):
             # UsdGeom: a subdivided mesh is a smooth surface whose normals the subdivision defines
             # ("normals should not be authored on any Mesh that is subdivided"). Rendering the

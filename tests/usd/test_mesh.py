@@ -1,4 +1,4 @@
-"""UsdGeom.Mesh topology: triangulation, holes, orientation, validation, subdivision warning."""
+"""UsdGeom.Mesh topology: triangulation, holes, orientation, validation, subdivision warnings."""
 
 import math
 
@@ -124,15 +124,19 @@ def test_invalid_topology_names_prim_and_attribute(stage, attr, counts, indices,
     assert f"mem.usda: /World/Bad.{attr}:" in str(err.value)
 
 
-def test_subdivision_warning_once_per_stage(stage):
+def test_subdivision_meshes_are_refined_not_warned_about(stage):
     for k in range(3):
         m = add_quad(stage, f"/Sub{k}")
         m.GetSubdivisionSchemeAttr().Clear()  # fallback: catmullClark
     add_quad(stage, "/Loop").CreateSubdivisionSchemeAttr("loop")
-    d = read(stage)
-    cage = [w for w in d.warnings if "control cage" in w]
-    assert len(cage) == 1 and "(and 3 more like it)" in cage[0]
-    assert len(d.meshes) == 4
+    d = read(stage, subdiv_level=1)
+    assert not [w for w in d.warnings if "control cage" in w]
+    # loop on a quad: one warning naming the prim, then Catmull-Clark
+    assert [w for w in d.warnings if "loop" in w] == [
+        "/Loop: subdivisionScheme 'loop' needs triangles only; this mesh has other polygons and is "
+        "subdivided with catmullClark instead"]
+    assert len(d.meshes) == 4 and all(len(m.triangles) == 8 for m in d.meshes)
+    assert d.stats["subdivided_meshes"] == 4
 
 
 def test_no_subdivision_warning_for_scheme_none(stage):
