@@ -364,8 +364,9 @@ def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
     if res is None:
         from renderer.usd import load_stage
 
+        # Only the resolution is wanted: meshes are read as their cages (no subdivision).
         desc = load_stage(job.stage, camera=opts.camera, settings=opts.settings, frame=opts.frame,
-                          purposes=opts.purposes, strict=opts.strict)
+                          purposes=opts.purposes, strict=opts.strict, subdiv_level=0)
         res = tuple(int(v) for v in desc.settings.resolution)
         ctx.resolution_cache.clear()
         ctx.resolution_cache[key] = res
