@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 from collections import OrderedDict
 
 import numpy as np
@@ -12,6 +13,27 @@ from pxr import Ar, Gf, Sdf, Usd, UsdGeom
 
 from renderer.errors import StageError
 from renderer.textures import probe_image
+
+
+_KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def special_file_problem(path: str) -> str:
+    """'' unless ``path`` exists and is not a regular file, else why it is refused ("is a FIFO,
+    not a regular file"): opening a FIFO without a writer blocks forever, and a device such as
+    ``/dev/zero`` never ends. A package-relative or format-argument identifier is judged by its
+    file; a missing path is left to the resolver and the missing-asset policy."""
+    path = Sdf.Layer.SplitIdentifier(path)[0]
+    if Ar.IsPackageRelativePath(path):
+        path = Ar.SplitPackageRelativePathOuter(path)[0]
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return ""
+    if stat.S_ISREG(mode):
+        return ""
+    return f"is {next((name for test, name in _KINDS if test(mode)), 'not a file')}, not a regular file"
 
 
 def gf_matrix_to_np(m: Gf.Matrix4d) -> np.ndarray:
@@ -212,6 +234,10 @@ class ReadContext:
             return None
         cached = self._assets.get(resolved)
         if cached is None:
+            problem = special_file_problem(resolved)
+            if problem:  # reading a FIFO or a device would block or never end: never a fallback
+                raise StageError(f"'{resolved}' {problem}", file=self.authoring_layer(prim, name) or self.file,
+                                 prim=str(prim.GetPath()), attribute=name)
             if os.path.isfile(resolved):
                 cached = (resolved, None)
             else:

@@ -42,7 +42,7 @@ from renderer.errors import StageError
 from . import implicit
 from .camera import find_camera, framing_camera, read_camera
 from .common import ReadContext, one_line
-from .composition import check_composition
+from .composition import check_composition, open_layers_refusing_special_files
 from .estimator_api import check_light_api_target
 from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
@@ -88,6 +88,8 @@ def open_stage(path: str) -> Usd.Stage:
     # Resolve through Ar rather than os.path so that a custom asset resolver's identifiers work.
     if not Ar.GetResolver().Resolve(path):
         raise StageError("stage file not found", file=path)
+    # A FIFO or device as the stage or one of its layers would block Stage.Open forever.
+    held = open_layers_refusing_special_files(path)  # noqa: F841 (kept open for Stage.Open to reuse)
     try:
         stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
