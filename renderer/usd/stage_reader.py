@@ -38,6 +38,7 @@ from pxr import Ar, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from renderer.description import LightDesc, MeshDesc, SceneDescription, primvar_layout
 from renderer.errors import StageError
+from renderer.memory import TRIANGLE_BYTES, MemoryBudget
 
 from . import implicit
 from .camera import find_camera, framing_camera, read_camera
@@ -62,7 +63,7 @@ _IMPLICIT_TYPES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylin
 # --------------------------------------------------------------------------------------
 def load_stage(path: str, *, camera: str | None = None, settings: str | None = None,
                frame: float | None = None, purposes: tuple[str, ...] | None = None,
-               strict: bool = False) -> SceneDescription:
+               strict: bool = False, memory: MemoryBudget | None = None) -> SceneDescription:
     """Open a USD stage file and read it into a SceneDescription.
 
     camera: camera prim path (or a unique camera prim name); default: the RenderSettings
@@ -75,12 +76,14 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
         reference, payload) and a sublayer cycle is a StageError naming the layer, prim and
         attribute; by default each gives one warning and its fallback (a UsdUVTexture's
         ``fallback``, an untextured or unshaped light, a skipped arc).
+    memory: a renderer.memory.MemoryBudget each mesh (triangles x instances) and image (from
+        its header) is charged to before it is built or decoded: MemoryLimitError naming it.
 
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
     values that cannot be rendered.
     """
     return read_stage(open_stage(path), source=path, camera=camera, settings=settings, frame=frame,
-                      purposes=purposes, strict=strict)
+                      purposes=purposes, strict=strict, memory=memory)
 
 
 def open_stage(path: str) -> Usd.Stage:
@@ -101,7 +104,7 @@ def open_stage(path: str) -> Usd.Stage:
 
 def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
                frame: float | None = None, purposes: tuple[str, ...] | None = None,
-               strict: bool = False) -> SceneDescription:
+               strict: bool = False, memory: MemoryBudget | None = None) -> SceneDescription:
     """Read an already open stage (same options as ``load_stage``; ``source`` names it in errors)."""
     source = source or stage.GetRootLayer().identifier
     if frame is not None:
@@ -113,7 +116,7 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         # never the Default time code: at Default, USD ignores time samples, so an animated camera
         # or mesh would resolve to its default value (often none) instead of its held first sample.
         time = Usd.TimeCode(stage.GetStartTimeCode())
-    ctx = ReadContext(stage, source, time, strict=strict)
+    ctx = ReadContext(stage, source, time, strict=strict, memory=memory)
     if frame is None and not stage.HasAuthoredMetadata("startTimeCode") and any(
             layer.ListAllTimeSamples() for layer in stage.GetUsedLayers()):
         ctx.warn("default-time", f"the stage has time samples but no startTimeCode: read at time "
@@ -383,6 +386,9 @@ class _Traversal:
         mats = mats[np.abs(np.linalg.det(mats[:, :3, :3])) > 0.0]
         if len(mats) == 0 or len(lm.triangles) == 0:
             return None
+        n = len(lm.triangles)
+        self.ctx.memory.need(n * len(mats) * TRIANGLE_BYTES, f"{n} triangles" + (f" x {len(mats)} instances"
+                             if len(mats) > 1 else ""), file=self.ctx.file, prim=lm.path)
         desc = _place(lm, mats)
         if lm.tri_material is None:
             self.meshes.append(desc)
@@ -602,6 +608,10 @@ class _Traversal:
             raise ctx.error(f"point {bad} is not finite ({tuple(points[bad])})", prim, "points")
         raw = ctx.get_attr(mesh.GetFaceVertexCountsAttr())
         counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
+        # Refused before the indices are read and triangulated (charged, per instance, in _emit).
+        n_tri = int(np.maximum(counts - 2, 0).sum())
+        ctx.memory.need(n_tri * TRIANGLE_BYTES, f"{n_tri} triangles", file=ctx.file, prim=str(prim.GetPath()),
+                        attribute="faceVertexCounts", commit=False)
         raw = ctx.get_attr(mesh.GetFaceVertexIndicesAttr())
         indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
         if len(counts) and counts.min() < 0:
