@@ -267,19 +267,6 @@ class CheckQueue:
                     self._taken.discard(job.id)
 
 
-def _limit_resources(memory_mb: int, cpu_seconds: int) -> None:
-    try:
-        import resource
-
-        if memory_mb > 0:
-            cap = memory_mb * 1024 * 1024
-            resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
-        if cpu_seconds > 0:
-            resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds))
-    except (ImportError, ValueError, OSError):  # not POSIX, or the hard limit is lower already
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     """Child entry point: print one JSON line {"error", "layers", "assets"} (or {"reason"} when
     the stage cannot be opened) and exit 0."""
@@ -296,7 +283,9 @@ def main(argv: list[str] | None = None) -> int:
         from .procs import die_with_parent
 
         die_with_parent(a.parent_pid)
-    _limit_resources(a.memory_mb, a.cpu_seconds)
+    from .procs import limit_resources
+
+    limit_resources(a.memory_mb * 2**20, a.cpu_seconds)
     from renderer.errors import IllumError
 
     try:

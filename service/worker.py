@@ -12,7 +12,8 @@ Per job:
 * every ``--snapshot-interval`` seconds (and right after the first pass) the film is written as
   ``preview.exr`` + ``preview.png`` and checkpointed (``Film.save_state``), so a worker killed
   with ``kill -9`` resumes from there when the reaper requeues the job;
-* an IllumError fails the job with its one-line message (a user error: retrying cannot help);
+* an IllumError fails the job with its one-line message (a user error: retrying cannot help),
+  and so does a MemoryError (the same job would run out again under the same limit);
   any other exception requeues it until ``max_attempts``, then fails it with the error text;
 * SIGTERM (server shutdown) checkpoints the running job and requeues it without counting the
   attempt.
@@ -38,7 +39,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from .models import render_options
-from .procs import die_with_parent, guard_process_group
+from .procs import die_with_parent, guard_process_group, limit_resources
 from .store import Job, JobStore
 
 __all__ = ["WorkerContext", "run_job", "main"]
@@ -66,6 +67,7 @@ class WorkerContext:
     max_time: Optional[float] = None
     max_side: int = 8192
     max_pixels: int = 8192 * 8192
+    max_memory: Optional[int] = None                       # bytes per job (the server's --max-job-memory)
     backend: str = "local"
     ray_address: Optional[str] = None
     ray_actors: Optional[int] = None
@@ -175,6 +177,17 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
         except IllumError as e:
             msg = _clean(str(e), job)
             jlog(f"error: {msg}")
+            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            return "failed"
+        except MemoryError as e:
+            # The hard address-space limit (or the machine) ran out: the same job would run out
+            # again, so this is permanent, never retried as transient.
+            from renderer.memory import format_size
+
+            cap = f" (this server's limit per job is {format_size(ctx.max_memory)}, --max-job-memory)" \
+                if ctx.max_memory else ""
+            msg = _clean(f"out of memory{': ' + str(e) if str(e) else ''}{cap}", job)
+            jlog(f"error: {msg}\n{traceback.format_exc()}")
             ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
             return "failed"
         except Exception as e:  # an internal error: may be transient (disk, memory), so retry
@@ -362,10 +375,12 @@ def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
            opts.strict)
     res = ctx.resolution_cache.get(key)
     if res is None:
+        from renderer.memory import MemoryBudget
         from renderer.usd import load_stage
 
         desc = load_stage(job.stage, camera=opts.camera, settings=opts.settings, frame=opts.frame,
-                          purposes=opts.purposes, strict=opts.strict)
+                          purposes=opts.purposes, strict=opts.strict,
+                          memory=MemoryBudget.for_options(opts.max_memory))
         res = tuple(int(v) for v in desc.settings.resolution)
         ctx.resolution_cache.clear()
         ctx.resolution_cache[key] = res
@@ -394,7 +409,7 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     from renderer.render import render, write_outputs
 
     jobdir = ctx.job_dir(job.id)
-    opts = render_options(job.settings, threads=ctx.threads)
+    opts = render_options(job.settings, threads=ctx.threads, max_memory=ctx.max_memory)
     opts.validate()
     _check_stage_assets(ctx, job)
     _check_stage_resolution(ctx, job, opts)
@@ -589,6 +604,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-time", type=float, default=None)
     p.add_argument("--max-side", type=int, default=8192)
     p.add_argument("--max-pixels", type=int, default=8192 * 8192)
+    p.add_argument("--max-memory", type=int, default=None,
+                   help="bytes a job may use: its render's memory cap; with the local backend the process's "
+                        "address space is also limited to it plus WORKER_BASE_ADDRESS_SPACE (service/config.py)")
     p.add_argument("--backend", choices=("local", "ray"), default="local")
     p.add_argument("--ray-address", default=None)
     p.add_argument("--ray-actors", type=int, default=None)
@@ -609,9 +627,17 @@ def main(argv: list[str] | None = None) -> int:
     if a.supervised:
         die_with_parent()
         guard_process_group()
+    if a.max_memory and a.backend == "local":
+        # A hard ceiling under the estimate (renderer/memory.py): what it misses fails with
+        # MemoryError (a permanent failure of the job) rather than waking the OOM killer. Not
+        # with Ray: the cluster processes this worker starts would inherit it.
+        from .config import WORKER_BASE_ADDRESS_SPACE
+
+        limit_resources(a.max_memory + WORKER_BASE_ADDRESS_SPACE)
     ctx = WorkerContext(store=JobStore(os.path.join(a.data, "jobs.db")), worker_id=a.id, data_dir=a.data,
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,
+                        max_memory=a.max_memory,
                         backend=a.backend, ray_address=a.ray_address, ray_actors=a.ray_actors,
                         ray_drivers=a.ray_drivers, stage_root=a.stage_root, warmup=a.warmup,
                         parent_pid=os.getppid() if a.supervised else None)
