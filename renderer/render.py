@@ -20,6 +20,7 @@ import numpy as np
 
 from .allocator import tune_allocator
 from .errors import SettingsError
+from .deadline import deadline
 from .film import Film
 from .memory import MemoryBudget, available_memory  # noqa: F401 (available_memory: its old home)
 from .options import make_options_class
@@ -120,8 +121,9 @@ def render(
         # Meshes and images are charged to the budget as the reader meets them, the film here,
         # all before the scene is built (renderer/memory.py).
         budget = MemoryBudget.for_options(opt.max_memory)
-        desc = (load_stage(stage_path, memory=budget, **where) if opened is None
-                else read_stage(opened, source=stage_path, memory=budget, **where))
+        with deadline(opt.load_timeout, "opening and reading the stage", file=stage_path):
+            desc = (load_stage(stage_path, memory=budget, **where) if opened is None
+                    else read_stage(opened, source=stage_path, memory=budget, **where))
         phases["load"] = time.perf_counter() - t0
         if resume is None:
             _check_film_memory(opt, desc.settings, budget)
@@ -132,7 +134,8 @@ def render(
 
             textures = shared.setdefault("textures", TextureCache(missing="error" if opt.strict else "fallback",
                                                                   strict=opt.strict))
-        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
+        with deadline(opt.load_timeout, "reading the stage's images and building the scene", file=stage_path):
+            scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
         phases["build"] = time.perf_counter() - t0
         if scene_cache is not None:
             scene_cache.clear()

@@ -80,6 +80,7 @@ class WorkerContext:
     ray_pool: object = None
     warmup: bool = True                                   # warm the kernels before the first job
     current_stop: Optional[threading.Event] = None       # the running job's stop flag (for SIGTERM)
+    current_job: Optional[Job] = None                     # the running job (for a stuck load)
 
     def job_dir(self, job_id: str) -> str:
         return os.path.join(self.data_dir, "jobs", job_id)
@@ -160,6 +161,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
          f"backend {ctx.backend}): {job.kind} {job.stage_name}")
     stop = threading.Event()
     ctx.current_stop = stop
+    ctx.current_job = job
     if ctx.shutdown.is_set():  # SIGTERM arrived between the claim and here
         stop.set()
     hb = _Heartbeat(ctx, job.id, stop)
@@ -211,6 +213,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
     finally:
         hb.close()
         ctx.current_stop = None
+        ctx.current_job = None
 
 
 def _stopped(ctx: WorkerContext, job: Job, hb: _Heartbeat, jlog: JobLog) -> str:
@@ -411,8 +414,12 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     jobdir = ctx.job_dir(job.id)
     opts = render_options(job.settings, threads=ctx.threads, max_memory=ctx.max_memory)
     opts.validate()
-    _check_stage_assets(ctx, job)
-    _check_stage_resolution(ctx, job, opts)
+    from renderer.deadline import deadline
+
+    with deadline(opts.load_timeout, "checking the stage's files", file=job.stage):
+        _check_stage_assets(ctx, job)
+    with deadline(opts.load_timeout, "reading the stage's render settings", file=job.stage):
+        _check_stage_resolution(ctx, job, opts)
     user_budget = opts.time_budget
     total_budget = min(user_budget, ctx.max_time) if (user_budget and ctx.max_time) else (user_budget or ctx.max_time)
     ckpt = _Checkpoint(jobdir)
@@ -648,6 +655,23 @@ def main(argv: list[str] | None = None) -> int:
         if stop is not None:
             stop.set()
 
+    def on_stuck(message: str) -> None:
+        # A load blocked in C++ past its deadline (renderer/deadline.py): fail the job for good
+        # (a retry would block the same way), then leave; the supervisor starts a new worker.
+        job = ctx.current_job
+        if job is not None:
+            msg = _clean(message, job)
+            try:
+                JobLog(os.path.join(ctx.job_dir(job.id), JOB_LOG), ctx.worker_id)(f"error: {msg}")
+                ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            except Exception:  # noqa: BLE001 (exit regardless: this thread cannot be freed)
+                log.exception("failing job %s after a stuck load failed", job.id)
+        log.error("%s: exiting", message)
+        os._exit(4)
+
+    from renderer.deadline import set_stuck_handler
+
+    set_stuck_handler(on_stuck)
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
     _exit_if_orphaned(ctx)
