@@ -286,10 +286,14 @@ def main(argv: list[str] | None = None) -> int:
     from .procs import limit_resources
 
     limit_resources(a.memory_mb * 2**20, a.cpu_seconds)
-    from renderer.errors import IllumError
+    from renderer.errors import IllumError, SpecialFileError, StageError
 
     try:
         result = check_in_process(a.stage, a.stage_root, a.uploads, a.upload)
+    except SpecialFileError as e:  # a FIFO or device layer: refused now, as the worker would
+        where = display_name(e.file, a.stage_root, a.uploads) if e.file else ""
+        result = {"error": str(StageError(e.message, file=where, prim=e.prim, attribute=e.attribute)),
+                  "layers": [a.stage], "assets": []}
     except IllumError as e:
         result = {"reason": f"cannot open the stage: {e}"}
     sys.stdout.write(json.dumps(result) + "\n")

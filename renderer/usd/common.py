@@ -11,7 +11,7 @@ from collections import OrderedDict
 import numpy as np
 from pxr import Ar, Gf, Sdf, Usd, UsdGeom
 
-from renderer.errors import StageError
+from renderer.errors import SpecialFileError, StageError
 from renderer.memory import TEXEL_BYTES, TEXEL_DECODE_BYTES, MemoryBudget
 from renderer.textures import probe_image
 
@@ -241,7 +241,7 @@ class ReadContext:
         if cached is None:
             problem = special_file_problem(resolved)
             if problem:  # reading a FIFO or a device would block or never end: never a fallback
-                raise StageError(f"'{resolved}' {problem}", file=self.authoring_layer(prim, name) or self.file,
+                raise SpecialFileError(f"'{resolved}' {problem}", file=self.authoring_layer(prim, name) or self.file,
                                  prim=str(prim.GetPath()), attribute=name)
             if os.path.isfile(resolved):
                 cached = (resolved, None)

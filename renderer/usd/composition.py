@@ -15,7 +15,7 @@ import re
 
 from pxr import Ar, Pcp, Sdf, Tf, Usd
 
-from renderer.errors import StageError
+from renderer.errors import SpecialFileError, StageError
 
 from .common import ReadContext, one_line, special_file_problem
 
@@ -128,7 +128,7 @@ def open_layers_refusing_special_files(path: str) -> list[Sdf.Layer]:
     are not walked (they are opened while composing); the load timeout covers them."""
     problem = special_file_problem(path)
     if problem:
-        raise StageError(f"the stage {problem}", file=path)
+        raise SpecialFileError(f"the stage {problem}", file=path)
     held: list[Sdf.Layer] = []
     seen: set[str] = set()
     todo = [path]
@@ -157,6 +157,6 @@ def open_layers_refusing_special_files(path: str) -> list[Sdf.Layer]:
             problem = special_file_problem(resolved)
             if problem:
                 prim, field = locate_arc(layer, authored)
-                raise StageError(f"'{asset}' {problem}", file=layer.identifier, prim=prim, attribute=field)
+                raise SpecialFileError(f"'{asset}' {problem}", file=layer.identifier, prim=prim, attribute=field)
             todo.append(resolved)
     return held

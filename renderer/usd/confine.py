@@ -35,7 +35,7 @@ from typing import Callable, Iterable
 
 from pxr import Ar, Sdf, Tf, Usd
 
-from renderer.errors import StageError
+from renderer.errors import SpecialFileError, StageError
 
 from .common import one_line
 from .composition import locate_arc
@@ -312,6 +312,8 @@ def find_escapes(stage_path: str, roots: Iterable[str]) -> ConfinementReport:
         return ConfinementReport(escapes=[Escape("", "", "layer", stage_path)])
     try:
         stage = open_stage(path)
+    except SpecialFileError:
+        raise  # it names the layer that authors the FIFO or device
     except StageError as exc:
         raise StageError(exc.message, file=stage_path) from None  # name the file as the caller gave it
     try:
