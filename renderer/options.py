@@ -235,7 +235,7 @@ OPTIONS: tuple[Option, ...] = (
     Option("max_memory", "int", None, "refuse, before allocating, a render whose meshes, images and film would need "
            "more than SIZE bytes (8G, 512M; binary units), naming what is too big (default: 80% of the memory "
            "available; a service job is also held to the server's --max-job-memory)", flags=("--max-memory",),
-           metavar="SIZE", lo=2**20, hi=2**50, example=2**33, parse=_parse_size),
+           metavar="SIZE", lo=2**20, example=2**33, parse=_parse_size),
     Option("load_timeout", "float", 600.0, "seconds opening the stage, reading it and decoding its images may take "
            "before the render is refused (a file that never finishes reading: a FIFO value clip, a hung network "
            "mount)", flags=("--load-timeout",), metavar="SECONDS", lo=0, lo_open=True, hi=1e6, example=300.0),
