@@ -92,3 +92,33 @@ def test_max_time_is_enforced_while_the_worker_still_heartbeats(tmp_path):
             assert wait_job(c, after["id"], timeout=180)["state"] == "succeeded"
     finally:
         s.stop()
+
+
+def test_a_memory_error_fails_the_job_for_good(tmp_path):
+    """A job that runs out of address space in spite of the estimate (here: a worker started by
+    hand under a 3 GiB RLIMIT_AS, with a 64 GiB job cap the estimate trusts) fails with
+    'out of memory' on its first attempt: a MemoryError is never retried as transient."""
+    import resource
+    import subprocess
+    import sys
+
+    root = make_stage_root(tmp_path / "root")
+    s = start_server(tmp_path, root, workers=0, wait_workers=False)
+    try:
+        with s.client() as c:
+            job = c.post("/jobs", json={"stage": "cornell_box.usda",
+                                        "settings": {"resolution": [8192, 8192], "spp": 1}}).json()
+
+            def address_space():
+                resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30))
+
+            worker = subprocess.run([sys.executable, "-m", "service.worker", "--data", s.data, "--id", "by-hand",
+                                     "--max-jobs", "1", "--no-warmup", "--max-memory", str(64 * 2**30)],
+                                    capture_output=True, text=True, timeout=300, preexec_fn=address_space,
+                                    stdin=subprocess.DEVNULL, cwd=str(tmp_path))
+            assert worker.returncode == 0, worker.stderr[-2000:]
+            done = c.get(f"/jobs/{job['id']}").json()
+            assert done["state"] == "failed" and done["attempts"] == 1, done
+            assert done["error"].startswith("out of memory: ") and "64.0 GiB, --max-job-memory" in done["error"], done
+    finally:
+        s.stop()
