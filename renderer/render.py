@@ -19,10 +19,10 @@ from typing import Callable, Optional
 import numpy as np
 
 from .allocator import tune_allocator
-from .errors import SettingsError
 from .deadline import deadline
+from .errors import SettingsError
 from .film import Film
-from .memory import MemoryBudget, available_memory  # noqa: F401 (available_memory: its old home)
+from .memory import MemoryBudget
 from .options import make_options_class
 from .pixel_filter import jitter
 
