@@ -170,3 +170,23 @@ def test_a_bad_max_memory_is_refused(tmp_path, text, want):
     quad_light_stage(stage)
     r = illum("render", stage, "-o", tmp_path / "o.exr", "--spp", 1, "--max-memory", text)
     assert r.returncode == 2 and want in r.stderr, r.stderr
+
+
+def test_without_max_memory_the_cap_is_a_share_of_what_the_process_may_allocate(tmp_path):
+    """The default cap is 80 % of available_memory(), which an address-space limit lowers: under
+    a 3 GiB RLIMIT_AS the 8192^2 image (~6 GiB of estimate) is refused, saying how to raise it."""
+    import resource
+    import subprocess
+    import sys
+
+    stage = _textured_copy(tmp_path)
+    _zero_png(tmp_path / "textures" / "checker.png", 8192)
+
+    def address_space():
+        resource.setrlimit(resource.RLIMIT_AS, (3 * 2**30, 3 * 2**30))
+
+    r = subprocess.run([sys.executable, "-m", "renderer.cli", "render", str(stage), "-o", str(tmp_path / "o.exr"),
+                        "--spp", "1", "--res", "8", "8"], capture_output=True, text=True, cwd=ROOT, timeout=600,
+                       preexec_fn=address_space)
+    _refused(r, "the 8192x8192 image", "more than the default cap of", "(80% of the memory available; raise it "
+             "with --max-memory)")
