@@ -122,3 +122,22 @@ def test_a_memory_error_fails_the_job_for_good(tmp_path):
             assert done["error"].startswith("out of memory: ") and "64.0 GiB, --max-job-memory" in done["error"], done
     finally:
         s.stop()
+
+
+def test_a_fifo_texture_is_refused_by_the_submission_check(tmp_path):
+    root = make_stage_root(tmp_path / "root")
+    os.mkfifo(os.path.join(root, "textures", "pipe.png"))
+    with open(os.path.join(root, "shots", "tex.usda"), "w", encoding="utf-8") as fh:
+        fh.write('#usda 1.0\n(\n    subLayers = [@../cornell_box.usda@]\n)\n'
+                 'def Shader "Tex" {\n    uniform token info:id = "UsdUVTexture"\n'
+                 '    asset inputs:file = @../textures/pipe.png@\n}\n')
+    s = start_server(tmp_path, root, workers=0, wait_workers=False)
+    try:
+        with s.client() as c:
+            job = c.post("/jobs", json={"stage": "shots/tex.usda", "settings": dict(TINY)}).json()
+            done = wait_job(c, job["id"], timeout=60)
+            assert done["state"] == "failed" and done["attempts"] == 0, done
+            assert done["error"] == ("shots/tex.usda: /Tex.inputs:file: '../textures/pipe.png' is a FIFO, "
+                                     "not a regular file"), done["error"]
+    finally:
+        s.stop()
