@@ -71,8 +71,8 @@ def test_a_load_stuck_in_cpp_fails_the_job_at_its_load_timeout(tmp_path):
 
 def test_max_time_is_enforced_while_the_worker_still_heartbeats(tmp_path):
     """The worker is blocked (a FIFO value clip, under the default 600 s load timeout) but its
-    heartbeat thread runs: the supervisor kills it at --max-time + --max-time-grace and fails
-    the job, once, saying why."""
+    heartbeat thread runs: the supervisor kills it at --max-time + --max-time-grace, fails the
+    job, once, saying why, and starts a new worker."""
     root = make_stage_root(tmp_path / "root")
     write_fifo_clip_stage(os.path.join(root, "shots", "hang.usda"), sublayer="../cornell_box.usda")
     s = start_server(tmp_path, root, workers=1, extra=["--asset-check-timeout", "1", "--max-time", "1",
@@ -86,10 +86,11 @@ def test_max_time_is_enforced_while_the_worker_still_heartbeats(tmp_path):
             assert done["state"] == "failed" and done["attempts"] == 1, done
             assert "beyond this server's limit of 1 s (--max-time) + 3 s (--max-time-grace): its worker was killed" \
                 in done["error"], done["error"]
+            # (No render after it here: under --max-time 1 + 3 s of grace, a loaded machine may
+            # not load, render and write even a tiny job in time. The load-timeout test renders
+            # on the replacement worker.)
             wait_for(lambda: s.worker_pids() and all(job_id is None for _p, job_id in s.worker_pids().values()),
                      60, what="a fresh worker")
-            after = c.post("/jobs", json={"stage": "cornell_box.usda", "settings": dict(TINY)}).json()
-            assert wait_job(c, after["id"], timeout=180)["state"] == "succeeded"
     finally:
         s.stop()
 
