@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 from .conftest import TINY, make_stage_root, start_server, wait_for, wait_job, write_fifo_clip_stage
 
 
@@ -28,22 +30,6 @@ def test_a_job_over_the_memory_cap_fails_at_once_without_retries(tmp_path):
                 assert done["state"] == "failed" and done["attempts"] == 1, done
                 assert done["error"].startswith("resolution: a ") and f"more than --max-memory {size}" in done["error"]
             assert wait_job(c, fits["id"], timeout=120)["state"] == "succeeded"
-    finally:
-        s.stop()
-
-
-def test_a_fifo_sublayer_is_refused_by_the_submission_check(tmp_path):
-    root = make_stage_root(tmp_path / "root")
-    os.mkfifo(os.path.join(root, "shots", "pipe.usda"))
-    with open(os.path.join(root, "shots", "hang.usda"), "w", encoding="utf-8") as fh:
-        fh.write("#usda 1.0\n(\n    subLayers = [@./pipe.usda@, @../cornell_box.usda@]\n)\n")
-    s = start_server(tmp_path, root, workers=0, wait_workers=False)
-    try:
-        with s.client() as c:
-            job = c.post("/jobs", json={"stage": "shots/hang.usda", "settings": dict(TINY)}).json()
-            done = wait_job(c, job["id"], timeout=60)
-            assert done["state"] == "failed" and done["attempts"] == 0, done
-            assert done["error"] == "shots/hang.usda: subLayers: './pipe.usda' is a FIFO, not a regular file"
     finally:
         s.stop()
 
@@ -125,20 +111,27 @@ def test_a_memory_error_fails_the_job_for_good(tmp_path):
         s.stop()
 
 
-def test_a_fifo_texture_is_refused_by_the_submission_check(tmp_path):
+
+@pytest.mark.parametrize("case", ["sublayer", "texture"])
+def test_a_fifo_layer_or_texture_is_refused_by_the_submission_check(tmp_path, case):
+    """Failed at once by the server's asset check (no attempt spent), naming layer, prim and field."""
     root = make_stage_root(tmp_path / "root")
-    os.mkfifo(os.path.join(root, "textures", "pipe.png"))
-    with open(os.path.join(root, "shots", "tex.usda"), "w", encoding="utf-8") as fh:
-        fh.write('#usda 1.0\n(\n    subLayers = [@../cornell_box.usda@]\n)\n'
-                 'def Shader "Tex" {\n    uniform token info:id = "UsdUVTexture"\n'
-                 '    asset inputs:file = @../textures/pipe.png@\n}\n')
+    os.mkfifo(os.path.join(root, "textures" if case == "texture" else "shots", "pipe.png" if case == "texture"
+                           else "pipe.usda"))
+    text = {"sublayer": "#usda 1.0\n(\n    subLayers = [@./pipe.usda@, @../cornell_box.usda@]\n)\n",
+            "texture": ('#usda 1.0\n(\n    subLayers = [@../cornell_box.usda@]\n)\n'
+                        'def Shader "Tex" {\n    uniform token info:id = "UsdUVTexture"\n'
+                        '    asset inputs:file = @../textures/pipe.png@\n}\n')}[case]
+    with open(os.path.join(root, "shots", "s.usda"), "w", encoding="utf-8") as fh:
+        fh.write(text)
+    want = {"sublayer": "shots/s.usda: subLayers: './pipe.usda' is a FIFO, not a regular file",
+            "texture": "shots/s.usda: /Tex.inputs:file: '../textures/pipe.png' is a FIFO, not a regular file"}[case]
     s = start_server(tmp_path, root, workers=0, wait_workers=False)
     try:
         with s.client() as c:
-            job = c.post("/jobs", json={"stage": "shots/tex.usda", "settings": dict(TINY)}).json()
+            job = c.post("/jobs", json={"stage": "shots/s.usda", "settings": dict(TINY)}).json()
             done = wait_job(c, job["id"], timeout=60)
             assert done["state"] == "failed" and done["attempts"] == 0, done
-            assert done["error"] == ("shots/tex.usda: /Tex.inputs:file: '../textures/pipe.png' is a FIFO, "
-                                     "not a regular file"), done["error"]
+            assert done["error"] == want, done["error"]
     finally:
         s.stop()
