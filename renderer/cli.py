@@ -187,7 +187,13 @@ def cmd_render(a) -> int:
         check_names(templates, frames)
 
     # A range composes the stage once and decodes each texture once (render(shared=...)).
-    shared = {"stage": open_stage(a.stage)} if many else None
+    if many:
+        from .deadline import deadline
+
+        with deadline(opts.load_timeout, "opening the stage", file=a.stage):
+            shared = {"stage": open_stage(a.stage)}
+    else:
+        shared = None
     # Says "compiling kernels, first run only" with progress if the kernel cache is cold.
     notice = nullcontext() if level < 2 else CompileNotice(sys.stderr)
     prog = _Progress(level < 2, before_bar=getattr(notice, "finish", None), alfred=alfred)

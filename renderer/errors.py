@@ -36,3 +36,8 @@ class StageError(IllumError):
 
 class SettingsError(IllumError):
     """A render option (CLI flag, service field, RenderSettings attribute) is out of range."""
+
+
+class SpecialFileError(StageError):
+    """The stage, a layer or an asset is a FIFO, a device, a socket or a directory: reading it
+    could block forever or never end, so it is refused before anything opens it."""

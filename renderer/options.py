@@ -83,6 +83,12 @@ def _pixel_filter_modes() -> tuple[str, ...]:
     return MODES
 
 
+def _parse_size(text: str) -> int:
+    from .memory import parse_size
+
+    return parse_size(text)
+
+
 def _resolution_limits(v) -> None:
     """The renderer's own limits on image size (renderer.camera.check_resolution)."""
     from .camera import check_resolution
@@ -109,6 +115,7 @@ class Option:
     example: a valid non-default value (the route tests and the docs table use it).
     plain_to: per_light only: the option a plain command-line VALUE (no '=') sets instead of
       every light (which is then spelled ``*=VALUE``).
+    parse: how a command-line word becomes the value, when not by its kind (raises ValueError).
     """
 
     name: str
@@ -130,6 +137,7 @@ class Option:
     off_route: str = ""
     example: Any = None
     plain_to: Optional[str] = None
+    parse: Optional[Callable[[str], Any]] = None  # a command-line word -> the value (e.g. "8G" -> bytes)
 
     @property
     def api_name(self) -> Optional[str]:
@@ -227,6 +235,13 @@ OPTIONS: tuple[Option, ...] = (
     Option("subdiv_level", "int", None, "subdivision level of every catmullClark, loop and bilinear mesh (0: "
            "the control cage; default: per mesh, from its projected edge length, renderer/subdiv.py)",
            flags=("--subdiv-level",), metavar="N", lo=0, hi=8, example=2),
+    Option("max_memory", "int", None, "refuse, before allocating, a render whose meshes, images and film would need "
+           "more than SIZE bytes (8G, 512M; binary units), naming what is too big (default: 80% of the memory "
+           "available; a service job is also held to the server's --max-job-memory)", flags=("--max-memory",),
+           metavar="SIZE", lo=2**20, example=2**33, parse=_parse_size),
+    Option("load_timeout", "float", 600.0, "seconds opening the stage, reading it and decoding its images may take "
+           "before the render is refused (a file that never finishes reading: a FIFO value clip, a hung network "
+           "mount)", flags=("--load-timeout",), metavar="SECONDS", lo=0, lo_open=True, hi=1e6, example=300.0),
     Option("light_samples", "per_light", {}, "light samples per shading point for all lights, or /Light=N for "
            "one (repeatable)", flags=("--light-samples",), metavar="[/Light=|*=]N", item="int", lo=1, hi=4096,
            example={"": 2}),
@@ -390,6 +405,11 @@ def make_options_class(module: str, qualname: str = "RenderOptions", doc: str = 
 # ---------------------------------------------------------------------------------- CLI
 def _conv(o: Option, kind: str, flag: str):
     def conv(s):
+        if o.parse is not None:
+            try:
+                return o.parse(s)
+            except ValueError as e:
+                raise argparse.ArgumentTypeError(f"{flag} {e}") from None
         try:
             return int(s) if kind == "int" else float(s)
         except ValueError:

@@ -19,8 +19,10 @@ from typing import Callable, Optional
 import numpy as np
 
 from .allocator import tune_allocator
+from .deadline import deadline
 from .errors import SettingsError
 from .film import Film
+from .memory import MemoryBudget
 from .options import make_options_class
 from .pixel_filter import jitter
 
@@ -117,9 +119,15 @@ def render(
         where = dict(camera=opt.camera, settings=opt.settings, frame=opt.frame, purposes=opt.purposes,
                      strict=opt.strict, subdiv_level=opt.subdiv_level)
         opened = shared.get("stage") if shared is not None else None
-        desc = (load_stage(stage_path, **where) if opened is None
-                else read_stage(opened, source=stage_path, **where))
+        # Meshes and images are charged to the budget as the reader meets them, the film here,
+        # all before the scene is built (renderer/memory.py).
+        budget = MemoryBudget.for_options(opt.max_memory)
+        with deadline(opt.load_timeout, "opening and reading the stage", file=stage_path):
+            desc = (load_stage(stage_path, memory=budget, **where) if opened is None
+                    else read_stage(opened, source=stage_path, memory=budget, **where))
         phases["load"] = time.perf_counter() - t0
+        if resume is None:
+            _check_film_memory(opt, desc.settings, budget)
         t0 = time.perf_counter()
         textures = None
         if shared is not None:
@@ -127,7 +135,8 @@ def render(
 
             textures = shared.setdefault("textures", TextureCache(missing="error" if opt.strict else "fallback",
                                                                   strict=opt.strict))
-        scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
+        with deadline(opt.load_timeout, "reading the stage's images and building the scene", file=stage_path):
+            scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
         phases["build"] = time.perf_counter() - t0
         if scene_cache is not None:
             scene_cache.clear()
@@ -136,6 +145,8 @@ def render(
         desc, scene = cached
         phases["load"] = 0.0
         phases["build"] = 0.0
+        if resume is None:
+            _check_film_memory(opt, desc.settings, MemoryBudget.for_options(opt.max_memory))
 
     try:  # a refusal here (output path, film memory, checkpoint) must not leak the built scene
         if on_loaded is not None:
@@ -148,8 +159,6 @@ def render(
         camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy,
                         sample_filter=jitter() if splat is not None else pixel_filter)
         window = _data_window(settings.data_window_ndc, width, height)
-        if resume is None:
-            _check_film_memory(width, height, window, splat is not None)
         film = resume if resume is not None else Film(width, height, window, splat)
         if resume is not None and (resume.width, resume.height, resume.window) != (width, height, window):
             raise SettingsError("checkpoint does not match the requested resolution/data window", attribute="resume")
@@ -342,55 +351,16 @@ def _data_window(ndc, width: int, height: int) -> tuple[int, int, int, int]:
     return x0, y0, x1, y1
 
 
-def available_memory() -> int | None:
-    """Bytes this process may still allocate: the least of the machine's available memory, the
-    room left under an address-space limit (RLIMIT_AS) and under a cgroup v2 memory limit.
-    None when none of them can be read."""
-    import resource
-
-    room = []
-    info = _proc_fields("/proc/meminfo", ("MemAvailable:",))
-    if "MemAvailable:" in info:
-        room.append(info["MemAvailable:"])
-    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-    if soft != resource.RLIM_INFINITY:
-        size = _proc_fields("/proc/self/status", ("VmSize:",)).get("VmSize:", 0)
-        room.append(soft - size)
-    try:
-        with open("/sys/fs/cgroup/memory.max") as fh:
-            limit = fh.read().strip()
-        if limit != "max":
-            with open("/sys/fs/cgroup/memory.current") as fh:
-                room.append(int(limit) - int(fh.read()))
-    except (OSError, ValueError):
-        pass
-    return min(room) if room else None
-
-
-def _proc_fields(path: str, names: tuple[str, ...]) -> dict:
-    """{name: bytes} of ``name  N kB`` lines of a /proc file (missing file: {})."""
-    out = {}
-    try:
-        with open(path) as fh:
-            for line in fh:
-                parts = line.split()
-                if parts and parts[0] in names:
-                    out[parts[0]] = int(parts[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return out
-
-
-def _check_film_memory(width: int, height: int, window: tuple[int, int, int, int], splat: bool) -> None:
-    """SettingsError naming the resolution when the film (renderer/film.py Film.bytes_per_pixel)
-    cannot fit in the memory this process has left: refused before it is allocated, not a
-    MemoryError (or the OOM killer) after the load, or mid-render."""
+def _check_film_memory(opt: RenderOptions, settings, budget) -> None:
+    """Charge the film (renderer/film.py Film.bytes_per_pixel) to the render's MemoryBudget
+    (renderer/memory.py) before the scene is built: a film that cannot fit is refused
+    (MemoryLimitError naming the resolution), not a MemoryError after the load, or mid-render."""
+    width, height = (int(v) for v in (opt.resolution or settings.resolution))
+    window = _data_window(settings.data_window_ndc, width, height)
     x0, y0, x1, y1 = window
-    need = (x1 - x0) * (y1 - y0) * Film.bytes_per_pixel(splat)
-    room = available_memory()
-    if room is not None and need > room:
-        raise SettingsError(f"a {width}x{height} film needs {need / 2**30:.1f} GiB, more than the "
-                            f"{max(room, 0) / 2**30:.1f} GiB of memory available", attribute="resolution")
+    splat = _pixel_filter(opt, settings)[1] == "splat"
+    budget.need((x1 - x0) * (y1 - y0) * Film.bytes_per_pixel(splat), f"a {width}x{height} film",
+                attribute="resolution")
 
 
 # OpenEXR's camera space is left-handed (x right, y up, +z the viewing direction); USD's camera

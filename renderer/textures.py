@@ -153,21 +153,23 @@ def load_image(path: str, data: Optional[bytes] = None) -> tuple[Optional[Loaded
                        is_8bit=base == oiio.UINT8, wrap_metadata=_wrap_metadata(spec)), ""
 
 
-def probe_image(path: str, data: Optional[bytes] = None) -> str:
-    """Why OpenImageIO cannot open the image at ``path`` (or its bytes ``data``): reads only the
-    header. '' when it can."""
+def probe_image(path: str, data: Optional[bytes] = None) -> tuple[str, tuple[int, int, int]]:
+    """Read only the header of the image at ``path`` (or of its bytes ``data``) with
+    OpenImageIO -> (why it cannot be opened, '' when it can; (width, height, depth) it declares,
+    zeros when it cannot), so what decoding it would allocate is known before it is decoded."""
     import OpenImageIO as oiio
 
     with local_file(path, data) as local:
         inp = oiio.ImageInput.open(local)
         if inp is None:
             # OIIO names the file it opened: the asset's own name, not a temporary copy's
-            return " ".join(oiio.geterror().replace(local, path).split()) or "not an image OpenImageIO can read"
+            return (" ".join(oiio.geterror().replace(local, path).split()) or "not an image OpenImageIO can read",
+                    (0, 0, 0))
         spec = inp.spec()
         inp.close()
     if spec.width <= 0 or spec.height <= 0 or spec.nchannels <= 0:
-        return "image has no pixels"
-    return ""
+        return "image has no pixels", (0, 0, 0)
+    return "", (int(spec.width), int(spec.height), max(int(spec.depth), 1))
 
 
 def _wrap_metadata(spec) -> tuple[str, str] | None:

@@ -267,19 +267,6 @@ class CheckQueue:
                     self._taken.discard(job.id)
 
 
-def _limit_resources(memory_mb: int, cpu_seconds: int) -> None:
-    try:
-        import resource
-
-        if memory_mb > 0:
-            cap = memory_mb * 1024 * 1024
-            resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
-        if cpu_seconds > 0:
-            resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds))
-    except (ImportError, ValueError, OSError):  # not POSIX, or the hard limit is lower already
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     """Child entry point: print one JSON line {"error", "layers", "assets"} (or {"reason"} when
     the stage cannot be opened) and exit 0."""
@@ -296,11 +283,17 @@ def main(argv: list[str] | None = None) -> int:
         from .procs import die_with_parent
 
         die_with_parent(a.parent_pid)
-    _limit_resources(a.memory_mb, a.cpu_seconds)
-    from renderer.errors import IllumError
+    from .procs import limit_resources
+
+    limit_resources(a.memory_mb * 2**20, a.cpu_seconds)
+    from renderer.errors import IllumError, SpecialFileError, StageError
 
     try:
         result = check_in_process(a.stage, a.stage_root, a.uploads, a.upload)
+    except SpecialFileError as e:  # a FIFO or device layer: refused now, as the worker would
+        where = display_name(e.file, a.stage_root, a.uploads) if e.file else ""
+        result = {"error": str(StageError(e.message, file=where, prim=e.prim, attribute=e.attribute)),
+                  "layers": [a.stage], "assets": []}
     except IllumError as e:
         result = {"reason": f"cannot open the stage: {e}"}
     sys.stdout.write(json.dumps(result) + "\n")

@@ -6,6 +6,7 @@ job; one line), 1 an internal error; ``submit --wait`` returns 3 when the job wa
 
 from __future__ import annotations
 
+import argparse
 import ipaddress
 import json
 import os
@@ -42,6 +43,12 @@ def register_cli(subparsers) -> None:
                    help="seconds between progressive snapshots and checkpoints (default 2)")
     s.add_argument("--max-spp", type=int, default=65536)
     s.add_argument("--max-time", type=float, default=24 * 3600.0, help="max render seconds per job (default 86400)")
+    s.add_argument("--max-time-grace", type=float, default=600.0, metavar="SECONDS",
+                   help="seconds a job may run beyond --max-time (loading, compiling, writing) before its worker "
+                        "is killed and the job failed, heartbeats or not (default 600)")
+    s.add_argument("--max-job-memory", type=_size, default=None, metavar="SIZE",
+                   help="memory one job may use (8G, 512M): its render's --max-memory cap, and with headroom its "
+                        "worker's hard address-space limit (default 80%% of the machine's memory / --workers)")
     s.add_argument("--max-resolution", type=int, default=8192, help="max pixels per image side (default 8192)")
     s.add_argument("--max-upload-mb", type=float, default=256.0, help="max upload size in MiB (default 256)")
     s.add_argument("--asset-check-timeout", type=float, default=60.0,
@@ -82,6 +89,15 @@ def register_cli(subparsers) -> None:
 
 
 # ------------------------------------------------------------------------------ serve
+def _size(text: str) -> int:
+    from renderer.memory import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def _bind(host: str, port: int) -> socket.socket:
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)
@@ -130,7 +146,8 @@ def cmd_serve(a) -> int:
                                ray_actors=a.ray_actors, threads=a.threads, max_attempts=a.max_attempts,
                                heartbeat_timeout=a.heartbeat_timeout, snapshot_interval=a.snapshot_interval,
                                token=os.environ.get("ILLUM_TOKEN") or None, limits=limits,
-                               asset_check_timeout=a.asset_check_timeout)
+                               asset_check_timeout=a.asset_check_timeout, job_memory=a.max_job_memory,
+                               max_time_grace=a.max_time_grace)
     except ValueError as e:
         raise SettingsError(str(e), attribute="serve") from None
     logging.basicConfig(level=a.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")

@@ -6,7 +6,23 @@ import os
 from dataclasses import dataclass, field
 from typing import Optional
 
-__all__ = ["ServiceConfig", "Limits"]
+__all__ = ["ServiceConfig", "Limits", "default_job_memory", "JOB_MEMORY_FRACTION", "WORKER_BASE_ADDRESS_SPACE"]
+
+JOB_MEMORY_FRACTION = 0.8             # of the machine's memory, shared by the workers
+# Address space a warmed-up worker maps before any job (Python, numba, LLVM, Embree, thread
+# stacks and malloc arenas: ~1.9 GB with 2 threads), added to the job's cap for RLIMIT_AS.
+WORKER_BASE_ADDRESS_SPACE = 4 * 2**30
+
+
+def default_job_memory(workers: int) -> int | None:
+    """JOB_MEMORY_FRACTION of the machine's memory (MemTotal) shared by ``workers`` workers;
+    None when it cannot be read."""
+    try:
+        with open("/proc/meminfo") as fh:
+            total = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("MemTotal:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        return None
+    return int(total * JOB_MEMORY_FRACTION / max(1, workers))
 
 
 @dataclass(frozen=True)
@@ -40,6 +56,11 @@ class ServiceConfig:
     token: when set, every endpoint that reads or changes jobs needs ``Authorization: Bearer <token>``.
     asset_check_timeout: the submission-time asset check (service.assets) gives up after this
     many seconds and leaves the decision to the worker's own check.
+    job_memory: bytes one job may use: its render's memory cap (renderer/memory.py; a request's
+    settings.max_memory can only lower it) and, with headroom for the interpreter and kernels
+    (WORKER_BASE_ADDRESS_SPACE), the worker's hard address-space limit. None: default_job_memory.
+    max_time_grace: seconds a job may run beyond ``limits.max_time_budget`` (loading, building,
+    compiling, writing) before the supervisor kills its worker and fails it, heartbeats or not.
     """
 
     data_dir: str
@@ -57,6 +78,12 @@ class ServiceConfig:
     token: Optional[str] = None
     limits: Limits = field(default_factory=Limits)
     asset_check_timeout: float = 60.0   # seconds for the submission-time asset confinement check
+    job_memory: Optional[int] = None
+    max_time_grace: float = 600.0
+
+    def job_memory_cap(self) -> int | None:
+        """job_memory, else default_job_memory for this many workers."""
+        return self.job_memory or default_job_memory(max(1, self.workers))
 
     def __post_init__(self):
         if self.backend not in ("local", "ray"):
@@ -65,6 +92,10 @@ class ServiceConfig:
             raise ValueError("workers must be >= 0")
         if not 1 <= self.max_attempts <= self.limits.max_attempts:
             raise ValueError(f"max_attempts must be in [1, {self.limits.max_attempts}]")
+        if self.job_memory is not None and self.job_memory < 2**20:
+            raise ValueError("the job memory cap must be at least 1 MiB")
+        if self.max_time_grace < 0:
+            raise ValueError("max_time_grace must be >= 0")
         if self.heartbeat_timeout <= 2 * self.heartbeat_interval:
             raise ValueError("heartbeat_timeout must exceed twice the heartbeat interval")
 

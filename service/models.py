@@ -172,10 +172,12 @@ def request_hash(kind: str, stage_name: str, settings: dict, priority: int, max_
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
-def render_options(settings: dict, *, threads: int | None = None, max_time: float | None = None):
+def render_options(settings: dict, *, threads: int | None = None, max_time: float | None = None,
+                   max_memory: int | None = None):
     """Stored (normalised) settings -> RenderOptions. ``max_time`` caps the time budget, so a
-    job with only an spp target still cannot run forever. A setting a stored job lacks (one from
-    before the option existed) takes the declaration's default."""
+    job with only an spp target still cannot run forever; ``max_memory`` (the server's per-job
+    cap) caps the memory a request asks for. A setting a stored job lacks (one from before the
+    option existed) takes the declaration's default."""
     from renderer.render import RenderOptions
 
     kw = {o.name: options.normalise(o, settings.get(o.api_name)) for o in options.OPTIONS
@@ -183,6 +185,9 @@ def render_options(settings: dict, *, threads: int | None = None, max_time: floa
     budget = kw.get("time_budget")
     if max_time is not None:
         kw["time_budget"] = min(budget, max_time) if budget is not None else max_time
+    if max_memory is not None:
+        asked = kw.get("max_memory")
+        kw["max_memory"] = min(asked, max_memory) if asked is not None else max_memory
     return RenderOptions(threads=threads, **kw)
 
 

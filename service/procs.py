@@ -54,3 +54,18 @@ def guard_process_group() -> None:
     finally:
         os.close(r)
     _GUARD_FD = w
+
+
+def limit_resources(memory_bytes: int, cpu_seconds: int = 0) -> None:
+    """Hard limits for this process and its children: address space (RLIMIT_AS; an allocation
+    beyond it fails with MemoryError instead of waking the OOM killer) and CPU seconds. 0 leaves
+    a limit as it is; a limit the system does not allow (or a non-POSIX system) is skipped."""
+    try:
+        import resource
+
+        if memory_bytes > 0:
+            resource.setrlimit(resource.RLIMIT_AS, (int(memory_bytes), int(memory_bytes)))
+        if cpu_seconds > 0:
+            resource.setrlimit(resource.RLIMIT_CPU, (cpu_seconds, cpu_seconds))
+    except (ImportError, ValueError, OSError):  # not POSIX, or the hard limit is lower already
+        pass

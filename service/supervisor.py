@@ -9,6 +9,8 @@
   can be long at high resolution) is killed and replaced: cancel always takes effect.
 * The reaper requeues running jobs whose heartbeat went stale (this also covers workers on
   other hosts or started by hand), and a collector removes deleted jobs and their directories.
+* A job running longer than ``--max-time`` + ``--max-time-grace`` (this attempt) has its
+  worker killed and fails for good, even while the worker heartbeats (a blocked read).
 * On start-up after a crash of the server, jobs held by workers that no longer exist are made
   stale immediately, so they resume without waiting for the heartbeat timeout.
 """
@@ -47,6 +49,8 @@ class _Slot:
     started: float = 0.0
     crashes: list = field(default_factory=list)   # monotonic times of recent early exits
     not_before: float = 0.0                       # respawn back-off
+    job_id: str | None = None                     # the job the worker holds, as last seen
+    job_seen: float = 0.0                         # monotonic time it was first seen holding it
 
 
 class Supervisor:
@@ -143,6 +147,7 @@ class Supervisor:
                     for slot in self.slots:
                         self._check(slot, now)
                 self._enforce_cancel_deadlines()
+                self._enforce_max_time(now)
                 if now - last_reap >= REAP_EVERY:
                     last_reap = now
                     for job_id, state in self.store.reap(self.config.heartbeat_timeout):
@@ -183,6 +188,8 @@ class Supervisor:
                "--threads", str(threads), "--max-time", repr(c.limits.max_time_budget),
                "--max-side", str(c.limits.max_side), "--max-pixels", str(c.limits.max_pixels),
                "--backend", c.backend, "--stage-root", os.path.realpath(c.stage_root)]
+        if c.job_memory_cap():
+            cmd += ["--max-memory", str(c.job_memory_cap())]
         if c.ray_address:
             cmd += ["--ray-address", c.ray_address]
         if c.ray_actors:
@@ -216,6 +223,30 @@ class Supervisor:
                     slot.proc.kill()
                     append_job_log(self.config.job_dir(job_id), f"[supervisor] worker {slot.worker_id} was still "
                                     f"busy {self.config.cancel_grace:g} s after the cancel (a long pass): killed")
+
+
+    def _enforce_max_time(self, now: float) -> None:
+        """Kill the worker of a job that has run longer than the server's max time plus
+        max_time_grace this attempt, and fail the job for good: a worker blocked in a read (a
+        stage that never finishes opening) still heartbeats, so the reaper would never notice.
+        An attempt is timed from when this supervisor first sees its worker holding it."""
+        c = self.config
+        limit = c.limits.max_time_budget + c.max_time_grace
+        holding = {w["id"]: w["job_id"] for w in self.store.workers() if w["job_id"]}
+        with self._lock:
+            for slot in self.slots:
+                job_id = holding.get(slot.worker_id)
+                if job_id != slot.job_id:
+                    slot.job_id, slot.job_seen = job_id, now
+                if job_id is None or now - slot.job_seen <= limit or slot.proc is None or slot.proc.poll() is not None:
+                    continue
+                msg = (f"the job ran {now - slot.job_seen:.0f} s, beyond this server's limit of "
+                       f"{c.limits.max_time_budget:g} s (--max-time) + {c.max_time_grace:g} s (--max-time-grace): "
+                       f"its worker was killed")
+                log.warning("job %s on worker %s: %s", job_id, slot.worker_id, msg)
+                self.store.finish(job_id, slot.worker_id, "failed", error=msg)
+                slot.proc.kill()
+                append_job_log(c.job_dir(job_id), f"[supervisor] {msg}")
 
 
 def append_job_log(job_dir: str, message: str) -> None:

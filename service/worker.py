@@ -12,7 +12,8 @@ Per job:
 * every ``--snapshot-interval`` seconds (and right after the first pass) the film is written as
   ``preview.exr`` + ``preview.png`` and checkpointed (``Film.save_state``), so a worker killed
   with ``kill -9`` resumes from there when the reaper requeues the job;
-* an IllumError fails the job with its one-line message (a user error: retrying cannot help);
+* an IllumError fails the job with its one-line message (a user error: retrying cannot help),
+  and so does a MemoryError (the same job would run out again under the same limit);
   any other exception requeues it until ``max_attempts``, then fails it with the error text;
 * SIGTERM (server shutdown) checkpoints the running job and requeues it without counting the
   attempt.
@@ -38,7 +39,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from .models import render_options
-from .procs import die_with_parent, guard_process_group
+from .procs import die_with_parent, guard_process_group, limit_resources
 from .store import Job, JobStore
 
 __all__ = ["WorkerContext", "run_job", "main"]
@@ -66,6 +67,7 @@ class WorkerContext:
     max_time: Optional[float] = None
     max_side: int = 8192
     max_pixels: int = 8192 * 8192
+    max_memory: Optional[int] = None                       # bytes per job (the server's --max-job-memory)
     backend: str = "local"
     ray_address: Optional[str] = None
     ray_actors: Optional[int] = None
@@ -78,6 +80,7 @@ class WorkerContext:
     ray_pool: object = None
     warmup: bool = True                                   # warm the kernels before the first job
     current_stop: Optional[threading.Event] = None       # the running job's stop flag (for SIGTERM)
+    current_job: Optional[Job] = None                     # the running job (for a stuck load)
 
     def job_dir(self, job_id: str) -> str:
         return os.path.join(self.data_dir, "jobs", job_id)
@@ -158,6 +161,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
          f"backend {ctx.backend}): {job.kind} {job.stage_name}")
     stop = threading.Event()
     ctx.current_stop = stop
+    ctx.current_job = job
     if ctx.shutdown.is_set():  # SIGTERM arrived between the claim and here
         stop.set()
     hb = _Heartbeat(ctx, job.id, stop)
@@ -175,6 +179,17 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
         except IllumError as e:
             msg = _clean(str(e), job)
             jlog(f"error: {msg}")
+            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            return "failed"
+        except MemoryError as e:
+            # The hard address-space limit (or the machine) ran out: the same job would run out
+            # again, so this is permanent, never retried as transient.
+            from renderer.memory import format_size
+
+            cap = f" (this server's limit per job is {format_size(ctx.max_memory)}, --max-job-memory)" \
+                if ctx.max_memory else ""
+            msg = _clean(f"out of memory{': ' + str(e) if str(e) else ''}{cap}", job)
+            jlog(f"error: {msg}\n{traceback.format_exc()}")
             ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
             return "failed"
         except Exception as e:  # an internal error: may be transient (disk, memory), so retry
@@ -198,6 +213,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
     finally:
         hb.close()
         ctx.current_stop = None
+        ctx.current_job = None
 
 
 def _stopped(ctx: WorkerContext, job: Job, hb: _Heartbeat, jlog: JobLog) -> str:
@@ -362,11 +378,13 @@ def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
            opts.strict)
     res = ctx.resolution_cache.get(key)
     if res is None:
+        from renderer.memory import MemoryBudget
         from renderer.usd import load_stage
 
         # Only the resolution is wanted: meshes are read as their cages (no subdivision).
         desc = load_stage(job.stage, camera=opts.camera, settings=opts.settings, frame=opts.frame,
-                          purposes=opts.purposes, strict=opts.strict, subdiv_level=0)
+                          purposes=opts.purposes, strict=opts.strict, subdiv_level=0,
+                          memory=MemoryBudget.for_options(opts.max_memory))
         res = tuple(int(v) for v in desc.settings.resolution)
         ctx.resolution_cache.clear()
         ctx.resolution_cache[key] = res
@@ -395,10 +413,14 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     from renderer.render import render, write_outputs
 
     jobdir = ctx.job_dir(job.id)
-    opts = render_options(job.settings, threads=ctx.threads)
+    opts = render_options(job.settings, threads=ctx.threads, max_memory=ctx.max_memory)
     opts.validate()
-    _check_stage_assets(ctx, job)
-    _check_stage_resolution(ctx, job, opts)
+    from renderer.deadline import deadline
+
+    with deadline(opts.load_timeout, "checking the stage's files", file=job.stage):
+        _check_stage_assets(ctx, job)
+    with deadline(opts.load_timeout, "reading the stage's render settings", file=job.stage):
+        _check_stage_resolution(ctx, job, opts)
     user_budget = opts.time_budget
     total_budget = min(user_budget, ctx.max_time) if (user_budget and ctx.max_time) else (user_budget or ctx.max_time)
     ckpt = _Checkpoint(jobdir)
@@ -590,6 +612,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-time", type=float, default=None)
     p.add_argument("--max-side", type=int, default=8192)
     p.add_argument("--max-pixels", type=int, default=8192 * 8192)
+    p.add_argument("--max-memory", type=int, default=None,
+                   help="bytes a job may use: its render's memory cap; with the local backend the process's "
+                        "address space is also limited to it plus WORKER_BASE_ADDRESS_SPACE (service/config.py)")
     p.add_argument("--backend", choices=("local", "ray"), default="local")
     p.add_argument("--ray-address", default=None)
     p.add_argument("--ray-actors", type=int, default=None)
@@ -610,9 +635,17 @@ def main(argv: list[str] | None = None) -> int:
     if a.supervised:
         die_with_parent()
         guard_process_group()
+    if a.max_memory and a.backend == "local":
+        # A hard ceiling under the estimate (renderer/memory.py): what it misses fails with
+        # MemoryError (a permanent failure of the job) rather than waking the OOM killer. Not
+        # with Ray: the cluster processes this worker starts would inherit it.
+        from .config import WORKER_BASE_ADDRESS_SPACE
+
+        limit_resources(a.max_memory + WORKER_BASE_ADDRESS_SPACE)
     ctx = WorkerContext(store=JobStore(os.path.join(a.data, "jobs.db")), worker_id=a.id, data_dir=a.data,
                         heartbeat_interval=a.heartbeat_interval, snapshot_interval=a.snapshot_interval,
                         threads=a.threads, max_time=a.max_time, max_side=a.max_side, max_pixels=a.max_pixels,
+                        max_memory=a.max_memory,
                         backend=a.backend, ray_address=a.ray_address, ray_actors=a.ray_actors,
                         ray_drivers=a.ray_drivers, stage_root=a.stage_root, warmup=a.warmup,
                         parent_pid=os.getppid() if a.supervised else None)
@@ -623,6 +656,23 @@ def main(argv: list[str] | None = None) -> int:
         if stop is not None:
             stop.set()
 
+    def on_stuck(message: str) -> None:
+        # A load blocked in C++ past its deadline (renderer/deadline.py): fail the job for good
+        # (a retry would block the same way), then leave; the supervisor starts a new worker.
+        job = ctx.current_job
+        if job is not None:
+            msg = _clean(message, job)
+            try:
+                JobLog(os.path.join(ctx.job_dir(job.id), JOB_LOG), ctx.worker_id)(f"error: {msg}")
+                ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            except Exception:  # noqa: BLE001 (exit regardless: this thread cannot be freed)
+                log.exception("failing job %s after a stuck load failed", job.id)
+        log.error("%s: exiting", message)
+        os._exit(4)
+
+    from renderer.deadline import set_stuck_handler
+
+    set_stuck_handler(on_stuck)
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
     _exit_if_orphaned(ctx)

@@ -28,6 +28,11 @@ What is read and what is not (each unsupported feature gives one warning per sta
   packages are read from the package (``ReadContext.read_asset``). A missing or unreadable
   asset, sublayer, reference or payload, or a sublayer cycle, gives one warning per file and its
   fallback; ``strict=True`` (``--strict``) makes each an error naming layer, prim and attribute.
+* A FIFO, device or directory named as the stage, a sublayer, reference, payload or asset is
+  refused before anything opens it (``composition.open_layers_refusing_special_files``,
+  ``ReadContext.read_asset``): a SpecialFileError naming the layer, prim and field.
+* Memory: each mesh (from faceVertexCounts, before triangulating; then triangles x instances)
+  and image (from its header) is charged to the caller's ``renderer.memory.MemoryBudget``.
 * No lights: a warning. No camera: usdrecord's framing camera, with a warning.
 * Time: one time code, no motion blur (velocities and multiple samples are not read); without
   a frame it is ``stage.GetStartTimeCode()`` (0.0 when unauthored), as usdrecord uses.

@@ -5,13 +5,36 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 from collections import OrderedDict
 
 import numpy as np
 from pxr import Ar, Gf, Sdf, Usd, UsdGeom
 
-from renderer.errors import StageError
+from renderer.errors import SpecialFileError, StageError
+from renderer.memory import TEXEL_BYTES, TEXEL_DECODE_BYTES, MemoryBudget
 from renderer.textures import probe_image
+
+
+_KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def special_file_problem(path: str) -> str:
+    """'' unless ``path`` exists and is not a regular file, else why it is refused ("is a FIFO,
+    not a regular file"): opening a FIFO without a writer blocks forever, and a device such as
+    ``/dev/zero`` never ends. A package-relative or format-argument identifier is judged by its
+    file; a missing path is left to the resolver and the missing-asset policy."""
+    path = Sdf.Layer.SplitIdentifier(path)[0]
+    if Ar.IsPackageRelativePath(path):
+        path = Ar.SplitPackageRelativePathOuter(path)[0]
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return ""
+    if stat.S_ISREG(mode):
+        return ""
+    return f"is {next((name for test, name in _KINDS if test(mode)), 'not a file')}, not a regular file"
 
 
 def gf_matrix_to_np(m: Gf.Matrix4d) -> np.ndarray:
@@ -79,15 +102,19 @@ class ReadContext:
     strict: every missing or unreadable asset is a StageError (``--strict``); otherwise one
         warning per file and the consumer's fallback (``asset_unusable``).
     xform_cache: one UsdGeom.XformCache(time) for the whole read.
+    memory: the render's renderer.memory.MemoryBudget: meshes and images are charged to it as
+        they are met, before their arrays are built (a MemoryLimitError names the prim).
     """
 
-    def __init__(self, stage: Usd.Stage, file: str, time: Usd.TimeCode, strict: bool = False):
+    def __init__(self, stage: Usd.Stage, file: str, time: Usd.TimeCode, strict: bool = False,
+                 memory: MemoryBudget | None = None):
         self.stage = stage
         self.file = file
         self.time = time
         self.strict = strict
+        self.memory = memory if memory is not None else MemoryBudget(None)
         self._assets: dict[str, tuple[str, bytes | None] | str] = {}
-        self._image_problems: dict[str, str] = {}
+        self._image_problems: dict[str, tuple] = {}
         self.xform_cache = UsdGeom.XformCache(time)
         self.warnings = WarningLog()
         self.stats: dict[str, int] = {
@@ -215,6 +242,10 @@ class ReadContext:
             return None
         cached = self._assets.get(resolved)
         if cached is None:
+            problem = special_file_problem(resolved)
+            if problem:  # reading a FIFO or a device would block or never end: never a fallback
+                raise SpecialFileError(f"'{resolved}' {problem}", file=self.authoring_layer(prim, name) or self.file,
+                                 prim=str(prim.GetPath()), attribute=name)
             if os.path.isfile(resolved):
                 cached = (resolved, None)
             else:
@@ -234,12 +265,20 @@ class ReadContext:
         asset = self.read_asset(prim, name, value, consequence)
         if asset is None:
             return None
-        if asset[0] not in self._image_problems:
+        first = asset[0] not in self._image_problems
+        if first:
             self._image_problems[asset[0]] = probe_image(*asset)
-        problem = self._image_problems[asset[0]]
+        problem, size = self._image_problems[asset[0]]
         if problem:
             self.asset_unusable(prim, name, asset[0], f"cannot read image ({problem})", consequence)
             return None
+        if first:  # each file is decoded once: its texels, and the peak while decoding it
+            width, height, depth = size
+            texels = width * height * depth
+            what = f"the {width}x{height}{f'x{depth}' if depth > 1 else ''} image '{asset[0]}'"
+            where = dict(file=self.authoring_layer(prim, name) or self.file, prim=str(prim.GetPath()), attribute=name)
+            self.memory.need(texels * TEXEL_DECODE_BYTES, f"decoding {what}", transient=True, **where)
+            self.memory.need(texels * TEXEL_BYTES, what, **where)
         return asset
 
     def resolve_asset(self, prim: Usd.Prim, name: str, value, consequence: str = "") -> str:

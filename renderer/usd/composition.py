@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import re
 
-from pxr import Ar, Pcp, Sdf, Usd
+from pxr import Ar, Pcp, Sdf, Tf, Usd
 
-from renderer.errors import StageError
+from renderer.errors import SpecialFileError, StageError
 
-from .common import ReadContext, one_line
+from .common import ReadContext, one_line, special_file_problem
 
-__all__ = ["check_composition", "locate_arc"]
+__all__ = ["check_composition", "locate_arc", "open_layers_refusing_special_files"]
 
 _QUOTED = re.compile(r"@([^@]+)@")
 _MAX_WARNINGS = 10
@@ -115,3 +115,48 @@ def check_composition(ctx: ReadContext) -> None:
             raise StageError(f"composition error: {message}", file=layer or ctx.file, prim=prim, attribute=field)
         where = ": ".join(x for x in (layer, f"{prim}.{field}" if prim else field) if x)
         ctx.warn(f"composition-{k}", f"{where + ': ' if where else ''}composition error: {message}; skipped")
+
+
+def open_layers_refusing_special_files(path: str) -> list[Sdf.Layer]:
+    """Open the layer at ``path`` and, depth first, every layer its subLayers, references and
+    payloads name (in every variant, since which are selected is known only once composed),
+    refusing any that is not a regular file before anything opens it: StageError naming the
+    layer, prim and field that author it. Returns the opened layers: held while
+    ``Usd.Stage.Open`` runs, it reuses them rather than reading them again.
+
+    Layers that cannot be opened are left to composition (``check_composition``). Value clips
+    are not walked (they are opened while composing); the load timeout covers them."""
+    problem = special_file_problem(path)
+    if problem:
+        raise SpecialFileError(f"the stage {problem}", file=path)
+    held: list[Sdf.Layer] = []
+    seen: set[str] = set()
+    todo = [path]
+    while todo:
+        ident = todo.pop()
+        if ident in seen:
+            continue
+        seen.add(ident)
+        try:
+            layer = Sdf.Layer.FindOrOpen(ident)
+        except Tf.ErrorException:
+            layer = None
+        if layer is None:
+            continue
+        held.append(layer)
+        variables = dict(layer.expressionVariables or {})
+        for authored in layer.GetCompositionAssetDependencies():
+            asset = authored
+            if Sdf.VariableExpression.IsExpression(authored):
+                result = Sdf.VariableExpression(authored).Evaluate(variables)
+                if result.errors or not isinstance(result.value, str) or not result.value:
+                    continue
+                asset = result.value
+            anchored = _anchored(asset, layer)
+            resolved = str(Ar.GetResolver().Resolve(anchored)) or anchored
+            problem = special_file_problem(resolved)
+            if problem:
+                prim, field = locate_arc(layer, authored)
+                raise SpecialFileError(f"'{asset}' {problem}", file=layer.identifier, prim=prim, attribute=field)
+            todo.append(resolved)
+    return held

@@ -20,7 +20,8 @@ reader does (``Usd.Stage.Open``, everything loaded) and lists every asset path t
 * **string primvars** (``string``/``token``, arrays too), anchored to their layer: a
   UsdPrimvarReader_string can make one a texture's file (renderer/usd/materials.py).
 
-A path is judged by where it points, never by whether the file is there, so the answer gives
+An asset inside the roots that is a FIFO, a device or a directory raises SpecialFileError (the
+reader refuses those too). A path is judged by where it points, never by whether the file is there, so the answer gives
 away nothing about files outside the roots. Resolved paths are followed through symlinks
 (``os.path.realpath``). A path that does not resolve is judged by its anchored location when it
 is absolute or climbs with ``..``; other unresolved relative paths stay inside the authoring
@@ -35,9 +36,9 @@ from typing import Callable, Iterable
 
 from pxr import Ar, Sdf, Tf, Usd
 
-from renderer.errors import StageError
+from renderer.errors import SpecialFileError, StageError
 
-from .common import one_line
+from .common import one_line, special_file_problem
 from .composition import locate_arc
 from .stage_reader import open_stage
 
@@ -164,6 +165,9 @@ class _Scan:
         if target is None:
             return
         if self.roots.contains(target):
+            problem = special_file_problem(target)
+            if problem:  # the reader would refuse it (ReadContext.read_asset): refuse it now
+                raise SpecialFileError(f"'{asset}' {problem}", file=layer, prim=prim, attribute=field_)
             self._assets.add(_file_of(target))
         else:
             self.escape(layer, prim, field_, asset, target)
@@ -312,6 +316,8 @@ def find_escapes(stage_path: str, roots: Iterable[str]) -> ConfinementReport:
         return ConfinementReport(escapes=[Escape("", "", "layer", stage_path)])
     try:
         stage = open_stage(path)
+    except SpecialFileError:
+        raise  # it names the layer that authors the FIFO or device
     except StageError as exc:
         raise StageError(exc.message, file=stage_path) from None  # name the file as the caller gave it
     try:

@@ -38,11 +38,12 @@ from pxr import Ar, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
 from renderer.description import LightDesc, MeshDesc, SceneDescription, primvar_layout
 from renderer.errors import StageError
+from renderer.memory import TRIANGLE_BYTES, MemoryBudget
 
 from . import implicit
 from .camera import find_camera, framing_camera, read_camera
 from .common import ReadContext, one_line
-from .composition import check_composition
+from .composition import check_composition, open_layers_refusing_special_files
 from .estimator_api import check_light_api_target
 from .lux import read_geometry_light, read_light, resolve_light_links, warn_unused_portals
 from .materials import MaterialTable
@@ -64,7 +65,8 @@ _IMPLICIT_TYPES = (UsdGeom.Sphere, UsdGeom.Cube, UsdGeom.Cylinder, UsdGeom.Cylin
 # --------------------------------------------------------------------------------------
 def load_stage(path: str, *, camera: str | None = None, settings: str | None = None,
                frame: float | None = None, purposes: tuple[str, ...] | None = None,
-               strict: bool = False, subdiv_level: int | None = None) -> SceneDescription:
+               strict: bool = False, subdiv_level: int | None = None,
+               memory: MemoryBudget | None = None) -> SceneDescription:
     """Open a USD stage file and read it into a SceneDescription.
 
     camera: camera prim path (or a unique camera prim name); default: the RenderSettings
@@ -79,12 +81,15 @@ def load_stage(path: str, *, camera: str | None = None, settings: str | None = N
         ``fallback``, an untextured or unshaped light, a skipped arc).
     subdiv_level: refinement level of subdivision meshes (0: the control cage); None: chosen
         per mesh from its projected size (renderer/subdiv.py, ``choose_level``).
+    memory: a renderer.memory.MemoryBudget each mesh (triangles x instances) and image (from
+        its header) is charged to before it is built or decoded: MemoryLimitError naming it.
 
     Raises StageError (file, prim, attribute in the message) for unreadable stages and for
     values that cannot be rendered.
     """
     return read_stage(open_stage(path), source=path, camera=camera, settings=settings, frame=frame,
-                      purposes=purposes, strict=strict, subdiv_level=subdiv_level)
+                      purposes=purposes, strict=strict, subdiv_level=subdiv_level,
+                      memory=memory)
 
 
 def open_stage(path: str) -> Usd.Stage:
@@ -92,6 +97,8 @@ def open_stage(path: str) -> Usd.Stage:
     # Resolve through Ar rather than os.path so that a custom asset resolver's identifiers work.
     if not Ar.GetResolver().Resolve(path):
         raise StageError("stage file not found", file=path)
+    # A FIFO or device as the stage or one of its layers would block Stage.Open forever.
+    held = open_layers_refusing_special_files(path)  # noqa: F841 (kept open for Stage.Open to reuse)
     try:
         stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
@@ -103,7 +110,8 @@ def open_stage(path: str) -> Usd.Stage:
 
 def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None, settings: str | None = None,
                frame: float | None = None, purposes: tuple[str, ...] | None = None,
-               strict: bool = False, subdiv_level: int | None = None) -> SceneDescription:
+               strict: bool = False, subdiv_level: int | None = None,
+               memory: MemoryBudget | None = None) -> SceneDescription:
     """Read an already open stage (same options as ``load_stage``; ``source`` names it in errors)."""
     source = source or stage.GetRootLayer().identifier
     if frame is not None:
@@ -115,7 +123,7 @@ def read_stage(stage: Usd.Stage, *, source: str = "", camera: str | None = None,
         # never the Default time code: at Default, USD ignores time samples, so an animated camera
         # or mesh would resolve to its default value (often none) instead of its held first sample.
         time = Usd.TimeCode(stage.GetStartTimeCode())
-    ctx = ReadContext(stage, source, time, strict=strict)
+    ctx = ReadContext(stage, source, time, strict=strict, memory=memory)
     if frame is None and not stage.HasAuthoredMetadata("startTimeCode") and any(
             layer.ListAllTimeSamples() for layer in stage.GetUsedLayers()):
         ctx.warn("default-time", f"the stage has time samples but no startTimeCode: read at time "
@@ -394,6 +402,9 @@ class _Traversal:
         mats = mats[np.abs(np.linalg.det(mats[:, :3, :3])) > 0.0]
         if len(mats) == 0 or len(lm.triangles) == 0:
             return None
+        n = len(lm.triangles)
+        self.ctx.memory.need(n * len(mats) * TRIANGLE_BYTES, f"{n} triangles" + (f" x {len(mats)} instances"
+                             if len(mats) > 1 else ""), file=self.ctx.file, prim=lm.path)
         desc = _place(lm, mats)
         if lm.tri_material is None:
             self.meshes.append(desc)
@@ -616,6 +627,10 @@ class _Traversal:
         points, skinned_normals = self.skinning.deform_mesh(prim, mesh, points)
         raw = ctx.get_attr(mesh.GetFaceVertexCountsAttr())
         counts = np.asarray(raw if raw is not None else [], dtype=np.int64)
+        # Refused before the indices are read and triangulated (charged, per instance, in _emit).
+        n_tri = int(np.maximum(counts - 2, 0).sum())
+        ctx.memory.need(n_tri * TRIANGLE_BYTES, f"{n_tri} triangles", file=ctx.file, prim=str(prim.GetPath()),
+                        attribute="faceVertexCounts", commit=False)
         raw = ctx.get_attr(mesh.GetFaceVertexIndicesAttr())
         indices = np.asarray(raw if raw is not None else [], dtype=np.int64)
         if len(counts) and counts.min() < 0:

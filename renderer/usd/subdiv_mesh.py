@@ -14,6 +14,7 @@ import numpy as np
 from pxr import UsdGeom
 
 from renderer import subdiv
+from renderer.memory import TRIANGLE_BYTES
 
 from .mesh import triangulate
 
@@ -123,6 +124,13 @@ def read_subdivided(reader, prim, mesh: UsdGeom.Mesh, scheme: str, points: np.nd
         ctx.warn(f"subdiv-normals-{path}", f"{path}: normals are authored on a subdivided mesh; the limit "
                                            "surface's normals are used instead (UsdGeom: normals should not be "
                                            "authored on subdivided meshes)")
+    # Refused before refining (charged for good, per instance, when the mesh is emitted): Loop
+    # splits each triangle in 4 per level; Catmull-Clark and bilinear make one quad per face
+    # corner at the first level, then 4 per quad, 2 triangles each.
+    n_tri = (len(c_counts) * 4 ** level if scheme == UsdGeom.Tokens.loop
+             else 2 * int(c_counts.sum()) * 4 ** (level - 1))
+    ctx.memory.need(n_tri * TRIANGLE_BYTES, f"{n_tri} triangles after {level} subdivision levels", file=ctx.file,
+                    prim=str(path), attribute="subdivisionScheme", commit=False)
     ref = subdiv.refine(points, c_counts, c_indices, scheme, level, _creases(ctx, prim, mesh, len(points)),
                         boundary)
     ctx.stats["subdivided_meshes"] += 1

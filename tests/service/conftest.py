@@ -132,6 +132,34 @@ def make_stage_root(path) -> str:
     return str(path)
 
 
+def write_fifo_clip_stage(path: str, sublayer: str | None = None) -> str:
+    """A stage at ``path`` whose /Clipped prim takes values from a value-clip layer that is a
+    FIFO (``pipe.usda`` next to it): opening the stage blocks until a writer appears, which
+    never happens. FIFO sublayers and references are refused before anything opens them
+    (renderer/usd/composition.py); clip layers are opened while composing, so this is the
+    hang the load deadline and the checks' timeouts are for."""
+    pipe = os.path.join(os.path.dirname(path), "pipe.usda")
+    os.mkfifo(pipe)
+    layers = f"    subLayers = [@{sublayer}@]\n" if sublayer else ""
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(f"""#usda 1.0
+(
+{layers})
+def Xform "Clipped" (
+    clips = {{
+        dictionary default = {{
+            asset[] assetPaths = [@./pipe.usda@]
+            string primPath = "/Clipped"
+            double2[] active = [(0, 0)]
+        }}
+    }}
+)
+{{
+}}
+""")
+    return pipe
+
+
 def wait_for(predicate, timeout: float = 30.0, interval: float = 0.05, what: str = "condition"):
     """Poll ``predicate`` until it returns a truthy value; fail the test after ``timeout``."""
     deadline = time.monotonic() + timeout

@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from .conftest import STAGES, TINY, make_stage_root, start_server, wait_for, wait_job
+from .conftest import STAGES, TINY, make_stage_root, start_server, wait_for, wait_job, write_fifo_clip_stage
 
 CUBE_TEX = """def Material "M" {{
     token outputs:surface.connect = </M/S.outputs:surface>
@@ -179,10 +179,8 @@ def test_a_timed_out_check_is_cached_while_the_stage_is_unchanged(tmp_path):
     from service.assets import AssetChecker
 
     root = make_stage_root(tmp_path / "root")
-    os.mkfifo(os.path.join(root, "shots", "pipe.usda"))
     stage = os.path.join(root, "shots", "hang.usda")
-    with open(stage, "w", encoding="utf-8") as fh:
-        fh.write("#usda 1.0\n(\n    subLayers = [@./pipe.usda@]\n)\n")
+    write_fifo_clip_stage(stage)  # the check blocks opening the clip layer
     checker = AssetChecker(root, str(tmp_path / "uploads"), timeout=2.0)
     runs = []
     real = checker._run_child

@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from .conftest import TINY, make_stage_root, read_exr_bytes, start_server, wait_for, wait_job
+from .conftest import (TINY, make_stage_root, read_exr_bytes, start_server, wait_for, wait_job,
+                       write_fifo_clip_stage)
 
 # Short passes, enough of them to last seconds with checkpoints in between (100 passes took only
 # ~1.5 s once the renderer got faster, leaving ~0.1 s to catch a checkpoint before the end).
@@ -197,13 +198,13 @@ def _descendant_cmdlines(pid: int) -> dict:
 
 
 def test_a_hanging_asset_check_dies_with_the_server(tmp_path):
-    """A stage whose sublayer is a FIFO makes the checking child block in open(); kill -9 of the
-    server must take that child with it (no orphan waits out its timeout). Meanwhile the request
-    that queued the job has long been answered, with the check pending."""
+    """A stage whose value-clip layer is a FIFO makes the checking child block in open() (FIFO
+    sublayers and references are refused before anything opens them; clip layers are opened
+    while composing); kill -9 of the server must take that child with it (no orphan waits out
+    its timeout). Meanwhile the request that queued the job has long been answered, with the
+    check pending."""
     root = make_stage_root(tmp_path / "root")
-    os.mkfifo(os.path.join(root, "shots", "pipe.usda"))
-    with open(os.path.join(root, "shots", "hang.usda"), "w", encoding="utf-8") as fh:
-        fh.write("#usda 1.0\n(\n    subLayers = [@./pipe.usda@, @../cornell_box.usda@]\n)\n")
+    write_fifo_clip_stage(os.path.join(root, "shots", "hang.usda"), sublayer="../cornell_box.usda")
     s = start_server(tmp_path, root, workers=0, wait_workers=False, extra=["--asset-check-timeout", "600"])
     try:
         with s.client() as c:
