@@ -5,10 +5,12 @@ The RT filter runs in HDR mode on the beauty's RGB, guided by the first-hit albe
 normal (renderer/aov.py), which come from the same camera samples as the beauty. Auxiliaries:
 ``clean_aux=False`` (OIDN treats them as possibly noisy and cleans them itself): ours are
 noise-free inside surfaces (first hit only, no indirect or glossy noise) but not at silhouettes,
-textures and cut-outs at low spp, where their anti-aliasing noise is the beauty's. Which of the
-two settings is better on the Cornell box is measured in bench/bench_denoise.py (results in
-bench/results/denoise/README.md). The raw beauty is always kept; the denoised one is a
-separate layer or file.
+textures and cut-outs at low spp, where their anti-aliasing noise is the beauty's. On the
+Cornell box (bench/bench_denoise.py, bench/results/denoise/README.md) noisy auxiliaries beat
+cleanAux by 7-22 % on a splatted film and come within 16 % of it with filter importance
+sampling, the film mode --denoise defaults to (OIDN removes per-pixel independent noise far
+better than a splatted film's correlated noise: 29x lower relMSE at 4 spp instead of 1.3x).
+The raw beauty is always kept; the denoised one is a separate layer or file.
 """
 
 from __future__ import annotations
