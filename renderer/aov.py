@@ -47,11 +47,14 @@ and unbiased behind cut-outs (whose presence draws differ).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .errors import SettingsError
+from .film import _profile_row
 
 __all__ = ["SOURCES", "ALIASES", "AovRequest", "AovResult", "resolve_source", "requests_from_names", "requests_from_vars",
            "FirstHitPass", "aov_channels", "DATA_TYPE_WIDTH"]
@@ -129,6 +132,40 @@ def aov_channels(req: AovRequest) -> tuple[str, ...]:
     return tuple(f"{req.name}.{c}" if c else req.name for c in SOURCES[req.source])
 
 
+@njit(cache=True, nogil=True)
+def _splat_columns(rows, off, V, values, radius, width, flat_sum, flat_w):
+    """Splat samples with C columns: sample i, in data-window pixel rows[i] (flat, row-major over
+    width columns) at offset off[i] (2,) from its centre, adds w V[i] (C,) to flat_sum (m, C) and
+    w to flat_w (m,) of every pixel under the filter, with the footprint and weights w of
+    renderer/film.py's _splat_kernel (so the two films' sums of w are the same numbers)."""
+    m = flat_w.shape[0]
+    height = m // width
+    C = V.shape[1]
+    scale = (values.shape[0] - 1) / radius
+    span = int(math.ceil(2.0 * radius)) + 1
+    wx = np.empty(span)
+    wy = np.empty(span)
+    for i in range(rows.shape[0]):
+        k = rows[i]
+        sx = (k % width) + 0.5 + off[i, 0]
+        sy = (k // width) + 0.5 + off[i, 1]
+        jx0 = max(int(math.floor(sx - 0.5 - radius)) + 1, 0)
+        jx1 = min(int(math.ceil(sx - 0.5 + radius)) - 1, width - 1)
+        jy0 = max(int(math.floor(sy - 0.5 - radius)) + 1, 0)
+        jy1 = min(int(math.ceil(sy - 0.5 + radius)) - 1, height - 1)
+        _profile_row(sx, jx0, jx1, values, scale, wx)
+        _profile_row(sy, jy0, jy1, values, scale, wy)
+        for y in range(jy0, jy1 + 1):
+            for x in range(jx0, jx1 + 1):
+                w = wy[y - jy0] * wx[x - jx0]
+                if w <= 0.0:
+                    continue
+                p = y * width + x
+                flat_w[p] += w
+                for c in range(C):
+                    flat_sum[p, c] += w * V[i, c]
+
+
 class FirstHitPass:
     """First-hit passes, alpha and the directly seen dome over the camera rays of each render
     pass (module docstring).
@@ -142,8 +179,6 @@ class FirstHitPass:
 
     def __init__(self, scene, camera, film, sources, *, seed: int, emitter_samples: int, exposure: float = 1.0,
                  dome_transparent: bool = False, bend=None):
-        from .film import Film
-
         self.scene, self.camera = scene, camera
         self.sources = tuple(dict.fromkeys(sources))
         self.seed, self.K, self.exposure, self.bend = int(seed), max(1, int(emitter_samples)), float(exposure), bend
@@ -162,7 +197,10 @@ class FirstHitPass:
             self.slots["dome"] = slice(c, c + 3)
             c += 3
         self.columns = c
-        self.films = [Film(film.width, film.height, film.window, film.splat) for _ in range(-(-c // 3))]
+        h, w = film.shape
+        self.splat = film.splat
+        self.sum = np.zeros((h, w, c))      # sum(w v) per column
+        self.weight = np.zeros((h, w))      # sum(w): the beauty film's W1 for the same samples
         self.ids = {s: np.full(film.shape, -1, dtype=np.int64) for s in self.sources if s in _IDS}
         self.id_dist = np.full(film.shape, np.inf) if self.ids else None
         self.world_to_camera = camera.world_to_camera()
@@ -211,10 +249,18 @@ class FirstHitPass:
                 self._add(rows, total / K, None, True)
 
     def _add(self, rows, values, offsets, count: bool) -> None:
-        padded = np.zeros((values.shape[0], 3 * len(self.films)))
-        padded[:, :values.shape[1]] = values
-        for j, f in enumerate(self.films):
-            f.add(rows, np.ascontiguousarray(padded[:, 3 * j:3 * j + 3]), offsets=offsets, count=count)
+        """Accumulate one sample per row as the beauty film does (renderer/film.py): splatted with
+        the film's filter at offsets (pixels from the centre), or with weight 1 in its own pixel."""
+        flat_sum = self.sum.reshape(-1, self.columns)
+        flat_w = self.weight.reshape(-1)
+        if self.splat is None:
+            flat_sum[rows] += values   # one sample per pixel and call: rows are unique
+            flat_w[rows] += 1.0
+            return
+        f = self.splat
+        _splat_columns(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(offsets, dtype=np.float64),
+                       np.ascontiguousarray(values, dtype=np.float64), f._values, float(f.radius),
+                       int(self.sum.shape[1]), flat_sum, flat_w)
 
     def _keep_ids(self, rows, offset, hit_ids) -> None:
         """Each pixel keeps the ids of its sample nearest to the centre (module docstring)."""
@@ -305,12 +351,9 @@ class FirstHitPass:
 
     # ------------------------------------------------------------------ results
     def means(self) -> np.ndarray:
-        """(h, w, columns) float64 filtered means of the data window."""
-        parts = []
-        for f in self.films:
-            W1 = f._moments()[0]
-            parts.append(f.sum / np.where(W1 > 0.0, W1, 1.0))
-        return np.concatenate(parts, axis=2)[:, :, :self.columns]
+        """(h, w, columns) float64 filtered means of the data window (0 where no sample weighs in)."""
+        W = self.weight[:, :, None]
+        return self.sum / np.where(W > 0.0, W, 1.0)
 
     def alpha(self) -> np.ndarray:
         """(h, w) filtered coverage."""
@@ -391,3 +434,9 @@ class AovResult:
         if self.denoised is not None:
             out["illum:denoiseSeconds"] = float(self.denoise_seconds)
         return out
+
+
+# _splat_columns inlines film._profile_row: its cache follows that file (renderer/kernels).
+from renderer.kernels import guard_cache, module_dispatchers  # noqa: E402
+
+guard_cache(__name__, module_dispatchers(globals()), ["renderer/film.py"])
