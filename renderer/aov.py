@@ -211,42 +211,57 @@ class FirstHitPass:
         self.prim_of_mesh = np.array([where[p] for p in paths], dtype=np.int64)
 
     # ------------------------------------------------------------------ tracing
-    def render_pass(self, film, pass_index: int) -> None:
+    def render_pass(self, film, pass_index: int, pool=None) -> None:
         """Add this pass's camera samples (the ones PathIntegrator.render_pass takes for the
-        beauty film ``film``) to the pass films."""
+        beauty film ``film``) to the passes. pool: an executor the chunks are traced on (the
+        integrator's), each in its own thread; they are accumulated in order afterwards."""
+        from .accel import serial_tracing
         from .integrators.path import chunk_size
-        from .sampling import pixel_sequence
 
         px, py = film.pixel_coords()
         n = px.size
         size = chunk_size(n)
+        chunks = [(c, a, min(n, a + size)) for c, a in enumerate(range(0, n, size))]
+
+        def work(job):
+            with serial_tracing():
+                return self._chunk(job, px, py, film.width, pass_index)
+
+        results = pool.map(work, chunks) if pool is not None and len(chunks) > 1 else map(
+            lambda job: self._chunk(job, px, py, film.width, pass_index), chunks)
         splat = film.splat is not None
-        thin_lens = self.camera.lens_radius > 0.0
-        K = self.K
-        for c, a in enumerate(range(0, n, size)):
-            b = min(n, a + size)
-            m = b - a
-            cx, cy = px[a:b], py[a:b]
-            # The integrator's chunk stream: its first draw is the first camera ray's lens sample.
-            rng = np.random.default_rng([self.seed, pass_index, c])
-            own = np.random.default_rng([self.seed, pass_index, c, 0x41])  # cut-outs, further lenses
-            pixel = cy.astype(np.int64) * max(film.width, 1) + cx
-            rows = np.arange(a, b)
-            total = np.zeros((m, self.columns))
-            for k in range(K):
-                u = pixel_sequence(self.seed, pixel, pass_index * K + k)
-                u_lens = ((rng if k == 0 else own).random((m, 2)) if thin_lens else np.zeros((m, 2)))
-                rays = self.camera.generate(cx, cy, u, u_lens)
-                o, tmax = rays.at_near_plane()
-                values, hit_ids = self._first_hits(o, rays.d, tmax, own)
-                offset = u - 0.5 if splat else self.camera.filter.sample(u)
+        for rows, samples in results:
+            for k, (values, offset, hit_ids) in enumerate(samples):
                 self._keep_ids(rows, offset, hit_ids)
                 if splat:
                     self._add(rows, values, offset, k == 0)
-                else:
-                    total += values
             if not splat:
-                self._add(rows, total / K, None, True)
+                self._add(rows, sum(v for v, _, _ in samples) / len(samples), None, True)
+
+    def _chunk(self, job, px, py, width: int, pass_index: int):
+        """(rows, [(values, offsets, ids) per camera ray k]) of one chunk (c, a, b) of the pass,
+        its rays made as PathIntegrator.trace_paths makes them."""
+        from .sampling import pixel_sequence
+
+        c, a, b = job
+        m = b - a
+        cx, cy = px[a:b], py[a:b]
+        thin_lens = self.camera.lens_radius > 0.0
+        K = self.K
+        # The integrator's chunk stream: its first draw is the first camera ray's lens sample.
+        rng = np.random.default_rng([self.seed, pass_index, c])
+        own = np.random.default_rng([self.seed, pass_index, c, 0x41])  # cut-outs, further lenses
+        pixel = cy.astype(np.int64) * max(width, 1) + cx
+        samples = []
+        for k in range(K):
+            u = pixel_sequence(self.seed, pixel, pass_index * K + k)
+            u_lens = ((rng if k == 0 else own).random((m, 2)) if thin_lens else np.zeros((m, 2)))
+            rays = self.camera.generate(cx, cy, u, u_lens)
+            o, tmax = rays.at_near_plane()
+            values, hit_ids = self._first_hits(o, rays.d, tmax, own)
+            offset = u - 0.5 if self.splat is not None else self.camera.filter.sample(u)
+            samples.append((values, offset, hit_ids))
+        return np.arange(a, b), samples
 
     def _add(self, rows, values, offsets, count: bool) -> None:
         """Accumulate one sample per row as the beauty film does (renderer/film.py): splatted with

@@ -202,7 +202,7 @@ def render(
                 break
             integrator.render_pass(film, done)
             if first_hit is not None:
-                first_hit.render_pass(film, done)
+                first_hit.render_pass(film, done, pool=integrator.pool)
             done += 1
             passes += 1
             now = time.perf_counter()
