@@ -47,14 +47,13 @@ and unbiased behind cut-outs (whose presence draws differ).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
 from .errors import SettingsError
-from .film import _profile_row
+from .film import splat_scratch, splat_weights
 
 __all__ = ["SOURCES", "ALIASES", "AovRequest", "AovResult", "resolve_source", "requests_from_names", "requests_from_vars",
            "FirstHitPass", "aov_channels", "DATA_TYPE_WIDTH"]
@@ -137,33 +136,18 @@ def _splat_columns(rows, off, V, values, radius, width, flat_sum, flat_w):
     """Splat samples with C columns: sample i, in data-window pixel rows[i] (flat, row-major over
     width columns) at offset off[i] (2,) from its centre, adds w V[i] (C,) to flat_sum (m, C) and
     w to flat_w (m,) of every pixel under the filter, with the footprint and weights w of
-    renderer/film.py's _splat_kernel (so the two films' sums of w are the same numbers)."""
+    renderer/film.py's _splat_kernel (film.splat_weights; so the two films' sums of w are the
+    same numbers)."""
     m = flat_w.shape[0]
     height = m // width
     C = V.shape[1]
-    scale = (values.shape[0] - 1) / radius
-    span = int(math.ceil(2.0 * radius)) + 1
-    wx = np.empty(span)
-    wy = np.empty(span)
+    scale, wx, wy, ps, ws = splat_scratch(values, radius)
     for i in range(rows.shape[0]):
-        k = rows[i]
-        sx = (k % width) + 0.5 + off[i, 0]
-        sy = (k // width) + 0.5 + off[i, 1]
-        jx0 = max(int(math.floor(sx - 0.5 - radius)) + 1, 0)
-        jx1 = min(int(math.ceil(sx - 0.5 + radius)) - 1, width - 1)
-        jy0 = max(int(math.floor(sy - 0.5 - radius)) + 1, 0)
-        jy1 = min(int(math.ceil(sy - 0.5 + radius)) - 1, height - 1)
-        _profile_row(sx, jx0, jx1, values, scale, wx)
-        _profile_row(sy, jy0, jy1, values, scale, wy)
-        for y in range(jy0, jy1 + 1):
-            for x in range(jx0, jx1 + 1):
-                w = wy[y - jy0] * wx[x - jx0]
-                if w <= 0.0:
-                    continue
-                p = y * width + x
-                flat_w[p] += w
-                for c in range(C):
-                    flat_sum[p, c] += w * V[i, c]
+        for j in range(splat_weights(rows[i], off[i, 0], off[i, 1], width, height, radius, values, scale, wx, wy,
+                                     ps, ws)):
+            flat_w[ps[j]] += ws[j]
+            for c in range(C):
+                flat_sum[ps[j], c] += ws[j] * V[i, c]
 
 
 class FirstHitPass:
@@ -451,7 +435,7 @@ class AovResult:
         return out
 
 
-# _splat_columns inlines film._profile_row: its cache follows that file (renderer/kernels).
+# _splat_columns inlines film.splat_weights: its cache follows that file (renderer/kernels).
 from renderer.kernels import guard_cache, module_dispatchers  # noqa: E402
 
 guard_cache(__name__, module_dispatchers(globals()), ["renderer/film.py"])
