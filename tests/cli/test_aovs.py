@@ -214,3 +214,26 @@ def test_denoiser_lowers_the_error_in_a_white_furnace(tmp_path):
     assert err_raw > 1e-4  # there is noise to remove
     assert err_den < 0.3 * err_raw, (err_raw, err_den)
     assert result.stats["seconds"]["denoise"] > 0.0
+
+
+@pytest.mark.parametrize("threshold, expected", [(0.0, 0.3), (0.2, 1.0), (0.5, 0.0)])
+def test_cut_outs_are_transparent(tmp_path, threshold, expected):
+    """The floor that fills the image with opacity 0.3: a cut-out (opacityThreshold 0.2: present,
+    0.5: absent) gives alpha exactly 1 or 0; without threshold each camera ray passes with
+    probability 0.7, so with a box filter and filter importance sampling every pixel's alpha is a
+    mean of independent Bernoulli(0.3) draws (z-test on the image mean)."""
+    p = tmp_path / "q.usda"
+    stage = quad_light_stage(p, res=(16, 16))
+    shader = stage.GetPrimAtPath("/World/Looks/Grey/PBR")
+    shader.CreateAttribute("inputs:opacity", Sdf.ValueTypeNames.Float).Set(0.3)
+    shader.CreateAttribute("inputs:opacityThreshold", Sdf.ValueTypeNames.Float).Set(threshold)
+    stage.GetRootLayer().Save()
+    spp = 8
+    _, (ch, _) = _render(p, tmp_path / "o.exr", spp=spp, alpha=True, pixel_filter="box",
+                         pixel_filter_mode="importance")
+    a = ch["A"]
+    if expected in (0.0, 1.0):
+        assert np.all(a == expected)
+        return
+    z = (a.mean() - expected) / math.sqrt(expected * (1 - expected) / (spp * a.size))
+    assert abs(z) < 4.0, (a.mean(), z)
