@@ -42,7 +42,10 @@ is geometry, coverage 1). The dome (and any infinite light) seen directly stays 
 for a transparent background: then the radiance the escaped camera rays saw is accumulated
 here through the same film samples and subtracted from the beauty, which is exact where no
 cut-out lies in front of the dome (the integrator's camera rays and these are the same rays)
-and unbiased behind cut-outs (whose presence draws differ).
+and unbiased behind cut-outs (whose presence draws differ) and for a thin lens's further
+emitter-sample rays (--emitter-samples K > 1: their lens samples come from the integrator's
+stream after its path, which this pass does not replay). A resumed render's passes hold the
+samples of this run only.
 """
 
 from __future__ import annotations
