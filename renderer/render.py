@@ -489,7 +489,10 @@ def write_outputs(result: RenderResult, exr: str | None = None, png: str | None 
             else:  # display formats hold the beauty (RGBA where asked); the denoised one is a file
                 write_png(exr, _full(result.film, aovs.beauty(result.film)), files=files)
                 if aovs.denoised is not None:
-                    write_png(f"{base}_denoised{ext}", _full(result.film, aovs.denoised), files=files)
+                    den = aovs.denoised
+                    if aovs.alpha:  # the beauty's alpha: the denoised RGB is premultiplied by it too
+                        den = np.concatenate([den, aovs.passes.image("alpha", result.film.count)], axis=2)
+                    write_png(f"{base}_denoised{ext}", _full(result.film, den), files=files)
         if png:
             write_png(png, result.film if aovs is None or aovs.passes is None
                       else _full(result.film, aovs.beauty(result.film)), files=files)
