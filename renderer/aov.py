@@ -36,8 +36,10 @@ Alpha: the filtered fraction of camera rays that hit geometry inside the clippin
 Cut-outs count as transparent (one presence draw per surface, as the integrator draws them).
 Lights the camera sees directly (area lights, which our rays cross, and the dome) add their
 emission to RGB but no coverage: in premultiplied terms a visible light is an additive emitter
-over what is behind it, as Cycles' transparent film and Karma treat them (emissive *geometry*
-is geometry, coverage 1). The dome (and any infinite light) seen directly stays in RGB unless
+over what is behind it, which is what a light transparent to every ray (renderer/integrators/
+path.py's convention, Cycles') makes it; emissive *geometry* is geometry, coverage 1. (Not
+checked against Karma's or Cycles' own alpha for a visible area light: no documentation of it
+was found.) The dome (and any infinite light) seen directly stays in RGB unless
 ``--alpha-dome-transparent`` (or IllumRenderSettingsAPI ``illum:alpha:domeTransparent``) asks
 for a transparent background: then the radiance the escaped camera rays saw is accumulated
 here through the same film samples and subtracted from the beauty, which is exact where no
