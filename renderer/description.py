@@ -212,6 +212,8 @@ class RenderSettingsDesc:
     pixel_filter, pixel_filter_width, pixel_filter_mode: IllumRenderSettingsAPI's illum:pixelFilter
     (token), illum:pixelFilter:width (radius in pixels) and illum:pixelFilter:mode (token); ''
     or 0.0 when unauthored (renderer/pixel_filter.py's defaults apply).
+    render_vars: the first product's orderedVars (RenderVarDesc), in order.
+    alpha_dome_transparent: IllumRenderSettingsAPI illum:alpha:domeTransparent (renderer/aov.py).
     """
 
     path: str = ""
@@ -228,6 +230,25 @@ class RenderSettingsDesc:
     pixel_filter: str = ""
     pixel_filter_width: float = 0.0
     pixel_filter_mode: str = ""
+    render_vars: tuple = ()
+    alpha_dome_transparent: bool = False
+
+
+@dataclass(frozen=True)
+class RenderVarDesc:
+    """One RenderVar of the product's orderedVars.
+
+    name: the layer name (the RenderVar prim's name); path: the prim; source_name, source_type
+    (raw, primvar, lpe, intrinsic), data_type: as authored; source: the renderer/aov.py SOURCES
+    key it computes, '' when illum does not support it (the reader warned once).
+    """
+
+    name: str
+    path: str
+    source_name: str
+    source_type: str
+    data_type: str
+    source: str = ""
 
 
 # --------------------------------------------------------------------------------------

@@ -97,6 +97,41 @@ def _profile_row(s, j0, j1, values, scale, out):
         out[j - j0] = values[q] + (t - q) * (values[q + 1] - values[q]) if q < last else 0.0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def splat_scratch(values, radius):
+    """(scale, wx, wy, ps, ws): splat_weights' lerp scale for the filter profile values (V,) of
+    radius pixels, and its scratch arrays for the filter's span."""
+    span = int(math.ceil(2.0 * radius)) + 1
+    return ((values.shape[0] - 1) / radius, np.empty(span), np.empty(span), np.empty(span * span, dtype=np.int64),
+            np.empty(span * span))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def splat_weights(k, ox, oy, width, height, radius, values, scale, wx, wy, ps, ws):
+    """The pixels a sample splats to and their weights: n, with ps[:n] the flat data-window
+    pixels (row-major over width columns) whose centres lie strictly within radius of the sample
+    taken in flat pixel k at offset (ox, oy) from its centre, in x and in y, and ws[:n] > 0 their
+    weights f1(dx) f1(dy) (_profile_row; wx, wy: scratch of the filter's span)."""
+    # The sample in pixel units; pixel j's centre is j + 0.5.
+    sx = (k % width) + 0.5 + ox
+    sy = (k // width) + 0.5 + oy
+    jx0 = max(int(math.floor(sx - 0.5 - radius)) + 1, 0)
+    jx1 = min(int(math.ceil(sx - 0.5 + radius)) - 1, width - 1)
+    jy0 = max(int(math.floor(sy - 0.5 - radius)) + 1, 0)
+    jy1 = min(int(math.ceil(sy - 0.5 + radius)) - 1, height - 1)
+    _profile_row(sx, jx0, jx1, values, scale, wx)
+    _profile_row(sy, jy0, jy1, values, scale, wy)
+    n = 0
+    for y in range(jy0, jy1 + 1):
+        for x in range(jx0, jx1 + 1):
+            w = wy[y - jy0] * wx[x - jx0]
+            if w > 0.0:
+                ps[n] = y * width + x
+                ws[n] = w
+                n += 1
+    return n
+
+
 @njit(cache=True, nogil=True)
 def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, flat_sq, flat_w2x, flat_weight,
                   flat_n):
@@ -113,10 +148,7 @@ def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, fla
     for i in range(rows.shape[0]):  # validate first: an IndexError must leave the film untouched
         if rows[i] < 0 or rows[i] >= m:
             return -1, -1
-    scale = (values.shape[0] - 1) / radius
-    span = int(math.ceil(2.0 * radius)) + 1
-    wx = np.empty(span)
-    wy = np.empty(span)
+    scale, wx, wy, ps, ws = splat_scratch(values, radius)
     dropped = 0
     negative = 0
     for i in range(rows.shape[0]):
@@ -133,34 +165,22 @@ def _splat_kernel(rows, off, L, count_rows, values, radius, width, flat_sum, fla
         k = rows[i]
         if count_rows:
             flat_n[k] += 1
-        # The sample in pixel units; pixel j's centre is j + 0.5.
-        sx = (k % width) + 0.5 + ox
-        sy = (k // width) + 0.5 + oy
-        jx0 = max(int(math.floor(sx - 0.5 - radius)) + 1, 0)
-        jx1 = min(int(math.ceil(sx - 0.5 + radius)) - 1, width - 1)
-        jy0 = max(int(math.floor(sy - 0.5 - radius)) + 1, 0)
-        jy1 = min(int(math.ceil(sy - 0.5 + radius)) - 1, height - 1)
-        _profile_row(sx, jx0, jx1, values, scale, wx)
-        _profile_row(sy, jy0, jy1, values, scale, wy)
-        for y in range(jy0, jy1 + 1):
-            for x in range(jx0, jx1 + 1):
-                w = wy[y - jy0] * wx[x - jx0]
-                if w <= 0.0:
-                    continue
-                p = y * width + x
-                w2 = w * w
-                flat_sum[p, 0] += w * r
-                flat_sum[p, 1] += w * g
-                flat_sum[p, 2] += w * b
-                flat_w2x[p, 0] += w2 * r
-                flat_w2x[p, 1] += w2 * g
-                flat_w2x[p, 2] += w2 * b
-                flat_sq[p, 0] += w2 * r * r
-                flat_sq[p, 1] += w2 * g * g
-                flat_sq[p, 2] += w2 * b * b
-                flat_weight[p, 0] += w
-                flat_weight[p, 1] += w2
-                flat_weight[p, 2] += w2 * w
+        for j in range(splat_weights(k, ox, oy, width, height, radius, values, scale, wx, wy, ps, ws)):
+            p = ps[j]
+            w = ws[j]
+            w2 = w * w
+            flat_sum[p, 0] += w * r
+            flat_sum[p, 1] += w * g
+            flat_sum[p, 2] += w * b
+            flat_w2x[p, 0] += w2 * r
+            flat_w2x[p, 1] += w2 * g
+            flat_w2x[p, 2] += w2 * b
+            flat_sq[p, 0] += w2 * r * r
+            flat_sq[p, 1] += w2 * g * g
+            flat_sq[p, 2] += w2 * b * b
+            flat_weight[p, 0] += w
+            flat_weight[p, 1] += w2
+            flat_weight[p, 2] += w2 * w
     return dropped, negative
 
 

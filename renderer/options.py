@@ -77,6 +77,12 @@ def _pixel_filters() -> tuple[str, ...]:
     return FILTERS
 
 
+def _aov_names() -> tuple[str, ...]:
+    from .aov import ALIASES, SOURCES
+
+    return (*SOURCES, *ALIASES)
+
+
 def _pixel_filter_modes() -> tuple[str, ...]:
     from .pixel_filter import MODES
 
@@ -242,6 +248,18 @@ OPTIONS: tuple[Option, ...] = (
     Option("load_timeout", "float", 600.0, "seconds opening the stage, reading it and decoding its images may take "
            "before the render is refused (a file that never finishes reading: a FIFO value clip, a hung network "
            "mount)", flags=("--load-timeout",), metavar="SECONDS", lo=0, lo_open=True, hi=1e6, example=300.0),
+    Option("aov", "str_list", None, "render passes to write as layers of the EXR, for stages whose RenderProduct "
+           "authors no orderedVars (repeatable or comma-separated; renderer/aov.py lists them)",
+           flags=("--aov",), metavar="NAME[,NAME]", choices=_aov_names, max_length=64, hi=32,
+           example=("albedo", "N")),
+    Option("alpha", "bool", False, "write RGBA: premultiplied alpha, the filtered coverage of camera rays by "
+           "geometry (cut-outs transparent)", flags=("--alpha",), example=True),
+    Option("alpha_dome_transparent", "bool", None, "the dome seen directly is transparent: out of the beauty's "
+           "RGB and of alpha (implies --alpha; default: RenderSettings illum:alpha:domeTransparent, else false)",
+           flags=("--alpha-dome-transparent",), example=True),
+    Option("denoise", "bool", False, "also write an OIDN-denoised beauty (layer 'denoised' of the EXR, or "
+           "NAME_denoised.EXT), guided by first-hit albedo and normal; needs the pyoidn package "
+           "(pip install 'illum[denoise]'); the raw beauty is kept", flags=("--denoise",), example=True),
     Option("light_samples", "per_light", {}, "light samples per shading point for all lights, or /Light=N for "
            "one (repeatable)", flags=("--light-samples",), metavar="[/Light=|*=]N", item="int", lo=1, hi=4096,
            example={"": 2}),

@@ -196,9 +196,13 @@ def _set_attr(spec, key: str, value) -> None:
 
 def write_image(path: str, pixels: np.ndarray, metadata: dict | None = None, *, files: AtomicFiles | None = None,
                 origin: tuple[int, int] = (0, 0), full: tuple[int, int] | None = None,
-                compression: str = "zip", half: bool = False) -> None:
+                compression: str = "zip", half: bool = False, channels: tuple[str, ...] | None = None) -> None:
     """Write (h, w, 3) scene-linear RGB or (h, w, 4) RGBA with premultiplied alpha, as the
     extension of ``path`` says (module docstring).
+
+    channels: an EXR's channel names (h, w, C) in OpenImageIO's layer.channel convention
+    ("albedo.R", renderer/aov.py), the beauty's R, G, B (and A, the alpha channel) first;
+    default R, G, B(, A). Display formats take RGB(A) only.
 
     files: the AtomicFiles this file joins (renamed when it commits); None writes and renames
     this file alone. origin/full: the data window's position in the display window of size
@@ -240,9 +244,18 @@ def write_image(path: str, pixels: np.ndarray, metadata: dict | None = None, *, 
             spec.attribute("oiio:ColorSpace", "srgb_rec709_scene")
         if keep_alpha:
             spec.attribute("oiio:UnassociatedAlpha", 1)  # already straight: no second division
-    spec.channelnames = ("R", "G", "B", "A")[:data.shape[2]]
-    if data.shape[2] == 4:
-        spec.alpha_channel = 3
+    if channels is not None and fmt == "openexr":
+        if len(channels) != data.shape[2]:
+            raise ValueError(f"{len(channels)} channel names for {data.shape[2]} channels")
+        spec.channelnames = tuple(channels)
+        if "A" in channels:
+            spec.alpha_channel = channels.index("A")
+        if "Z" in channels:
+            spec.z_channel = channels.index("Z")
+    else:
+        spec.channelnames = ("R", "G", "B", "A")[:data.shape[2]]
+        if data.shape[2] == 4:
+            spec.alpha_channel = 3
     for key, value in (metadata or {}).items():
         _set_attr(spec, key, value)
     with joining(files) as f:

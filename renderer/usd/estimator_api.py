@@ -26,6 +26,7 @@ __all__ = [
     "read_light_sampler",
     "read_default_estimator",
     "read_pixel_filter",
+    "read_alpha_dome_transparent",
     "has_light_api",
     "check_light_api_target",
 ]
@@ -47,6 +48,7 @@ _LIGHT_SAMPLER = ("illum:lightSampler", "auto", LIGHT_SAMPLERS)
 _PIXEL_FILTER = ("illum:pixelFilter", DEFAULT_FILTER, FILTERS)
 _PIXEL_FILTER_MODE = ("illum:pixelFilter:mode", DEFAULT_MODE, MODES)
 _PIXEL_FILTER_WIDTH = "illum:pixelFilter:width"
+_ALPHA_DOME_TRANSPARENT = "illum:alpha:domeTransparent"
 
 
 def _authored(prim: Usd.Prim, name: str, ctx: ReadContext):
@@ -152,3 +154,14 @@ def read_pixel_filter(prim: Usd.Prim, ctx: ReadContext) -> tuple[str, float, str
         except SettingsError as e:
             raise ctx.error(e.message, prim, _PIXEL_FILTER_WIDTH) from None
     return name, width, _authored_token(prim, ctx, _PIXEL_FILTER_MODE)
+
+
+def read_alpha_dome_transparent(prim: Usd.Prim, ctx: ReadContext) -> bool:
+    """IllumRenderSettingsAPI ``illum:alpha:domeTransparent`` (fallback False): whether the dome
+    seen directly is transparent in the beauty's alpha (renderer/aov.py)."""
+    raw = _authored(prim, _ALPHA_DOME_TRANSPARENT, ctx)
+    if raw is None:
+        return False
+    if not isinstance(raw, bool):
+        raise ctx.error(f"must be a bool, got {raw!r}", prim, _ALPHA_DOME_TRANSPARENT)
+    return raw

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from pxr import Sdf, Usd, UsdRender
 
-from renderer.description import RenderSettingsDesc
+from renderer.aov import DATA_TYPE_WIDTH, SOURCES, resolve_source
+from renderer.description import RenderSettingsDesc, RenderVarDesc
 from renderer.errors import SettingsError
 
 from .common import ReadContext
-from .estimator_api import read_default_estimator, read_light_sampler, read_pixel_filter
+from .estimator_api import read_alpha_dome_transparent, read_default_estimator, read_light_sampler, read_pixel_filter
 
 __all__ = ["find_settings_prim", "read_render_settings", "MAX_SIDE", "MAX_PIXELS"]
 
@@ -139,6 +140,7 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
                                           "ignored; illum renders linear Rec.709")
 
     pixel_filter, pixel_filter_width, pixel_filter_mode = read_pixel_filter(settings, ctx)
+    render_vars = read_render_vars(ctx, product) if product is not None else ()
     desc = RenderSettingsDesc(
         path=str(settings.GetPath()),
         resolution=(w, h),
@@ -154,8 +156,39 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
         pixel_filter=pixel_filter,
         pixel_filter_width=pixel_filter_width,
         pixel_filter_mode=pixel_filter_mode,
+        render_vars=render_vars,
+        alpha_dome_transparent=read_alpha_dome_transparent(settings, ctx),
     )
     return desc, bool(dof_off)
+
+
+def read_render_vars(ctx: ReadContext, product: Usd.Prim) -> tuple[RenderVarDesc, ...]:
+    """The product's orderedVars as RenderVarDesc, in order. A target that is not a RenderVar,
+    or a dataType whose component count differs from what the source gives, is an error naming
+    the prim; a var illum does not compute (an LPE, an arbitrary primvar, an unknown name) gets
+    one warning naming it and is left out of the file."""
+    rel = product.GetRelationship("orderedVars")
+    out = []
+    for target in (rel.GetForwardedTargets() if rel else []):
+        var = ctx.stage.GetPrimAtPath(target)
+        if not var or not var.IsA(UsdRender.Var):
+            raise ctx.error(f"orderedVars target {target} is not a RenderVar", product, "orderedVars")
+        rv = UsdRender.Var(var)
+        source_name = str(rv.GetSourceNameAttr().Get() or "")
+        source_type = str(rv.GetSourceTypeAttr().Get() or "raw")
+        data_type = str(rv.GetDataTypeAttr().Get() or "")
+        source = resolve_source(source_name, source_type) or ""
+        if not source:
+            ctx.warn(f"render-var:{target}", f"{target}: RenderVar {source_type} '{source_name}' is not supported "
+                                             f"(illum computes {', '.join(SOURCES)}); it is not written")
+        elif source in ("color", "alpha") or data_type not in DATA_TYPE_WIDTH:
+            pass  # the beauty's own channels; unknown data types are written as float
+        elif DATA_TYPE_WIDTH[data_type] != len(SOURCES[source]):
+            raise ctx.error(f"dataType {data_type} has {DATA_TYPE_WIDTH[data_type]} components, but "
+                            f"'{source_name}' gives {len(SOURCES[source])}", var, "dataType")
+        out.append(RenderVarDesc(name=var.GetName(), path=str(target), source_name=source_name,
+                                 source_type=source_type, data_type=data_type, source=source))
+    return tuple(out)
 
 
 def _check_purposes(ctx: ReadContext, purposes: tuple[str, ...], prim, attr: str) -> tuple[str, ...]:

@@ -78,7 +78,8 @@ def test_registered_schema_matches_the_reader_fallbacks():
                   "illum:estimator": ["mis", list(estimator_api.ESTIMATORS), "token"],
                   "illum:pixelFilter": ["gaussian", ["gaussian", "box", "blackman-harris"], "token"],
                   "illum:pixelFilter:width": ["None", [], "float"],
-                  "illum:pixelFilter:mode": ["splat", ["splat", "importance"], "token"]}
+                  "illum:pixelFilter:mode": ["splat", ["splat", "importance"], "token"],
+                  "illum:alpha:domeTransparent": ["False", [], "bool"]}
     assert got["can_apply"] == [True, False]
     assert "IllumIllumLightAPI" in got["tftype"]
 
