@@ -22,9 +22,11 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 CORNELL = os.path.join(ROOT, "stages", "cornell_box.usda")
 
 
-def far_stage(path, offset: float, *, res: int = 48, sphere_lights: int = 0) -> str:
-    """The Cornell box, camera included, referenced under an Xform translated by (offset,) * 3;
-    sphere_lights small sphere lights along the box's ceiling (17+ builds the light BVH)."""
+def far_stage(path, offset, *, res: int = 48, sphere_lights: int = 0, camera: str = "") -> str:
+    """The Cornell box, camera included, referenced under an Xform translated by offset (a
+    float: along every axis, or a 3-tuple); sphere_lights small sphere lights along the box's
+    ceiling (17+ builds the light BVH); camera: opinions on the box's Camera prim (usda)."""
+    x, y, z = (offset,) * 3 if np.isscalar(offset) else offset
     lights = "\n".join(
         f'''        def SphereLight "S{i}"
         {{
@@ -43,11 +45,15 @@ def far_stage(path, offset: float, *, res: int = 48, sphere_lights: int = 0) -> 
 )
 def Xform "Far"
 {{
-    double3 xformOp:translate = ({offset!r}, {offset!r}, {offset!r})
+    double3 xformOp:translate = ({x!r}, {y!r}, {z!r})
     uniform token[] xformOpOrder = ["xformOp:translate"]
     def Xform "World" (references = @{CORNELL}@</World>)
     {{
 {lights}
+        over "Camera"
+        {{
+            {camera}
+        }}
     }}
 }}
 def Scope "Render"
@@ -118,6 +124,19 @@ def test_insufficient_precision_warns_once(tmp_path):
     found = _far_warnings(result)
     assert len(found) == 1
     assert "extent of" in found[0] and "rounded to 2 units" in found[0]
+
+
+def test_telephoto_across_float32_distance_warns(tmp_path):
+    """The box moves 1e7 units down -z while the camera stays at home, with a lens long enough
+    to fill the frame with it: re-centred on the camera, float32 steps at the box are 1 unit
+    against a pixel footprint of ~1.2 units, so one warning names the extent."""
+    camera = ("double3 xformOp:translate = (0, 27.3, 10000107.96)\n"
+              "float focalLength = 4545000\n"
+              "float2 clippingRange = (1, 100000000)")
+    result = _render(far_stage(tmp_path / "tele.usda", (0.0, 0.0, -1e7), camera=camera))
+    found = _far_warnings(result)
+    assert len(found) == 1 and "rounded to 1 units" in found[0], result.warnings
+    assert result.film.image().mean() > 0.05  # the box fills the frame: not black
 
 
 def test_translation_moves_positions_not_infinite_lights():
