@@ -49,7 +49,7 @@ def stage_batches(stage: str, rays: int, seed: int = 0):
     scene = build_scene(desc, threads=2)
     try:
         tris = scene.geometry.vertices
-        cam = Camera(desc.camera, w, h, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
+        cam = Camera(scene.desc.camera, w, h, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
         b = raw_ray_batches(scene, cam, w, h, seed, min_rays=rays)
         o_cam, d_cam = b["camera"]
         hits = scene.accel.intersect(o_cam, d_cam)

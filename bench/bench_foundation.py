@@ -52,7 +52,7 @@ def camera_throughput(stage: str, res: tuple[int, int], threads: int, repeats: i
     desc = load_stage(stage)
     geo = build_geometry(desc)
     accel = Accel(geo.vertices, threads=threads)
-    cam = Camera(desc.camera, res[0], res[1])
+    cam = Camera(scene.desc.camera, res[0], res[1])
     ys, xs = np.mgrid[0:res[1], 0:res[0]]
     px, py = xs.ravel(), ys.ravel()
     n = px.size

@@ -456,7 +456,7 @@ def first_hits(stage: str, res: tuple[int, int], stride: int = 1):
     desc = load_stage(stage)
     st = desc.settings
     scene = build_scene(desc, threads=1, light_sampler="uniform")
-    cam = Camera(desc.camera, w, h, st.pixel_aspect_ratio, st.aspect_ratio_conform_policy)
+    cam = Camera(scene.desc.camera, w, h, st.pixel_aspect_ratio, st.aspect_ratio_conform_policy)
     ys, xs = np.mgrid[0:h:stride, 0:w:stride]
     n = xs.size
     rays = cam.generate(xs.ravel(), ys.ravel(), np.full((n, 2), 0.5), np.full((n, 2), 0.5))

@@ -34,7 +34,7 @@ def single_ray_rate(stage: str, res, threads: int, seed: int = 0) -> float:
     scene = build_scene(desc, threads=threads)
     try:
         accel = scene.accel
-        cam = Camera(desc.camera, res[0], res[1], desc.settings.pixel_aspect_ratio,
+        cam = Camera(scene.desc.camera, res[0], res[1], desc.settings.pixel_aspect_ratio,
                      desc.settings.aspect_ratio_conform_policy)
         rays = secs = 0.0
         for o, d in raw_ray_batches(scene, cam, res[0], res[1], seed).values():

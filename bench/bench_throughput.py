@@ -74,7 +74,7 @@ def _raw(stage: str, res: tuple[int, int]) -> float:
     scene = build_scene(desc, threads=1)
     try:
         w, h = res
-        cam = Camera(desc.camera, w, h, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
+        cam = Camera(scene.desc.camera, w, h, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
         batches = raw_ray_batches(scene, cam, w, h, seed=0, min_rays=131072)
         n = 0
         cpu = 0.0

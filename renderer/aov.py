@@ -347,7 +347,8 @@ class FirstHitPass:
             z = p @ R[2] + self.world_to_camera[2, 3]
             values[r, sl["depth"]] = -z[:, None]
         if "P" in sl:
-            values[r, sl["P"]] = p
+            # The scene is traced re-centred on the camera (renderer/scene.py recentre); P is world.
+            values[r, sl["P"]] = p + self.scene.origin
         if "primId" in ids:
             ids["primId"][r] = self.prim_of_mesh[self.scene.geometry.mesh[prim]]
         if "materialId" in ids:

@@ -503,7 +503,7 @@ def raw_throughput(stage: str, s: BenchSettings) -> dict:
         accel = scene.accel
         if accel.count == 0:
             raise SettingsError(f"{stage}: no geometry to trace", attribute="raw-throughput")
-        cam = Camera(desc.camera, int(w), int(h), desc.settings.pixel_aspect_ratio,
+        cam = Camera(scene.desc.camera, int(w), int(h), desc.settings.pixel_aspect_ratio,
                      desc.settings.aspect_ratio_conform_policy)
         batches = raw_ray_batches(scene, cam, int(w), int(h), s.seed)
         out: dict = {"stage": os.path.abspath(stage), "resolution": [int(w), int(h)], "threads": accel.threads,

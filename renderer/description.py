@@ -388,3 +388,43 @@ class SceneDescription:
     warnings: list[str] = field(default_factory=list)
     stats: dict = field(default_factory=dict)
     strict: bool = False
+
+
+# --------------------------------------------------------------------------------------
+# Re-centring
+# --------------------------------------------------------------------------------------
+# Lights at infinity: only their frame's rotation matters, so re-centring leaves them alone.
+INFINITE_LIGHT_KINDS = ("dome", "distant")
+
+
+def _shift(m: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) column-vector matrices with ``offset`` added to their translation column."""
+    out = np.array(m, dtype=np.float64, copy=True)
+    out[..., :3, 3] += offset
+    return out
+
+
+def translated(desc: SceneDescription, offset) -> SceneDescription:
+    """A copy of ``desc`` with every position moved by ``offset`` (3,) float64 scene units:
+    mesh points, the camera, finite lights' frames, mesh lights' triangles and dome portals.
+
+    Directions (normals, clipping planes in camera space) do not move, nor do infinite lights
+    (dome, distant): only their rotation matters, and a translation column moved to 1e30 would
+    be meaningless. Used by renderer/scene.py to re-centre the scene for float32 tracing."""
+    from dataclasses import replace
+
+    offset = np.asarray(offset, dtype=np.float64).reshape(3)
+    meshes = [replace(m, points=np.asarray(m.points, dtype=np.float64) + offset) for m in desc.meshes]
+    lights = []
+    for ld in desc.lights:
+        changes = {}
+        if ld.kind not in INFINITE_LIGHT_KINDS:
+            changes["light_to_world"] = _shift(ld.light_to_world, offset)
+        if ld.mesh_triangles is not None:
+            changes["mesh_triangles"] = np.asarray(ld.mesh_triangles, dtype=np.float64) + offset
+        if ld.portals is not None:
+            changes["portals"] = _shift(ld.portals, offset)
+        lights.append(replace(ld, **changes) if changes else ld)
+    camera = replace(desc.camera, camera_to_world=_shift(desc.camera.camera_to_world, offset))
+    return replace(desc, meshes=meshes, lights=lights, camera=camera, warnings=list(desc.warnings),
+                   stats=dict(desc.stats))

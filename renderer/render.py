@@ -141,7 +141,8 @@ def render(
             textures = shared.setdefault("textures", TextureCache(missing="error" if opt.strict else "fallback",
                                                                   strict=opt.strict))
         with deadline(opt.load_timeout, "reading the stage's images and building the scene", file=stage_path):
-            scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures)
+            scene = build_scene(desc, threads=threads, light_sampler=opt.light_sampler, textures=textures,
+                                resolution=opt.resolution)
         phases["build"] = time.perf_counter() - t0
         if scene_cache is not None:
             scene_cache.clear()
@@ -161,7 +162,8 @@ def render(
         width, height = int(width), int(height)
         pixel_filter, mode = _pixel_filter(opt, settings)
         splat = pixel_filter if mode == "splat" else None
-        camera = Camera(desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy,
+        # The traced camera: re-centred with the scene (scene.origin; renderer/scene.py recentre).
+        camera = Camera(scene.desc.camera, width, height, settings.pixel_aspect_ratio, settings.aspect_ratio_conform_policy,
                         sample_filter=jitter() if splat is not None else pixel_filter)
         window = _data_window(settings.data_window_ndc, width, height)
         film = resume if resume is not None else Film(width, height, window, splat)
@@ -298,7 +300,7 @@ def render(
         "illum:estimators": {li["path"]: li["estimator"] for li in light_info},
         "illum:lightSampler": stats["light_sampler"],
         "illum:pixelFilter": f"{pixel_filter.name} {pixel_filter.radius:g} {mode}",
-        **_camera_metadata(camera),
+        **_camera_metadata(camera, scene.origin),
     }
     metadata.update(aovs.metadata())
     metadata["illum:frame"] = float(desc.time_code)
@@ -418,12 +420,18 @@ _USD_TO_EXR_CAMERA = np.diag([1.0, 1.0, -1.0, 1.0])
 _SCREEN_TO_NDC = np.array([[0.5, 0, 0, 0.5], [0, -0.5, 0, 0.5], [0, 0, 1, 0], [0, 0, 0, 1]])
 
 
-def _camera_metadata(camera) -> dict:
+def _camera_metadata(camera, origin=None) -> dict:
     """The camera matrices of an EXR, as OpenEXR's standard attributes define them (column-vector
     here; the writer stores their transposes, Imath's row-vector form): worldToCamera,
     worldToNDC (a world point times it, divided by w, gives NDC x, y), and worldToScreen (the
-    same with screen coordinates in [-1, 1], y up, as RenderMan and Nuke read it)."""
+    same with screen coordinates in [-1, 1], y up, as RenderMan and Nuke read it).
+    origin: (3,) the scene's re-centring (Scene.origin): the camera traces in coordinates moved
+    by -origin, and the matrices map world points, so they move them first."""
     world_to_camera = camera.world_to_camera()
+    if origin is not None:
+        to_traced = np.eye(4)
+        to_traced[:3, 3] = -np.asarray(origin, dtype=np.float64)
+        world_to_camera = world_to_camera @ to_traced
     world_to_screen = camera.projection_matrix() @ world_to_camera
     return {"worldToCamera": _USD_TO_EXR_CAMERA @ world_to_camera,
             "worldToScreen": world_to_screen,

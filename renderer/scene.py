@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .accel import Accel
-from .description import SceneDescription, primvar_layout
+from .description import INFINITE_LIGHT_KINDS, SceneDescription, primvar_layout, translated
+from .errors import StageError
 from .geometry import normalize, uv_tangents
 
 
@@ -132,6 +133,11 @@ def normal_map_warnings(desc: SceneDescription) -> list[str]:
 class Scene:
     """Everything the integrators need, built once per render.
 
+    desc: the description as traced: re-centred, every position moved by -origin (recentre).
+    origin: (3,) float64 world position of the traced coordinates' zero: p_world = p + origin.
+    Everything built here (BVHs, light tables, center, the camera of desc) is in those
+    re-centred coordinates; what reports world positions (the EXR's worldToCamera/worldToNDC,
+    a position AOV) adds origin back.
     center, radius: bounding sphere of geometry and finite lights (scene units), used by
     infinite lights and for ray offsets.
     skipped: what the build decided not to do, for the stats JSON.
@@ -147,6 +153,7 @@ class Scene:
     light_sampler: object
     center: np.ndarray
     radius: float
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
     warnings: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     build_seconds: float = 0.0
@@ -183,11 +190,14 @@ BRUTE_FORCE_LIGHTS = 16
 
 
 def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sampler: str = "auto",
-                textures=None) -> Scene:
-    """Flatten geometry, build the BVH, materials, lights and the light sampler.
+                textures=None, resolution: tuple | None = None) -> Scene:
+    """Re-centre the description on its camera (recentre), then flatten geometry, build the
+    BVH, materials, lights and the light sampler.
 
     textures: a TextureCache to load image files into and reuse (a frame range decodes each
-    texture once for all its frames); None: a new one."""
+    texture once for all its frames); None: a new one.
+    resolution: (width, height) the render will use, for the precision check's pixel footprint;
+    None: the description's RenderSettings resolution."""
     import time
 
     from .light_samplers import make_light_sampler
@@ -196,13 +206,13 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
     from .textures import TextureCache
 
     t0 = time.perf_counter()
+    desc, origin, far_warnings = recentre(desc, resolution)
     geo = build_geometry(desc)
     accel = Accel(geo.vertices, threads=threads)
     lo, hi = accel.bounds
     finite_pts = [geo.vertices.reshape(-1, 3)] if geo.count else []
-    for ld in desc.lights:
-        if ld.kind not in ("dome", "distant"):
-            finite_pts.append(np.asarray(ld.light_to_world)[:3, 3][None, :])
+    for ld in _finite_lights(desc):
+        finite_pts.append(np.asarray(ld.light_to_world)[:3, 3][None, :])
     if finite_pts:
         allp = np.concatenate(finite_pts)
         lo, hi = allp.min(axis=0), allp.max(axis=0)
@@ -218,7 +228,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
     lights = LightSet.build(desc.lights, center, radius)
     tri_light, tri_absorb = mesh_light_tables(lights, geo)
     warnings = list(desc.warnings) + list(getattr(lights, "warnings", [])) + list(getattr(textures, "warnings", []))
-    warnings += normal_map_warnings(desc)
+    warnings += normal_map_warnings(desc) + far_warnings
     skipped = []
     for path in getattr(lights, "dropped", []):
         skipped.append(f"light {path}: emits nothing or is degenerate; dropped before the lighting services")
@@ -252,6 +262,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
         light_sampler=sampler,
         center=center,
         radius=radius,
+        origin=origin,
         warnings=warnings,
         skipped=skipped,
         illuminates=illuminates,
@@ -264,6 +275,94 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
     )
     scene.build_seconds = time.perf_counter() - t0
     return scene
+
+
+# Warn when the coordinates' rounding step exceeds this fraction of a pixel's footprint.
+PRECISION_FRACTION = 0.25
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def _finite_lights(desc: SceneDescription):
+    """The lights with a position (not INFINITE_LIGHT_KINDS)."""
+    return [ld for ld in desc.lights if ld.kind not in INFINITE_LIGHT_KINDS]
+
+
+def recentre(desc: SceneDescription, resolution: tuple | None = None) -> tuple[SceneDescription, np.ndarray, list[str]]:
+    """(desc moved by -origin, origin (3,) float64, warnings): the scene re-centred on the
+    camera's position for float32 tracing (Embree), after checking that it can be represented.
+
+    Why the camera: a float32 coordinate at distance D from the origin is rounded to ~D 2^-24,
+    and a pixel's footprint at distance D is D times the pixel's angle, so with the origin at
+    the eye the rounding stays the same small fraction of a pixel at every distance: near
+    geometry keeps fine precision and far geometry needs no more. The centre of the bounds
+    would serve a compact scene as well but starve the camera's surroundings in a large one
+    (a terrain seen from one corner).
+
+    What re-centring cannot fix: the description's float64 world coordinates were already
+    rounded to spacing(|p|) when the reader composed the transforms. When that step reaches
+    the scene's extent (1e30 units out for a box of a few metres) the geometry has collapsed
+    and a StageError (exit 2) names the extent; when it, or the float32 step at the largest
+    re-centred distance, exceeds PRECISION_FRACTION of a pixel's footprint (at the distance of
+    the bounds' centre, at least half the extent), one warning names the extent. Positions that
+    are not finite, or re-centred distances beyond float32's range, are a StageError too.
+    """
+    cam = desc.camera
+    c2w = np.asarray(cam.camera_to_world, dtype=np.float64)
+    if not np.all(np.isfinite(c2w)):
+        raise StageError("the camera's transform is not finite", file=desc.source, prim=cam.path)
+    origin = c2w[:3, 3].copy()
+    lows, highs = [], []
+    for m in desc.meshes:
+        if m.triangles.size:
+            pts = np.asarray(m.points, dtype=np.float64).reshape(-1, 3)
+            lows.append(pts.min(axis=0))
+            highs.append(pts.max(axis=0))
+    meshes = len(lows)
+    for ld in _finite_lights(desc):
+        pos = np.asarray(ld.light_to_world, dtype=np.float64)[:3, 3]
+        lows.append(pos)
+        highs.append(pos)
+    if not lows:
+        return translated(desc, -origin), origin, []
+    lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise StageError("geometry or light positions are not finite", file=desc.source)
+    with np.errstate(over="ignore", invalid="ignore"):
+        extent = float(np.linalg.norm(hi - lo))
+        rel = np.abs(np.stack([lo - origin, hi - origin]))
+    world = float(max(np.abs(origin).max(), np.abs(lo).max(), np.abs(hi).max()))
+    where = f"the scene's extent of {extent:.4g} units around {_fmt(0.5 * (lo + hi))} (camera at {_fmt(origin)})"
+    far = float(rel.max())
+    if not np.isfinite(extent) or not np.isfinite(far) or far >= _F32_MAX:
+        raise StageError(f"{where} does not fit float32 tracing even re-centred on the camera "
+                         f"(distances beyond {_F32_MAX:.3g}); nothing can be rendered", file=desc.source)
+    step64 = float(np.spacing(world))
+    mesh_extent = float(np.linalg.norm(np.max(highs[:meshes], axis=0) - np.min(lows[:meshes], axis=0))) if meshes else 0.0
+    # Every triangle within one rounding step: all are degenerate (1e30 units out, a box of a
+    # few metres is a single point), so no geometry can be rendered.
+    if meshes and mesh_extent <= step64:
+        raise StageError(f"{where} lies {world:.4g} units from the world origin, where coordinates are "
+                         f"{step64:.3g} units apart: the geometry has collapsed to a point and nothing can "
+                         f"be rendered (move the scene nearer the origin)", file=desc.source)
+    warnings = []
+    width, height = resolution or desc.settings.resolution
+    pixel = max(cam.horizontal_aperture / max(int(width), 1), cam.vertical_aperture / max(int(height), 1))
+    if cam.projection == "orthographic":
+        footprint = pixel
+    else:
+        distance = max(float(np.linalg.norm(0.5 * ((lo - origin) + (hi - origin)))), 0.5 * extent)
+        footprint = pixel / max(cam.focal_length, 1e-300) * distance
+    step = max(step64, float(np.spacing(np.float32(far))))
+    if extent > 0.0 and step > PRECISION_FRACTION * footprint:
+        warnings.append(f"{where}: coordinates are rounded to {step:.3g} units, {step / footprint:.2g} of a "
+                        f"pixel's footprint ({footprint:.3g} units); expect faceting, light leaks or "
+                        f"shadow acne (move the scene nearer the origin)")
+    return translated(desc, -origin), origin, warnings
+
+
+def _fmt(p: np.ndarray) -> str:
+    """A point with every digit float64 keeps (a scene 1e16 units out differs past the 15th)."""
+    return "(" + ", ".join(f"{x:.17g}" for x in p) + ")"
 
 
 def mesh_light_tables(lights, geo: GeometryTables):

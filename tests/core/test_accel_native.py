@@ -205,7 +205,7 @@ def _stage_rays(stage):
     scene = build_scene(desc, threads=1)
     try:
         assert scene.accel.backend == "native"
-        cam = Camera(desc.camera, 48, 48, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
+        cam = Camera(scene.desc.camera, 48, 48, desc.settings.pixel_aspect_ratio, desc.settings.aspect_ratio_conform_policy)
         b = raw_ray_batches(scene, cam, 48, 48, seed=3, min_rays=40000)
         o_b, d_b = b["bounce"]
         rng = np.random.default_rng(4)
