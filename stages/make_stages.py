@@ -37,6 +37,10 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdRender, UsdShade, UsdUtils, Vt
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TEX_DIR = os.path.join(HERE, "textures")
+# The generators in the sub-folders put this folder on sys.path and import this module; the
+# repository root (usd_schemas) comes with it.
+if os.path.dirname(HERE) not in sys.path:
+    sys.path.insert(0, os.path.dirname(HERE))
 
 STAGE_FILES = ["cornell_box.usda", "zup_dome.usda", "instanced.usda", "textured.usda", "dof.usda"]
 TEXTURE_FILES = ["sky_latlong.exr", "checker.png", "roughness_stripes.png"]

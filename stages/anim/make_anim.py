@@ -21,11 +21,7 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-STAGES_DIR = os.path.dirname(HERE)
-ROOT = os.path.dirname(STAGES_DIR)
-for p in (STAGES_DIR, ROOT):
-    if p not in sys.path:
-        sys.path.insert(0, p)
+sys.path.insert(0, os.path.dirname(HERE))  # make_stages.py, which adds the repository root
 
 from pxr import Gf, UsdGeom, UsdLux  # noqa: E402
 
