@@ -11,8 +11,14 @@ A scene qualifies when it has
   and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
   light linking, with unit diffuse/specular multipliers, few enough for
   the exhaustive light sampler (every light at every vertex, pmf 1);
-* every light on the `mis` estimator with one sample (the default `auto` picks it for such
-  lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
+* any per-light estimator (lightSampling, bsdfSampling, mis with either heuristic and N samples,
+  controlVariate with each alpha, ratio, or what `auto` picked), under path.py's rule: N =
+  illum:samples at the first scattering vertex, 1 deeper. A light on `mis` with N = 1 at a
+  vertex takes continuation MIS there (the light half in the kernel, the BSDF half on the
+  extension ray); every other (vertex, light) pair gets its whole contribution from its estimator
+  (estimators/compiled.py on the samples _vertex_kernels._direct_pair draws), and the extension
+  ray adds nothing for that light. The control variate's and ratio's F (the analytic irradiance,
+  lights/irradiance.py, numpy) is computed per bounce before the kernel for the hits that need it;
 * UsdPreviewSurface materials without normal maps or cutouts: one packed BSDF row per material,
   or, where inputs are textured or surfaces emit, rows evaluated per hit before the kernel runs, no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
   maximum depth of at least 2.
@@ -29,7 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimators import ALPHAS, TOKENS
 from ..geometry import surface_interaction
+from ..lights.base import ShadingContext
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
@@ -61,8 +69,11 @@ def fast_path_reason(integ) -> str:
         return "a stochastic light sampler"
     if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
         return "ShapingAPI, ShadowAPI or light linking"
-    if not np.all(integ.cont_ok) or not np.all(integ.samples_one):
-        return "a light not on the mis estimator with one sample"
+    plain = ((lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
+             & getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
+             & getattr(lights, "transparent", np.ones(lights.count, dtype=bool)))
+    if not np.all(plain):
+        return "a light with a diffuse or specular multiplier or a ShadowAPI shadow"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if integ.emitter_samples != 1:
@@ -136,6 +147,12 @@ class FastPath:
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
         rl, sl, dl = self.rect, self.sphere, self.disk
         # The vertex kernel's scene arguments, in its order (fixed for the render).
+        # The per-light estimators (see the module docstring): token, alpha, samples per light.
+        self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
+        self.est_alpha = np.ascontiguousarray(integ.est_alpha, dtype=np.int64)
+        self.est_samples = np.ascontiguousarray(integ.est_samples, dtype=np.int64)
+        # Lights whose estimator needs F (the control variate and ratio).
+        self.needs_F = np.isin(self.est_tok, [TOKENS.index("controlVariate"), TOKENS.index("ratio")])
         self.tables = (
             *self.geo,
             rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
@@ -156,7 +173,7 @@ class FastPath:
         path = np.arange(m, dtype=np.int64)
         depth = np.zeros(m, dtype=np.int64)
         unsampled = np.ones(m, dtype=bool)
-        counts = np.zeros(3, dtype=np.int64)
+        counts = np.zeros(4, dtype=np.int64)
         # The ray state, and the rays in embree's float32 format (the kernel writes the later
         # bounces' directly).
         S = np.empty((m, vk.NS))
@@ -168,6 +185,14 @@ class FastPath:
         pairs = 0
         # One stream key per bounce, drawn at once (a Generator call costs ~10 us).
         keys = rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64)
+        integ_ok = integ.cont_ok
+        # Continuation MIS at a vertex of depth b: MIS lights with N = 1 there (path.py's rule).
+        cont_at = [integ_ok & integ.samples_one, integ_ok.copy()]
+        # The per-light estimators' uniforms: their own stream (plain scenes keep theirs as it was).
+        keys2 = (rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64) if not np.all(cont_at[0])
+                 else np.zeros(max_depth + 1, dtype=np.int64))
+        cv_tok = self.est_tok == TOKENS.index("controlVariate")
+        one = ALPHAS.index("one")
         for bounce in range(max_depth + 1):
             n = path.size
             if not n:
@@ -183,25 +208,73 @@ class FastPath:
             n_o32 = np.empty((n, 3), dtype=np.float32)
             n_d32 = np.empty((n, 3), dtype=np.float32)
             n_t32 = np.empty(n, dtype=np.float32)
-            sh_o = np.empty((n * nl, 3), dtype=np.float32)
-            sh_d = np.empty((n * nl, 3), dtype=np.float32)
-            sh_t = np.empty(n * nl, dtype=np.float32)
-            sh_path = np.empty(n * nl, dtype=np.int64)
-            sh_c = np.empty((n * nl, 3))
+            est, est_out, cap = self._estimators(bounce, max_depth, cont_at, keys2[bounce], prim, b1, b2, S)
+            sh_o = np.empty((n * cap, 3), dtype=np.float32)
+            sh_d = np.empty((n * cap, 3), dtype=np.float32)
+            sh_t = np.empty(n * cap, dtype=np.float32)
+            sh_path = np.empty(n * cap, dtype=np.int64)
+            sh_c = np.empty((n * cap, 3))
             vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, vk.U_LIGHT + 2 * nl, Pm, mat_row, emission, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
-                             sh_c, counts)
-            k_next, k_sh = int(counts[0]), int(counts[1])
-            pairs += int(counts[2]) * nl
+                             sh_c, counts, est, est_out)
+            k_next, k_sh, k_grp = int(counts[0]), int(counts[1]), int(counts[3])
+            vertices = int(counts[2])
+            cont = est[3]
+            pairs += vertices * int(np.count_nonzero(cont))
+            # The general path's rule counters (path.py _direct).
+            if bounce == 0:
+                integ.rule_counts["own_samples"] += vertices * int(np.count_nonzero(cv_tok))
+            integ.rule_counts["alpha_one_fallback"] += vertices * int(np.count_nonzero(
+                cv_tok & (self.est_alpha != one) & (est[2] < 2)))
+            blocked = np.zeros(0, dtype=bool)
             if k_sh:
                 blocked = accel.occluded_prepared(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh])
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
+            if k_grp:
+                sh_x, sh_cov, g_int, g_f = est_out
+                vk.resolve_groups_kernel(L, g_int[:k_grp], g_f[:k_grp], sh_x[:k_sh], sh_cov[:k_sh], blocked)
             integ.rays.add(shadow=k_sh, extension=k_next)
             path, depth, S = n_path[:k_next], n_depth[:k_next], n_S[:k_next]
             o32, d32, t32 = n_o32[:k_next], n_d32[:k_next], n_t32[:k_next]
             unsampled = np.zeros(k_next, dtype=bool)
         integ.rule_counts["continuation_mis"] += pairs
         return L
+
+    def _estimators(self, bounce, max_depth, cont_at, key2, prim, b1, b2, S):
+        """The vertex kernel's per-light estimator records for a bounce whose vertices have depth
+        ``bounce`` (every row of a fast-path bounce has): est (tokens, alphas, N per light, on
+        continuation MIS here, was at the vertex the rays left, E (n, lights, 3), exact (n,
+        lights), the uniforms' key), est_out (each shadow ray's X (cap n, 3) and covered flag,
+        the groups' (g, 5) int64 and (g, 6) records), and cap: shadow rays per row at most."""
+        integ = self.integ
+        nl = integ.lights.count
+        n = prim.shape[0]
+        N = self.est_samples if bounce == 0 else np.ones(nl, dtype=np.int64)
+        cont = cont_at[min(bounce, 1)]
+        cont_prev = cont_at[min(bounce - 1, 1)] if bounce > 0 else np.ones(nl, dtype=bool)
+        own = ~cont
+        # A light sample and a BSDF sample per sample on the estimator's lights, one light-half
+        # ray on the others.
+        cap = max(1, int(np.sum(np.where(own, 2 * N, 1))))
+        want = own & self.needs_F if bounce < max_depth else np.zeros(nl, dtype=bool)
+        E = np.zeros((n if want.any() else 0, nl, 3))
+        exact = np.zeros((E.shape[0], nl), dtype=bool)
+        if want.any():
+            hit = np.nonzero(prim >= 0)[0]
+            if hit.size:
+                g = integ.scene.geometry
+                p, ng, ns, _ = surface_interaction(g.vertices, g.face_normal, g.normals, g.st,
+                                                   prim[hit].astype(np.int64), b1[hit], b2[hit],
+                                                   np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
+                ctx = ShadingContext(p, ng, ns)
+                for li in np.nonzero(want)[0]:
+                    E[hit, li], exact[hit, li] = integ.lights.irradiance(np.full(hit.size, li, dtype=np.int64), ctx)
+        n_groups = n * int(np.count_nonzero(want))
+        est = (self.est_tok, self.est_alpha, np.ascontiguousarray(N, dtype=np.int64), np.ascontiguousarray(cont),
+               np.ascontiguousarray(cont_prev), E, exact, np.uint64(key2))
+        est_out = (np.empty((n * cap, 3)), np.empty(n * cap), np.empty((n_groups, 5), dtype=np.int64),
+                   np.empty((n_groups, 6)))
+        return est, est_out, cap
 
     def _surfaces(self, prim, b1, b2, S):
         """Per-hit material rows for textured or emissive materials: (P (h, K) packed
