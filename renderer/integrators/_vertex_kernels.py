@@ -4,9 +4,10 @@ One call per bounce does, for every live ray, all the work between two embree ca
 general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
 lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
 material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
-for every light (the rect and sphere lights' samples drawn block by block by the vectorised
-batch kernels of kernels/lights.py, the others' row by row), and the BSDF sample with the throughput update
-and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
+for every light on it (the rect and sphere lights' samples drawn block by block by the vectorised
+batch kernels of kernels/lights.py, the others' row by row), the per-light estimators of the
+other lights (renderer/estimators/compiled.py on samples drawn row by row, _direct_pair), and
+the BSDF sample with the throughput update and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
 The rows go in blocks of BLK. Most of the work on a block is loops LLVM vectorises (4 rows per
@@ -406,6 +407,13 @@ NLP = 34
 
 
 @njit(cache=True, nogil=True)
+def _put3(LP, g, col, a, j):
+    """LP[g, col:col + 3] = a[j] (a (m, 3))."""
+    for c in range(3):
+        LP[g, col + c] = a[j, c]
+
+
+@njit(cache=True, nogil=True)
 def _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, s_center,
                  s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
                  d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex):
@@ -419,16 +427,9 @@ def _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is
         if g < n_rect:
             j = g
             LP[g, LP_KIND] = K_RECT
-            for c in range(3):
-                LP[g, LP_C + c] = center[j, c]
-                LP[g, LP_A + c] = ex[j, c]
-                LP[g, LP_B + c] = ey[j, c]
-                LP[g, LP_XH + c] = x_hat[j, c]
-                LP[g, LP_YH + c] = y_hat[j, c]
-                LP[g, LP_N + c] = nrm[j, c]
-                LP[g, LP_EXD + c] = exd[j, c]
-                LP[g, LP_EYD + c] = eyd[j, c]
-                LP[g, LP_L + c] = radiance[j, c]
+            for col, a in ((LP_C, center), (LP_A, ex), (LP_B, ey), (LP_XH, x_hat), (LP_YH, y_hat), (LP_N, nrm),
+                           (LP_EXD, exd), (LP_EYD, eyd), (LP_L, radiance)):
+                _put3(LP, g, col, a, j)
             LP[g, LP_P0] = edge_len[j, 0]
             LP[g, LP_P1] = edge_len[j, 1]
             LP[g, LP_AREA] = area[j]
@@ -436,31 +437,24 @@ def _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is
         elif g < n_rs:
             j = g - n_rect
             LP[g, LP_KIND] = K_SPHERE
-            for c in range(3):
-                LP[g, LP_C + c] = s_center[j, c]
-                LP[g, LP_L + c] = s_radiance[j, c]
+            _put3(LP, g, LP_C, s_center, j)
+            _put3(LP, g, LP_L, s_radiance, j)
             LP[g, LP_P0] = s_radius[j]
             LP[g, LP_FLAG] = 1.0 if s_delta[j] else 0.0
         elif g < n_fin:
             j = g - n_rs
             LP[g, LP_KIND] = K_DISK
-            for c in range(3):
-                LP[g, LP_C + c] = d_center[j, c]
-                LP[g, LP_A + c] = d_u1[j, c]
-                LP[g, LP_B + c] = d_u2[j, c]
-                LP[g, LP_XH + c] = d_e1[j, c]
-                LP[g, LP_YH + c] = d_e2[j, c]
-                LP[g, LP_N + c] = d_nrm[j, c]
-                LP[g, LP_L + c] = d_radiance[j, c]
+            for col, a in ((LP_C, d_center), (LP_A, d_u1), (LP_B, d_u2), (LP_XH, d_e1), (LP_YH, d_e2),
+                           (LP_N, d_nrm), (LP_L, d_radiance)):
+                _put3(LP, g, col, a, j)
             LP[g, LP_P0] = d_s1[j]
             LP[g, LP_P1] = d_s2[j]
             LP[g, LP_AREA] = d_area[j]
         else:
             j = g - n_fin
             LP[g, LP_KIND] = K_DOME if i_dome[j] else K_DISTANT
-            for c in range(3):
-                LP[g, LP_A + c] = i_axis[j, c]
-                LP[g, LP_L + c] = i_radiance[j, c]
+            _put3(LP, g, LP_A, i_axis, j)
+            _put3(LP, g, LP_L, i_radiance, j)
             LP[g, LP_P0] = i_omc[j]
             LP[g, LP_FLAG] = 1.0 if (i_delta[j] and not i_dome[j]) else 0.0
             LP[g, LP_TEX] = i_tex[j]
@@ -757,7 +751,16 @@ def vertex_kernel(
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * lights), sh_c (k, 3) being the radiance each adds if unblocked. counts[0],
-    counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
+    counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half);
+    counts[3]: how many estimator groups (below).
+
+    est, est_out: the per-light estimators' records (FastPath._estimators). Lights on continuation
+    MIS at this bounce's vertices (est[3]) take the light half above; every other light takes its
+    whole contribution from its estimator (_direct_pair: N light and/or BSDF samples, their shadow
+    rays in sh_* with their X and covered flag in est_out[0:2], and for the control variate and
+    ratio a group in est_out[2:4] that resolve_groups_kernel adds once the rays are traced). A
+    continuation ray adds emission only for the lights on continuation MIS at the vertex it left
+    (est[4]).
 
     The rows go in blocks of BLK: vectorised passes (_surface_pass; when a row of the block
     scatters, each rect and sphere light's batch sampler and _light_pass) fill the block's state,

@@ -3,14 +3,14 @@
 Where a scene needs none of the general integrator's machinery (renderer/integrators/path.py),
 each bounce is two embree calls and one compiled kernel (``_vertex_kernels.vertex_kernel``)
 instead of ~150 numpy passes. It estimates exactly what the general path estimates, with the
-same sampling techniques and MIS weights; the tests (tests/integrators/test_fast_path.py)
-z-test the two against each other and render with each on the same stages.
+same sampling techniques and MIS weights; the tests (tests/integrators/test_fast_path.py, and
+test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
-  light linking, with unit diffuse/specular multipliers, few enough for
-  the exhaustive light sampler (every light at every vertex, pmf 1);
+  light linking, with unit diffuse/specular multipliers, few enough for the exhaustive light
+  sampler (every light at every vertex, pmf 1);
 * any per-light estimator (lightSampling, bsdfSampling, mis with either heuristic and N samples,
   controlVariate with each alpha, ratio, or what `auto` picked), under path.py's rule: N =
   illum:samples at the first scattering vertex, 1 deeper. A light on `mis` with N = 1 at a
@@ -26,8 +26,8 @@ A scene qualifies when it has
 
 One difference in the order of work, not in the estimate: at the last scattering vertex
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
-a BSDF sample of its own), while the fast path keeps continuation MIS there too and traces the
-extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
+a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
+there too and traces the extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
 direct light; the variance differs slightly.
 """
 
