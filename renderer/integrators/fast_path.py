@@ -185,9 +185,9 @@ class FastPath:
         pairs = 0
         # One stream key per bounce, drawn at once (a Generator call costs ~10 us).
         keys = rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64)
-        integ_ok = integ.cont_ok
-        # Continuation MIS at a vertex of depth b: MIS lights with N = 1 there (path.py's rule).
-        cont_at = [integ_ok & integ.samples_one, integ_ok.copy()]
+        # Continuation MIS at the first vertex and deeper: MIS lights with N = 1 there (path.py's
+        # rule; cont_ok: on mis, with no multiplier or shadow setting that rules it out).
+        cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         # The per-light estimators' uniforms: their own stream (plain scenes keep theirs as it was).
         keys2 = (rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64) if not np.all(cont_at[0])
                  else np.zeros(max_depth + 1, dtype=np.int64))
