@@ -290,6 +290,13 @@ def bind_kernel(wo, P, ta, tb):
 
 
 @njit(cache=True, nogil=True)
+def _diffuse_constant(rho, f0, f90, ao, bo):
+    """diffuse_constant in one channel for wo.z > 0: rho_d (1 - E(wo)) / pi, with E(wo) =
+    F0 A(wo) + F90 B(wo) from the wo terms (ao, bo)."""
+    return rho * (1.0 - (f0 * ao + f90 * bo)) * _INV_PI
+
+
+@njit(cache=True, nogil=True)
 def wo_kernel(wo, P, ta, tb, out_dc, out_pd):
     """Per row: diffuse_constant(wo) = rho_d (1 - E(wo)) / pi (0 for wo.z <= 0) into out_dc (n, 3)
     and P_diffuse(wo) into out_pd (n,). Either output may have 0 rows (not wanted)."""
@@ -312,8 +319,7 @@ def wo_kernel(wo, P, ta, tb, out_dc, out_pd):
         if want_dc:
             up = woz > 0.0
             for k in range(3):
-                e = P[r, F0 + k] * ao + P[r, F90 + k] * bo if up else 0.0
-                out_dc[r, k] = P[r, RHO + k] * (1.0 - e) * _INV_PI * (1.0 if up else 0.0)
+                out_dc[r, k] = _diffuse_constant(P[r, RHO + k], P[r, F0 + k], P[r, F90 + k], ao, bo) if up else 0.0
 
 
 @njit(cache=True, nogil=True)

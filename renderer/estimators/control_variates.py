@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels.direct import diffuse_combine_kernel
 from .base import DirectQuery, DirectRandom, DirectResult, TraceFn, light_samples, ratio
 from .mis import mis_parts
 
@@ -78,19 +79,22 @@ def cv_diffuse(F: np.ndarray, X: np.ndarray, v: np.ndarray, covered: np.ndarray,
     A fully lit point (every covered v_i = 1) gives F exactly, a fully shadowed one 0, in the
     last two forms, whatever share of the samples fell below the horizon.
     """
-    N = v.shape[1]
-    if alpha == "one" or N < 2:
-        return F + (X * (v - 1.0)[:, :, None]).sum(axis=1) / N
-    c = covered.astype(np.float64)
-    cv = c * v
-    if alpha == "averageVisibility":
-        M = c.sum(axis=1)
-        v_bar = np.divide(cv.sum(axis=1), M, out=np.ones_like(M), where=M > 0.0)
-        return v_bar[:, None] * F + (X * (v - v_bar[:, None])[:, :, None]).sum(axis=1) / N
-    M_i = c.sum(axis=1)[:, None] - c          # covered samples other than i, (n, N)
-    S_i = cv.sum(axis=1)[:, None] - cv
-    a = np.divide(S_i, M_i, out=np.ones_like(S_i), where=M_i > 0.0)
-    return (a.sum(axis=1) / N)[:, None] * F + (X * (v - a)[:, :, None]).sum(axis=1) / N
+    from . import ALPHAS
+
+    return diffuse_combine(F, X, v, covered, ALPHAS.index(alpha))
+
+
+def diffuse_combine(F: np.ndarray, X: np.ndarray, v: np.ndarray, covered: np.ndarray, mode: int) -> np.ndarray:
+    """kernels.direct.diffuse_combine_row over n rows (the one implementation of the control
+    variate's and the ratio estimator's formulas, shared with the compiled path): F (n, 3),
+    X (n, N, 3), v (n, N), covered (n, N) bool, mode a kernels.direct mode. Returns (n, 3)."""
+    n, N = v.shape
+    out = np.empty((n, 3))
+    c = np.ascontiguousarray
+    diffuse_combine_kernel(c(F, dtype=np.float64), c(X, dtype=np.float64).reshape(n * N, 3),
+                           c(v, dtype=np.float64).reshape(n * N), c(covered, dtype=np.float64).reshape(n * N),
+                           mode, out)
+    return out
 
 
 class ControlVariateEstimator:

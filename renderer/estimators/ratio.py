@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from .base import DirectQuery, DirectRandom, DirectResult, TraceFn
-from .control_variates import diffuse_cv_inputs, specular_and_fallback
+from ..kernels.direct import RATIO
+from .control_variates import covered_samples, diffuse_combine, diffuse_cv_inputs, specular_and_fallback
 from ..sampling import safe_div
 
 
@@ -23,13 +24,11 @@ class RatioEstimator:
         F, exact, ls, rays = diffuse_cv_inputs(q, lights, trace, N, u)
         p = ls.p_l.reshape(-1)
         g = safe_div(ls.fd.reshape(-1, 3), p).reshape(ls.fd.shape)
-        num = (g * ls.v[:, :, None]).sum(axis=1)
-        den = g.sum(axis=1)
         # No sample fell where F integrates (all below the horizon, say): nothing is known of the
         # visibility there, and 0 would darken a fully lit point whenever that happens (1 in 16
-        # points under a dome with N = 4); take it as visible, as the control variate's α does.
-        frac = np.divide(num, den, out=np.ones_like(num), where=den > 0.0)
-        diffuse = F * frac
+        # points under a dome with N = 4); take it as visible, as the control variate's α does
+        # (kernels.direct.diffuse_combine_row, mode RATIO).
+        diffuse = diffuse_combine(F, g, ls.v, covered_samples(ls.fd, ls.valid), RATIO)
         spec, full, rays_s = specular_and_fallback(q, lights, trace, N, u, heuristic, exact, ls)
         Ld = np.where(exact[:, None], diffuse + spec, full)
         return DirectResult(Ld, rays + rays_s)

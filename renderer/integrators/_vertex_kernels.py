@@ -4,12 +4,14 @@ One call per bounce does, for every live ray, all the work between two embree ca
 general integrator spreads over ~150 numpy passes and a dozen kernels: emission of the rect
 lights the ray crossed (MIS-weighted on continuation rays), the surface interaction, the
 material's packed UsdPreviewSurface row, the shading frame, the light half of continuation MIS
-for every light (the exhaustive lighting service: the rect and sphere lights' samples drawn
-block by block by the vectorised batch kernels of kernels/lights.py, the others' row by row) or
-for the one light a uniform, power or bvh service picks per row (kernels/light_pick.py: the
-pick, its pmf replayed for the emission weight, and the lights a ray crosses found by a walk of
-the light BVH instead of a loop over every light), and the BSDF sample with the throughput update
-and Russian roulette. It writes the shadow rays and the next bounce's rays compactly; Python
+for every light on it (the exhaustive lighting service: the rect and sphere lights' samples
+drawn block by block by the vectorised batch kernels of kernels/lights.py, the others' row by
+row) or for the one light a uniform, power or bvh service picks per row (kernels/light_pick.py:
+the pick, its pmf replayed for the emission weight, and the lights a ray crosses found by a walk
+of the light BVH instead of a loop over every light), the per-light estimators of the lights
+not on it (renderer/estimators/compiled.py on samples drawn row by row, _direct_pair, divided by
+the pick's pmf), and the BSDF sample with the throughput update and Russian roulette. It writes
+the shadow rays and the next bounce's rays compactly; Python
 only calls embree and adds the unblocked shadow contributions.
 
 The rows go in blocks of BLK. Most of the work on a block is loops LLVM vectorises (4 rows per
@@ -50,8 +52,10 @@ from numba import njit
 
 from renderer.bsdfs._preview_kernels import (
     ALPHA, F0, F90, FY, J0, KD, RHO,
-    _lookup_weights, _mis_weight, _p_diffuse, _sample_dir, _specular,
+    _diffuse_constant, _lookup_weights, _mis_weight, _p_diffuse, _sample_dir, _specular,
 )
+from renderer.estimators import compiled as ec
+from renderer.kernels.direct import diffuse_combine_row
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
@@ -392,60 +396,341 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
             X[r - lo] = 1.0 if crossed else X[r - lo]
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def _light_of(g, n_rect, n_rs, n_fin, rect_light, sphere_light, disk_light, inf_light):
-    """The global light index of the kernel's light g (rect, sphere, disk, then infinite)."""
-    if g < n_rect:
-        return rect_light[g]
-    if g < n_rs:
-        return sphere_light[g - n_rect]
-    if g < n_fin:
-        return disk_light[g - n_rs]
-    return inf_light[g - n_fin]
+# ---- per-light helpers shared by emission, continuation MIS and the per-light estimators ------
+# A light's index g runs over rect, sphere, disk, then infinite lights (vertex_kernel's order).
+# The helpers read one flat table LP (lights, NLP) that _light_table builds once per call from the
+# kinds' arrays: taking an array out of a tuple costs numba a reference count increment and
+# decrement (atomic), and the tuples of tables made those the main cost of a sample. Only a
+# textured dome also reads its image (IMG: i_rot and the ImageSet arrays, vertex_kernel's order).
+K_RECT, K_SPHERE, K_DISK, K_DOME, K_DISTANT = range(5)
+LP_KIND = 0
+LP_C = 1  # centre
+LP_A = 4  # rect ex, disk u1, distant axis
+LP_B = 7  # rect ey, disk u2
+LP_XH = 10  # rect x_hat, disk e1
+LP_YH = 13  # rect y_hat, disk e2
+LP_N = 16  # emitting normal
+LP_EXD = 19
+LP_EYD = 22
+LP_L = 25  # radiance
+LP_P0 = 28  # rect edge length x, sphere radius, disk s1, distant 1 - cos theta_max
+LP_P1 = 29  # rect edge length y, disk s2
+LP_AREA = 30
+LP_FLAG = 31  # rect is_rect, sphere and distant delta
+LP_TEX = 32  # dome image, -1 for a constant dome
+LP_J = 33  # the row in the light's kind table
+NLP = 34
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def _sample_light_row(g, p, u0, u1, n_rect, n_rs, n_fin, rect, sph, disk, inf, img, close_ratio, min_sa, graz):
-    """One light sample of the kernel's light g (rect, sphere, disk, then infinite) from the
-    point p with (u0, u1), through the light kind's own row sampler (kernels/lights.py):
-    (wi, distance (inf for infinite lights), solid-angle pdf (0: unusable), radiance Le, delta).
-    The light tables as the records vertex_kernel packs: rect (center, ex, ey, x_hat, y_hat,
-    edge_len, nrm, area, radiance, is_rect), sph (center, radius, radiance, delta), disk
-    (center, nrm, u1, u2, e1, e2, s1, s2, area, radiance), inf (dome, axis, omc, delta,
-    radiance, tex, rot) and img (texels, offset, height, width, weight, total, row_cdf,
-    row_cdf_start, col_cdf, col_cdf_start). Without reference counting (_nrt=False): the five
-    records' 41 arrays would otherwise be incref'd and decref'd on every call (see
-    kernels/light_bvh.py)."""
-    if g < n_rect:
-        j = g
-        wi, dist, pdf_l, _pl, _ok = _rect_sample_row(
-            p, u0, u1, _row(rect[0], j), _row(rect[1], j), _row(rect[2], j), _row(rect[3], j), _row(rect[4], j),
-            rect[5][j, 0], rect[5][j, 1], _row(rect[6], j), rect[7][j], False, rect[9][j], 0.0, 0.0, 0.0, min_sa,
-            graz)
-        return wi, dist, pdf_l, _row(rect[8], j), False
-    if g < n_rs:
-        j = g - n_rect
-        wi, dist, pdf_l, _pl, _ok, sc = _sphere_sample_row(p, u0, u1, _row(sph[0], j), sph[1][j], sph[3][j])
-        Le = _row(sph[2], j)
-        return wi, dist, (pdf_l if _ok else 0.0), (Le[0] * sc, Le[1] * sc, Le[2] * sc), sph[3][j]
-    if g < n_fin:
-        j = g - n_rs
-        wi, dist, pdf_l, _pl, _ok = _disk_sample_row(
-            p, u0, u1, _row(disk[0], j), _row(disk[1], j), _row(disk[2], j), _row(disk[3], j), _row(disk[4], j),
-            _row(disk[5], j), disk[6][j], disk[7][j], disk[8][j], close_ratio, min_sa, graz)
-        return wi, dist, (pdf_l if _ok else 0.0), _row(disk[9], j), False
-    j = g - n_fin
-    Le = _row(inf[4], j)
-    if inf[0][j] and inf[5][j] >= 0:
-        wi, pdf_l, kt = _dome_sample_row(u0, u1, inf[5][j], inf[6][j], img[2], img[3], img[6], img[7], img[8],
-                                         img[9], img[4], img[5], img[1])
-        Le = (Le[0] * img[0][kt, 0], Le[1] * img[0][kt, 1], Le[2] * img[0][kt, 2])
-    elif inf[0][j]:
-        wi = _uniform_sphere_row(u0, u1)
-        pdf_l = _INV_4PI
+@njit(cache=True, nogil=True)
+def _put3(LP, g, col, a, j):
+    """LP[g, col:col + 3] = a[j] (a (m, 3))."""
+    for c in range(3):
+        LP[g, col + c] = a[j, c]
+
+
+@njit(cache=True, nogil=True)
+def _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, s_center,
+                 s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
+                 d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex):
+    """LP (lights, NLP): every light's parameters in one row (columns LP_*), kernel order."""
+    n_rect = center.shape[0]
+    n_rs = n_rect + s_center.shape[0]
+    n_fin = n_rs + d_center.shape[0]
+    nl = n_fin + i_radiance.shape[0]
+    LP = np.zeros((nl, NLP))
+    for g in range(nl):
+        if g < n_rect:
+            j = g
+            LP[g, LP_KIND] = K_RECT
+            for col, a in ((LP_C, center), (LP_A, ex), (LP_B, ey), (LP_XH, x_hat), (LP_YH, y_hat), (LP_N, nrm),
+                           (LP_EXD, exd), (LP_EYD, eyd), (LP_L, radiance)):
+                _put3(LP, g, col, a, j)
+            LP[g, LP_P0] = edge_len[j, 0]
+            LP[g, LP_P1] = edge_len[j, 1]
+            LP[g, LP_AREA] = area[j]
+            LP[g, LP_FLAG] = 1.0 if is_rect[j] else 0.0
+        elif g < n_rs:
+            j = g - n_rect
+            LP[g, LP_KIND] = K_SPHERE
+            _put3(LP, g, LP_C, s_center, j)
+            _put3(LP, g, LP_L, s_radiance, j)
+            LP[g, LP_P0] = s_radius[j]
+            LP[g, LP_FLAG] = 1.0 if s_delta[j] else 0.0
+        elif g < n_fin:
+            j = g - n_rs
+            LP[g, LP_KIND] = K_DISK
+            for col, a in ((LP_C, d_center), (LP_A, d_u1), (LP_B, d_u2), (LP_XH, d_e1), (LP_YH, d_e2),
+                           (LP_N, d_nrm), (LP_L, d_radiance)):
+                _put3(LP, g, col, a, j)
+            LP[g, LP_P0] = d_s1[j]
+            LP[g, LP_P1] = d_s2[j]
+            LP[g, LP_AREA] = d_area[j]
+        else:
+            j = g - n_fin
+            LP[g, LP_KIND] = K_DOME if i_dome[j] else K_DISTANT
+            _put3(LP, g, LP_A, i_axis, j)
+            _put3(LP, g, LP_L, i_radiance, j)
+            LP[g, LP_P0] = i_omc[j]
+            LP[g, LP_FLAG] = 1.0 if (i_delta[j] and not i_dome[j]) else 0.0
+            LP[g, LP_TEX] = i_tex[j]
+        LP[g, LP_J] = j
+    return LP
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lp(LP, g, c):
+    """Columns c..c+2 of LP's row g as a 3-tuple."""
+    return (LP[g, c], LP[g, c + 1], LP[g, c + 2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _finite_seen(LP, g, o, d):
+    """Finite light g seen from o along unit d: (t, Le (3-tuple), seen): seen where the ray hits
+    the light's emitting side (the back of a one-sided light and a sphere's inside emit nothing)."""
+    kind = LP[g, LP_KIND]
+    Le = _lp(LP, g, LP_L)
+    if kind == K_SPHERE:
+        c = _lp(LP, g, LP_C)
+        tl = _sphere_hit_row(o, d, c, LP[g, LP_P0], LP[g, LP_FLAG] != 0.0)
+        hit = tl < math.inf
+        # Outward emission only: a ray leaving the sphere's inside sees nothing.
+        front = -((o[0] + tl * d[0] - c[0]) * d[0] + (o[1] + tl * d[1] - c[1]) * d[1]
+                  + (o[2] + tl * d[2] - c[2]) * d[2]) > 0.0 if hit else False
+        return tl, Le, hit and front
+    n = _lp(LP, g, LP_N)
+    if kind == K_RECT:
+        tl, _a, _b, hit = _rect_hit(o, d, _lp(LP, g, LP_C), n, _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD))
     else:
-        wi, pdf_l = _distant_sample_row(u0, u1, _row(inf[1], j), inf[2][j], inf[3][j])
-    return wi, math.inf, pdf_l, Le, inf[3][j] and not inf[0][j]
+        tl, hit = _disk_hit(o, d, _lp(LP, g, LP_C), n, _lp(LP, g, LP_A), _lp(LP, g, LP_B), LP[g, LP_P0],
+                            LP[g, LP_P1])
+    # The back of a one-sided light emits nothing.
+    front = -(d[0] * n[0] + d[1] * n[1] + d[2] * n[2]) > 0.0
+    return tl, Le, hit and front
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _finite_pdf(LP, g, p, d, close_ratio, min_sa, graz):
+    """The solid-angle pdf with which finite light g's sampler, at p, picks direction d."""
+    kind = LP[g, LP_KIND]
+    if kind == K_RECT:
+        return _rect_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD),
+                             _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0],
+                             LP[g, LP_P1], LP[g, LP_AREA], False, LP[g, LP_FLAG] != 0.0, 0.0, min_sa, graz)
+    if kind == K_DISK:
+        return _disk_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_A), _lp(LP, g, LP_B),
+                             _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1], LP[g, LP_AREA],
+                             close_ratio, min_sa, graz)
+    return _sphere_pdf_row(p, d, _lp(LP, g, LP_C), LP[g, LP_P0], LP[g, LP_FLAG] != 0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _infinite_seen(LP, g, d, IMG):
+    """Infinite light g along unit d: (its sampler's pdf of d, Le (3-tuple)); a DistantLight
+    outside its cone (a delta one always) gives (0, black)."""
+    Le = _lp(LP, g, LP_L)
+    if LP[g, LP_KIND] == K_DOME:
+        tex = int(LP[g, LP_TEX])
+        if tex >= 0:
+            i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total = IMG[:7]
+            p_l, kt = _dome_texel_row(d, tex, i_rot[int(LP[g, LP_J])], im_height, im_width, im_weight, im_total,
+                                      im_offset)
+            return p_l, (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
+        return _INV_4PI, Le
+    p_l = _distant_pdf_row(d, _lp(LP, g, LP_A), LP[g, LP_P0], LP[g, LP_FLAG] != 0.0)
+    if p_l <= 0.0:
+        return 0.0, (0.0, 0.0, 0.0)
+    return p_l, Le
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
+    """A sample of light g from p with uniforms (u0, u1): (wi, dist, pdf, Le, delta), pdf the
+    solid-angle pdf (1 for a delta light) and 0 where the sample is unusable, dist inf for an
+    infinite light (kernels/lights.py's samplers)."""
+    kind = LP[g, LP_KIND]
+    Le = _lp(LP, g, LP_L)
+    delta = LP[g, LP_FLAG] != 0.0 and kind != K_RECT
+    if kind == K_RECT:
+        wi, dist, pdf, _pl, ok = _rect_sample_row(p, u0, u1, _lp(LP, g, LP_C), _lp(LP, g, LP_A), _lp(LP, g, LP_B),
+                                                  _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1],
+                                                  _lp(LP, g, LP_N), LP[g, LP_AREA], False, LP[g, LP_FLAG] != 0.0,
+                                                  0.0, 0.0, 0.0, min_sa, graz)
+        return wi, dist, (pdf if ok else 0.0), Le, False
+    if kind == K_SPHERE:
+        wi, dist, pdf, _pl, ok, sc = _sphere_sample_row(p, u0, u1, _lp(LP, g, LP_C), LP[g, LP_P0], delta)
+        return wi, dist, (pdf if ok else 0.0), (Le[0] * sc, Le[1] * sc, Le[2] * sc), delta
+    if kind == K_DISK:
+        wi, dist, pdf, _pl, ok = _disk_sample_row(p, u0, u1, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_A),
+                                                  _lp(LP, g, LP_B), _lp(LP, g, LP_XH), _lp(LP, g, LP_YH),
+                                                  LP[g, LP_P0], LP[g, LP_P1], LP[g, LP_AREA], close_ratio, min_sa,
+                                                  graz)
+        return wi, dist, (pdf if ok else 0.0), Le, False
+    tex = int(LP[g, LP_TEX])
+    if kind == K_DOME and tex >= 0:
+        (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
+         im_col_cdf, im_col_cdf_start) = IMG
+        wi, pdf, kt = _dome_sample_row(u0, u1, tex, i_rot[int(LP[g, LP_J])], im_height, im_width, im_row_cdf,
+                                       im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
+        Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
+    elif kind == K_DOME:
+        wi = _uniform_sphere_row(u0, u1)
+        pdf = _INV_4PI
+    else:
+        wi, pdf = _distant_sample_row(u0, u1, _lp(LP, g, LP_A), LP[g, LP_P0], delta)
+    return wi, math.inf, pdf, Le, delta
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
+    """Light g seen from p along unit wi (estimators.base.light_along, then pdf_li where it is
+    seen): (t (inf for an infinite light or a miss), Le (black on a miss), p_l (0 on a miss))."""
+    if LP[g, LP_KIND] >= K_DOME:
+        p_l, Le = _infinite_seen(LP, g, wi, IMG)
+        return math.inf, Le, p_l
+    tl, Le, seen = _finite_seen(LP, g, p, wi)
+    if not seen:
+        return math.inf, (0.0, 0.0, 0.0), 0.0
+    return tl, Le, _finite_pdf(LP, g, p, wi, close_ratio, min_sa, graz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _split_at(V, Pm, wx, wy, wz, Le):
+    """The integrand of the vertex V's BSDF at world direction (wx, wy, wz) for radiance Le,
+    split as estimators.base.split_integrand does (light samples and BSDF samples alike):
+    (fd, fs, p_b, wl_z, cos_g): fd = g |cos| Le the control lobe, fs = (f - g) |cos| Le the
+    residual (3-tuples), p_b the BSDF pdf, wl_z the direction's shading-frame cosine and cos_g
+    its geometric one. f is _preview_kernels.eval_kernel's (0 unless the specular factors are
+    defined), g the control lobe c(wo) (0 unless both directions are above the shading normal).
+    V: (p, ng, fs, ft, ns, wo, ao, bo, p_d, eps, m), its vectors 3-tuples."""
+    _p, ng, sf, tf, ns, wo, ao, bo, p_d, _eps, m = V
+    a, j0, fy, kd, f0, f90 = _mat(Pm, m)
+    lx = wx * sf[0] + wy * sf[1] + wz * sf[2]
+    ly = wx * tf[0] + wy * tf[1] + wz * tf[2]
+    lz = wx * ns[0] + wy * ns[1] + wz * ns[2]
+    cos_g = wx * ng[0] + wy * ng[1] + wz * ng[2]
+    oks, dv, fw, pdf_s = _specular_i(wo[0], wo[1], wo[2], lx, ly, lz, a)
+    ai, bi = _albedo(lz, j0, fy)
+    p_b = p_d * lz * _INV_PI + (1.0 - p_d) * pdf_s if oks else 0.0
+    up = lz > 0.0 and wo[2] > 0.0
+    cos = abs(lz)
+    fd0 = _diffuse_constant(Pm[m, RHO], f0[0], f90[0], ao, bo) if up else 0.0
+    fd1 = _diffuse_constant(Pm[m, RHO + 1], f0[1], f90[1], ao, bo) if up else 0.0
+    fd2 = _diffuse_constant(Pm[m, RHO + 2], f0[2], f90[2], ao, bo) if up else 0.0
+    f_0 = _f(kd[0], f0[0], f90[0], ao, bo, ai, bi, fw, dv) if oks else 0.0
+    f_1 = _f(kd[1], f0[1], f90[1], ao, bo, ai, bi, fw, dv) if oks else 0.0
+    f_2 = _f(kd[2], f0[2], f90[2], ao, bo, ai, bi, fw, dv) if oks else 0.0
+    return ((fd0 * cos * Le[0], fd1 * cos * Le[1], fd2 * cos * Le[2]),
+            ((f_0 - fd0) * cos * Le[0], (f_1 - fd1) * cos * Le[1], (f_2 - fd2) * cos * Le[2]), p_b, lz, cos_g)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _record(smp, i, wi, dist, p_l, p_b, fd, fs, usable):
+    """Row i of a sample record (estimators/compiled.py's columns); S_TR where usable and some
+    channel of fd or fs is positive (estimators.base: shadow rays only there)."""
+    for c in range(3):
+        smp[i, ec.S_WI + c] = wi[c]
+        smp[i, ec.S_FD + c] = fd[c]
+        smp[i, ec.S_FS + c] = fs[c]
+    smp[i, ec.S_DIST] = dist
+    smp[i, ec.S_PL] = p_l
+    smp[i, ec.S_PB] = p_b
+    pos = fd[0] > 0.0 or fd[1] > 0.0 or fd[2] > 0.0 or fs[0] > 0.0 or fs[1] > 0.0 or fs[2] > 0.0
+    smp[i, ec.S_TR] = 1.0 if (usable and pos) else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
+    """Light g's N light samples into ls and N BSDF samples into bs (those its estimator needs)
+    at the vertex V, as estimators.base.light_samples and bsdf_samples draw them: uniforms
+    splitmix_u01(key, ctr + 1 ...), five per sample."""
+    p, ng, sf, tf, ns, wo, ao, bo, p_d, eps, m = V
+    for i in range(N if need_l else 0):
+        c = ctr + np.uint64(5 * i + 1)
+        wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
+                                                 IMG, lcon[0], lcon[1], lcon[2])
+        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le)
+        above = lz > 0.0 and cos_g > 0.0
+        if not above:
+            fd = (0.0, 0.0, 0.0)
+            fs = (0.0, 0.0, 0.0)
+        # Delta lights cannot be reached by BSDF samples: their p_l is "infinite" for MIS.
+        _record(ls, i, wi, dist, math.inf if delta else pdf, p_b, fd, fs, pdf > 0.0 and above)
+    a = Pm[m, ALPHA]
+    for i in range(N if need_b else 0):
+        c = ctr + np.uint64(5 * i + 3)
+        # The BSDF's own sample (_preview_kernels.sample_kernel), to world.
+        wl = _sample_dir_i(wo[0], wo[1], wo[2], a, splitmix_u01(key, c) < p_d, splitmix_u01(key, c + np.uint64(1)),
+                           splitmix_u01(key, c + np.uint64(2)))
+        wx = wl[0] * sf[0] + wl[1] * tf[0] + wl[2] * ns[0]
+        wy = wl[0] * sf[1] + wl[1] * tf[1] + wl[2] * ns[1]
+        wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
+        # Lights are intersected from p itself (estimators.base.bsdf_samples).
+        t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
+        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le)
+        hit = p_b > 0.0 and cos_g > 0.0 and wl[2] > 0.0 and (Le[0] > 0.0 or Le[1] > 0.0 or Le[2] > 0.0)
+        if not hit:
+            fd = (0.0, 0.0, 0.0)
+            fs = (0.0, 0.0, 0.0)
+        _record(bs, i, (wx, wy, wz), t_l, p_l if hit else 0.0, p_b, fd, fs, hit)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH, GR, k_sh,
+                 k_grp, scratch):
+    """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
+    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact, E: whether
+    its F = c(wo) E is exact and E (3-tuple)): the samples (_draw_pair), the estimator's
+    coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:] (sh_o, sh_d, sh_t,
+    sh_path, sh_c, sh_x, sh_cov: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
+    and covered flag) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
+    rays, N, mode), g_f (F, beta)), which resolve_groups_kernel adds once the rays are traced.
+    Returns the new (k_sh, k_grp)."""
+    ls, bs, cl, cb = scratch
+    need_l, need_b = ec.needs(tok)
+    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs)
+    mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
+    sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov = SH
+    p, ng, eps = V[0], V[1], V[9]
+    first = k_sh
+    for half in range(2):
+        smp = ls if half == 0 else bs
+        co = cl if half == 0 else cb
+        for i in range(N if (need_l if half == 0 else need_b) else 0):
+            c0 = beta[0] * co[i, ec.C_C]
+            c1 = beta[1] * co[i, ec.C_C + 1]
+            c2 = beta[2] * co[i, ec.C_C + 2]
+            cov = co[i, ec.C_COV] if half == 0 and mode != ec.NO_GROUP else 0.0
+            # Only rays whose visibility changes the estimate (the sample above ng: offset along it).
+            if smp[i, ec.S_TR] == 0.0 or (c0 == 0.0 and c1 == 0.0 and c2 == 0.0 and cov == 0.0):
+                continue
+            dist = smp[i, ec.S_DIST]
+            for c in range(3):
+                sh_o[k_sh, c] = p[c] + ng[c] * eps
+                sh_d[k_sh, c] = smp[i, ec.S_WI + c]
+                sh_x[k_sh, c] = co[i, ec.C_X + c] if cov > 0.0 else 0.0
+            sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
+            sh_path[k_sh] = pr_path
+            sh_c[k_sh, 0] = c0
+            sh_c[k_sh, 1] = c1
+            sh_c[k_sh, 2] = c2
+            sh_cov[k_sh] = cov
+            k_sh += 1
+    if mode != ec.NO_GROUP:
+        g_int, g_f = GR
+        g_int[k_grp, 0] = pr_path
+        g_int[k_grp, 1] = first
+        g_int[k_grp, 2] = k_sh - first
+        g_int[k_grp, 3] = N
+        g_int[k_grp, 4] = mode
+        _p, _ng, _sf, _tf, _ns, wo, ao, bo, _pd, _eps, m = V
+        a, j0, fy, kd, f0, f90 = _mat(Pm, m)
+        for c in range(3):
+            # F = c(wo) E (estimators.control_variates.diffuse_cv_inputs).
+            g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] if wo[2] > 0.0 else 0.0
+            g_f[k_grp, 3 + c] = beta[c]
+        k_grp += 1
+    return k_sh, k_grp
 
 
 @njit(cache=True, nogil=True)
@@ -459,7 +744,7 @@ def vertex_kernel(
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
     power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp,
-    L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts,
+    L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
     to ``eps_add`` describe the scene and stay fixed for a render (FastPath.tables).
@@ -486,14 +771,23 @@ def vertex_kernel(
     lighting service's record (kernels/light_pick.py; light_samplers.pick_tables). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
-    sh_c (capacity n * lights, or n with a picking service), sh_c (k, 3) being the radiance each
-    adds if unblocked. counts[0],
-    counts[1]: how many of each; counts[2]: how many vertices scattered (took the light half).
+    sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
+    being the radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]:
+    how many vertices scattered (took the light half); counts[3]: how many estimator groups (below);
+    counts[4 + l] (zero on entry) gains the (vertex, light l) pairs this bounce estimated.
+
+    est, est_out: the per-light estimators' records (FastPath._estimators). Lights on continuation
+    MIS at this bounce's vertices (est[3]) take the light half above; every other light takes its
+    whole contribution from its estimator (_direct_pair: N light and/or BSDF samples, their shadow
+    rays in sh_* with their X and covered flag in est_out[0:2], and for the control variate and
+    ratio a group in est_out[2:4] that resolve_groups_kernel adds once the rays are traced), divided
+    by the pick's pmf as path.py's _direct does. A continuation ray adds emission only for the
+    lights on continuation MIS at the vertex it left (est[4]), weighted with the pmf replayed there.
 
     The rows go in blocks of BLK: vectorised passes (_surface_pass; with the exhaustive service,
     when a row of the block scatters, each rect and sphere light's batch sampler and _light_pass)
     fill the block's state, then one scalar pass per row adds emission, takes the other lights'
-    light half (or the picked light's: _sample_light_row) and writes the rays compactly.
+    light half or estimator (or the picked light's: _light_sample, _direct_pair) and writes the rays compactly.
     """
     Pm, mat_row, emission, bent_ns = surf
     n_rect = center.shape[0]
@@ -509,12 +803,6 @@ def vertex_kernel(
     # the exhaustive one: every light, the rect and sphere lights sampled block-wise.
     picks = sp[0] != EXHAUSTIVE
     n_batch = 0 if picks else n_rs
-    rect_t = (center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect)
-    sph_t = (s_center, s_radius, s_radiance, s_delta)
-    disk_t = (d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area, d_radiance)
-    inf_t = (i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex, i_rot)
-    img_t = (im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-             im_col_cdf, im_col_cdf_start)
     # Scratch of the light BVH walk (crossed_row): its stack (tree depth + 2) and the lights found.
     stack = np.empty((sp[9].max() if sp[9].shape[0] else 0) + 2, dtype=np.int64)
     found = np.empty(max(n_fin, 1), dtype=np.int64)
@@ -532,6 +820,28 @@ def vertex_kernel(
     # The passes read triangle 0 and material row 0 for rows that missed: only when they exist
     # (no geometry or, with per-hit rows, no hit at all: nothing scatters).
     surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
+    # The lights as one table for the per-light helpers (_finite_seen and the rest), the domes'
+    # images, and the samplers' constants.
+    LP = _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, s_center,
+                      s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
+                      d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex)
+    IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
+           im_col_cdf, im_col_cdf_start)
+    lcon = (close_ratio, min_sa, graz)
+    # The global index of each light in the kernel's order.
+    glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
+    # The per-light estimators (FastPath.trace's record): token, alpha and N per light at this
+    # bounce's vertices; whether each light is on continuation MIS there (cont) and was at the
+    # vertex the rays left (cont_prev); F's irradiance E (n, lights, 3) and its exactness; the
+    # key of their uniforms. Outputs: each shadow ray's X and covered flag, and the groups.
+    e_tok, e_alpha, e_N, cont, cont_prev, e_E, e_exact, e_key = est
+    sh_x, sh_cov, g_int, g_f = est_out
+    SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov)
+    GR = (g_int, g_f)
+    n_max = max(1, e_N.max()) if nl else 1
+    scratch = (np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NC)),
+               np.empty((n_max, ec.NC)))
+    k_grp = 0
     for lo in range(0, n, BLK):
         hi = min(n, lo + BLK)
         _uniform_pass(key, lo, hi, UB)
@@ -544,6 +854,8 @@ def vertex_kernel(
                 sampled = sampled or (hit_prim[r] >= 0 and depth[r] < max_depth)
             if sampled and not picks:
                 for j in range(n_rect):
+                    if not cont[rect_light[j]]:
+                        continue  # its estimator samples it in the scalar pass
                     rect_sample_batch_kernel(W2, UB, U_LIGHT + 2 * rect_light[j], 0, hi - lo, _row(center, j),
                                              _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
                                              edge_len[j, 1], _row(nrm, j), area[j], is_rect[j], min_sa, graz, R[j])
@@ -551,6 +863,8 @@ def vertex_kernel(
                                 power[rect_light[j]], S, W, Pm, C[j])
                 for j in range(n_rs - n_rect):
                     g = n_rect + j
+                    if not cont[sphere_light[j]]:
+                        continue
                     sphere_sample_batch_kernel(W2, UB, U_LIGHT + 2 * sphere_light[j], 0, hi - lo, _row(s_center, j),
                                                s_radius[j], s_delta[j], R[g])
                     _light_pass(lo, hi, R[g], True, s_radiance[j, 0], s_radiance[j, 1], s_radiance[j, 2],
@@ -579,30 +893,12 @@ def vertex_kernel(
                 n_c = n_fin - g0
             for c_ in range(n_c):
                 g = fast_of[found[c_]] if picks else g0 + c_
-                if g < n_rect:
-                    j = g
-                    tl, _a, _b, hit = _rect_hit(o, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j))
-                    # The back of a one-sided light emits nothing.
-                    front = -(d[0] * nrm[j, 0] + d[1] * nrm[j, 1] + d[2] * nrm[j, 2]) > 0.0
-                    gl = rect_light[j]
-                    Le = _row(radiance, j)
-                elif g >= n_rs:
-                    j = g - n_rs
-                    tl, hit = _disk_hit(o, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j),
-                                        d_s1[j], d_s2[j])
-                    front = -(d[0] * d_nrm[j, 0] + d[1] * d_nrm[j, 1] + d[2] * d_nrm[j, 2]) > 0.0
-                    gl = disk_light[j]
-                    Le = _row(d_radiance, j)
-                else:
-                    j = g - n_rect
-                    tl = _sphere_hit_row(o, d, _row(s_center, j), s_radius[j], s_delta[j])
-                    hit = tl < math.inf
-                    # Outward emission only: a ray leaving the sphere's inside sees nothing.
-                    front = -((o[0] + tl * d[0] - s_center[j, 0]) * d[0] + (o[1] + tl * d[1] - s_center[j, 1]) * d[1]
-                              + (o[2] + tl * d[2] - s_center[j, 2]) * d[2]) > 0.0 if hit else False
-                    gl = sphere_light[j]
-                    Le = _row(s_radiance, j)
-                if not (hit and tl < t_geo and front):
+                gl = glob[g]
+                # A light whose estimator covered it at the vertex the ray left adds nothing here.
+                if not (unsampled[r] or cont_prev[gl]):
+                    continue
+                tl, Le, seen = _finite_seen(LP, g, o, d)
+                if not (seen and tl < t_geo):
                     continue
                 if unsampled[r]:
                     w = 1.0
@@ -610,16 +906,7 @@ def vertex_kernel(
                     # h(p_b, pmf p_l): p_l and the service's pmf from the vertex the ray left, as
                     # the light half there used.
                     pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
-                    if g < n_rect:
-                        p_l = _rect_pdf_row(pv, d, _row(center, j), _row(nrm, j), _row(exd, j), _row(eyd, j),
-                                            _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
-                                            edge_len[j, 1], area[j], False, is_rect[j], 0.0, min_sa, graz)
-                    elif g >= n_rs:
-                        p_l = _disk_pdf_row(pv, d, _row(d_center, j), _row(d_nrm, j), _row(d_u1, j), _row(d_u2, j),
-                                            _row(d_e1, j), _row(d_e2, j), d_s1[j], d_s2[j], d_area[j], close_ratio,
-                                            min_sa, graz)
-                    else:
-                        p_l = _sphere_pdf_row(pv, d, _row(s_center, j), s_radius[j], s_delta[j])
+                    p_l = _finite_pdf(LP, g, pv, d, close_ratio, min_sa, graz)
                     pmf = pick_pmf_row(sp, gl, pv[0], pv[1], pv[2], S[r, PN], S[r, PN + 1], S[r, PN + 2])
                     w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
                 L[pr_path, 0] += b0 * Le[0] * w
@@ -628,27 +915,18 @@ def vertex_kernel(
             if k < 0:
                 # ---- escaped: the infinite lights (a camera ray sees them whatever its far clip) --
                 for q in range(n_fin, nl):
-                    j = q - n_fin
-                    if i_dome[j]:
-                        if i_tex[j] >= 0:
-                            p_l, kt = _dome_texel_row(d, i_tex[j], i_rot[j], im_height, im_width, im_weight,
-                                                      im_total, im_offset)
-                            Le = (i_radiance[j, 0] * im_texels[kt, 0], i_radiance[j, 1] * im_texels[kt, 1],
-                                  i_radiance[j, 2] * im_texels[kt, 2])
-                        else:
-                            p_l = _INV_4PI
-                            Le = _row(i_radiance, j)
-                    else:
-                        p_l = _distant_pdf_row(d, _row(i_axis, j), i_omc[j], i_delta[j])
-                        if p_l <= 0.0:
-                            continue  # outside the cone (a delta light is never seen)
-                        Le = _row(i_radiance, j)
+                    gl = glob[q]
+                    if not (unsampled[r] or cont_prev[gl]):
+                        continue
+                    p_l, Le = _infinite_seen(LP, q, d, IMG)
+                    if Le[0] == 0.0 and Le[1] == 0.0 and Le[2] == 0.0:
+                        continue  # outside a distant light's cone (a delta light is never seen)
                     if unsampled[r]:
                         w = 1.0
                     else:
-                        pmf = pick_pmf_row(sp, inf_light[j], S[r, PP], S[r, PP + 1], S[r, PP + 2], S[r, PN],
-                                           S[r, PN + 1], S[r, PN + 2])
-                        w = _mis_weight(S[r, PB], p_l * pmf, power[inf_light[j]])
+                        pmf = pick_pmf_row(sp, gl, S[r, PP], S[r, PP + 1], S[r, PP + 2], S[r, PN], S[r, PN + 1],
+                                           S[r, PN + 2])
+                        w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
                     L[pr_path, 0] += b0 * Le[0] * w
                     L[pr_path, 1] += b1 * Le[1] * w
                     L[pr_path, 2] += b2 * Le[2] * w
@@ -665,7 +943,8 @@ def vertex_kernel(
             py = W[(W_P + 1) * BLK + i]
             pz = W[(W_P + 2) * BLK + i]
             eps = W[W_EPS * BLK + i]
-            # ---- the light half of continuation MIS: every light (exhaustive), or the picked one --
+            # ---- direct light: every light (exhaustive), or the one the service picks, by continuation
+            # MIS's light half or by the light's own estimator, divided by the pick's pmf --------
             for q in range(1 if picks else nl):
                 if picks:
                     gl, pmf = pick_row(sp, UB[U_LIGHT, i], px, py, pz, W[W_N * BLK + i], W[(W_N + 1) * BLK + i],
@@ -678,9 +957,22 @@ def vertex_kernel(
                 else:
                     g = q
                     pmf = 1.0
-                    gl = _light_of(g, n_rect, n_rs, n_fin, rect_light, sphere_light, disk_light, inf_light)
+                    gl = glob[g]
                     u0 = UB[U_LIGHT + 2 * gl, i]
                     u1 = UB[U_LIGHT + 2 * gl + 1, i]
+                counts[4 + gl] += 1
+                if not cont[gl]:
+                    # Not on continuation MIS at this vertex: the light's own estimator.
+                    V = ((px, py, pz), _w3(W, W_G, i), _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
+                         _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], eps,
+                         int(W[W_M * BLK + i]))
+                    exact = e_exact.shape[0] > 0 and e_exact[r, gl]
+                    E = (e_E[r, gl, 0], e_E[r, gl, 1], e_E[r, gl, 2]) if e_E.shape[0] > 0 else (0.0, 0.0, 0.0)
+                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], exact, E, V, Pm,
+                                               (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
+                                               np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
+                                               scratch)
+                    continue
                 if g < n_batch:
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
                     wi = (R[g, 0, i], R[g, 1, i], R[g, 2, i])
@@ -692,9 +984,8 @@ def vertex_kernel(
                     c1 = C[g, 1 * BLK + i]
                     c2 = C[g, 2 * BLK + i]
                 else:
-                    wi, dist, pdf_l, Le, delta = _sample_light_row(g, (px, py, pz), u0, u1, n_rect, n_rs, n_fin,
-                                                                   rect_t, sph_t, disk_t, inf_t, img_t, close_ratio,
-                                                                   min_sa, graz)
+                    wi, dist, pdf_l, Le, delta = _light_sample(LP, g, (px, py, pz), u0, u1, IMG, close_ratio, min_sa,
+                                                               graz)
                     if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
                         continue
                     # Divided by the pick's pmf: a delta light's weight is 1 (its radiance is
@@ -744,6 +1035,7 @@ def vertex_kernel(
     counts[0] = k_next
     counts[1] = k_sh
     counts[2] = n_vertices
+    counts[3] = k_grp
 
 
 @njit(cache=True, nogil=True)
@@ -766,6 +1058,24 @@ def start_kernel(o, d, tmax, S, o32, d32, t32):
 
 
 @njit(cache=True, nogil=True)
+def resolve_groups_kernel(L, g_int, g_f, sh_x, sh_cov, blocked):
+    """Add the diffuse combinations of the per-light estimators (groups written by _direct_pair:
+    g_int (k, 5) path, first ray, rays, N, mode; g_f (k, 6) F and beta) once their shadow rays
+    are traced: L[path] += beta * kernels.direct.diffuse_combine_row(F, X, v, covered) over the
+    group's rays (sh_x (3), sh_cov, blocked: the occlusion of each ray)."""
+    v = np.empty(blocked.shape[0])
+    for i in range(v.shape[0]):
+        v[i] = 0.0 if blocked[i] else 1.0
+    for k in range(g_int.shape[0]):
+        first = g_int[k, 1]
+        e = diffuse_combine_row(g_f[k, 0], g_f[k, 1], g_f[k, 2], sh_x, v, sh_cov, first, first + g_int[k, 2],
+                                g_int[k, 3], g_int[k, 4])
+        r = g_int[k, 0]
+        for c in range(3):
+            L[r, c] += g_f[k, 3 + c] * e[c]
+
+
+@njit(cache=True, nogil=True)
 def add_unblocked_kernel(L, sh_path, sh_c, blocked):
     """L[sh_path[i]] += sh_c[i] where not blocked[i] (repeated paths accumulate)."""
     for i in range(sh_path.shape[0]):
@@ -777,6 +1087,7 @@ def add_unblocked_kernel(L, sh_path, sh_c, blocked):
 
 
 guard_cache(__name__, module_dispatchers(globals()),
-            ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/bsdfs/microfacet.py",
+            ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/kernels/direct.py",
+             "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py"])

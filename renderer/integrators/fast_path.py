@@ -3,19 +3,27 @@
 Where a scene needs none of the general integrator's machinery (renderer/integrators/path.py),
 each bounce is two embree calls and one compiled kernel (``_vertex_kernels.vertex_kernel``)
 instead of ~150 numpy passes. It estimates exactly what the general path estimates, with the
-same sampling techniques and MIS weights; the tests (tests/integrators/test_fast_path.py)
-z-test the two against each other and render with each on the same stages.
+same sampling techniques and MIS weights; the tests (tests/integrators/test_fast_path.py, and
+test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
   light linking, with unit diffuse/specular multipliers, under any lighting service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
-  (renderer/kernels/light_pick.py: one pick per vertex, divided by its pmf, and the pmf replayed
-  at the previous vertex for the MIS weight of a light the continuation ray reaches, as the
-  general path's _Emission does; the lights a ray crosses come from a walk of the light BVH);
-* every light on the `mis` estimator with one sample (the default `auto` picks it for such
-  lights when its pilot finds MIS best), so every vertex's direct light is continuation MIS;
+  (renderer/kernels/light_pick.py: one pick per vertex, and the pmf replayed at the previous
+  vertex for the MIS weight of a light the continuation ray reaches, as the general path's
+  _Emission does; the lights a ray crosses come from a walk of the light BVH);
+* any per-light estimator (lightSampling, bsdfSampling, mis with either heuristic and N samples,
+  controlVariate with each alpha, ratio, or what `auto` picked), under path.py's rule: N =
+  illum:samples at the first scattering vertex, 1 deeper. The service picks the light(s); a
+  picked light on `mis` with N = 1 at a vertex takes continuation MIS there (the light half in
+  the kernel weighted with pmf p_l, the BSDF half on the extension ray); every other picked
+  (vertex, light) pair gets its whole contribution from its estimator (estimators/compiled.py on
+  the samples _vertex_kernels._direct_pair draws) divided by the pmf, and the extension ray adds
+  nothing for that light. The control variate's and ratio's F (the analytic irradiance,
+  lights/irradiance.py, numpy) is computed per bounce before the kernel for the hits that need it
+  (for every such light: with a picking service, n x lights irradiances per bounce);
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
@@ -34,8 +42,8 @@ else numpy loops.
 
 One difference in the order of work, not in the estimate: at the last scattering vertex
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
-a BSDF sample of its own), while the fast path keeps continuation MIS there too and traces the
-extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
+a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
+there too and traces the extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
 direct light; the variance differs slightly.
 """
 
@@ -43,7 +51,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimators import ALPHAS, TOKENS
 from ..geometry import dot, offset_origin, surface_interaction
+from ..lights.base import ShadingContext
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
@@ -75,8 +85,11 @@ def fast_path_reason(integ) -> str:
         return "dome portals"
     if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
         return "ShapingAPI, ShadowAPI or light linking"
-    if not np.all(integ.cont_ok) or not np.all(integ.samples_one):
-        return "a light not on the mis estimator with one sample"
+    plain = ((lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
+             & getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
+             & getattr(lights, "transparent", np.ones(lights.count, dtype=bool)))
+    if not np.all(plain):
+        return "a light with a diffuse or specular multiplier or a ShadowAPI shadow"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if integ.emitter_samples != 1:
@@ -162,6 +175,12 @@ class FastPath:
         fast_of[order] = np.arange(order.size)
         rl, sl, dl = self.rect, self.sphere, self.disk
         # The vertex kernel's scene arguments, in its order (fixed for the render).
+        # The per-light estimators (see the module docstring): token, alpha, samples per light.
+        self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
+        self.est_alpha = np.ascontiguousarray(integ.est_alpha, dtype=np.int64)
+        self.est_samples = np.ascontiguousarray(integ.est_samples, dtype=np.int64)
+        # Lights whose estimator needs F (the control variate and ratio).
+        self.needs_F = np.isin(self.est_tok, [TOKENS.index("controlVariate"), TOKENS.index("ratio")])
         self.tables = (
             *self.geo,
             rl.center, rl.ex, rl.ey, rl.x_hat, rl.y_hat, rl.edge_len, rl.n, rl.area, rl.L, rl.is_rectangle,
@@ -177,16 +196,14 @@ class FastPath:
         integ = self.integ
         accel = integ.scene.accel
         nl = integ.lights.count
-        # Shadow rays per vertex: every light, or the one a picking service chose; and the
-        # uniforms per row: two per light, or the pick's and one light sample's.
-        per_vertex = 1 if self.picks else nl
+        # The uniforms per row: two per light, or the pick's and one light sample's.
         n_u = vk.U_LIGHT + (3 if self.picks else 2 * nl)
         m = o.shape[0]
         L = np.zeros((m, 3))
         path = np.arange(m, dtype=np.int64)
         depth = np.zeros(m, dtype=np.int64)
         unsampled = np.ones(m, dtype=bool)
-        counts = np.zeros(3, dtype=np.int64)
+        counts = np.zeros(4 + nl, dtype=np.int64)
         # The ray state, and the rays in embree's float32 format (the kernel writes the later
         # bounces' directly).
         S = np.empty((m, vk.NS))
@@ -198,6 +215,14 @@ class FastPath:
         pairs = 0
         # One stream key per bounce, drawn at once (a Generator call costs ~10 us).
         keys = rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64)
+        # Continuation MIS at the first vertex and deeper: MIS lights with N = 1 there (path.py's
+        # rule; cont_ok: on mis, with no multiplier or shadow setting that rules it out).
+        cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
+        # The per-light estimators' uniforms: their own stream (plain scenes keep theirs as it was).
+        keys2 = (rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64) if not np.all(cont_at[0])
+                 else np.zeros(max_depth + 1, dtype=np.int64))
+        cv_tok = self.est_tok == TOKENS.index("controlVariate")
+        one = ALPHAS.index("one")
         for bounce in range(max_depth + 1):
             n = path.size
             if not n:
@@ -214,25 +239,79 @@ class FastPath:
             n_o32 = np.empty((n, 3), dtype=np.float32)
             n_d32 = np.empty((n, 3), dtype=np.float32)
             n_t32 = np.empty(n, dtype=np.float32)
-            sh_o = np.empty((n * per_vertex, 3), dtype=np.float32)
-            sh_d = np.empty((n * per_vertex, 3), dtype=np.float32)
-            sh_t = np.empty(n * per_vertex, dtype=np.float32)
-            sh_path = np.empty(n * per_vertex, dtype=np.int64)
-            sh_c = np.empty((n * per_vertex, 3))
+            est, est_out, cap = self._estimators(bounce, max_depth, cont_at, keys2[bounce], prim, b1, b2, S, surf)
+            sh_o = np.empty((n * cap, 3), dtype=np.float32)
+            sh_d = np.empty((n * cap, 3), dtype=np.float32)
+            sh_t = np.empty(n * cap, dtype=np.float32)
+            sh_path = np.empty(n * cap, dtype=np.int64)
+            sh_c = np.empty((n * cap, 3))
+            counts[:] = 0
             vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, n_u, surf, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
-                             sh_c, counts)
-            k_next, k_sh = int(counts[0]), int(counts[1])
-            pairs += int(counts[2]) * per_vertex
+                             sh_c, counts, est, est_out)
+            k_next, k_sh, k_grp = int(counts[0]), int(counts[1]), int(counts[3])
+            # The (vertex, light) pairs each light got at this bounce (all, or the picked ones).
+            per_light = counts[4:]
+            cont = est[3]
+            pairs += int(per_light[cont].sum())
+            # The general path's rule counters (path.py _direct).
+            if bounce == 0:
+                integ.rule_counts["own_samples"] += int(per_light[cv_tok].sum())
+            integ.rule_counts["alpha_one_fallback"] += int(per_light[cv_tok & (self.est_alpha != one)
+                                                                     & (est[2] < 2)].sum())
+            blocked = np.zeros(0, dtype=bool)
             if k_sh:
                 blocked = self._blocked(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], rng)
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
+            if k_grp:
+                sh_x, sh_cov, g_int, g_f = est_out
+                vk.resolve_groups_kernel(L, g_int[:k_grp], g_f[:k_grp], sh_x[:k_sh], sh_cov[:k_sh], blocked)
             integ.rays.add(shadow=k_sh, extension=k_next)
             path, depth, S = n_path[:k_next], n_depth[:k_next], n_S[:k_next]
             o32, d32, t32 = n_o32[:k_next], n_d32[:k_next], n_t32[:k_next]
             unsampled = np.zeros(k_next, dtype=bool)
         integ.rule_counts["continuation_mis"] += pairs
         return L
+
+    def _estimators(self, bounce, max_depth, cont_at, key2, prim, b1, b2, S, surf):
+        """The vertex kernel's per-light estimator records for a bounce whose vertices have depth
+        ``bounce`` (every row of a fast-path bounce has): est (tokens, alphas, N per light, on
+        continuation MIS here, was at the vertex the rays left, E (n, lights, 3), exact (n,
+        lights), the uniforms' key), est_out (each shadow ray's X (cap n, 3) and covered flag,
+        the groups' (g, 5) int64 and (g, 6) records), and cap: shadow rays per row at most.
+        surf: the kernel's surface record (its bent shading normals, about which F is taken)."""
+        integ = self.integ
+        nl = integ.lights.count
+        n = prim.shape[0]
+        N = self.est_samples if bounce == 0 else np.ones(nl, dtype=np.int64)
+        cont = cont_at[min(bounce, 1)]
+        cont_prev = cont_at[min(bounce - 1, 1)] if bounce > 0 else np.ones(nl, dtype=bool)
+        own = ~cont
+        # A light sample and a BSDF sample per sample on the estimator's lights, one light-half
+        # ray on the others: for every light, or for the one a picking service chose.
+        per_light = np.where(own, 2 * N, 1)
+        cap = max(1, int(per_light.max() if self.picks else per_light.sum()))
+        want = own & self.needs_F if bounce < max_depth else np.zeros(nl, dtype=bool)
+        E = np.zeros((n if want.any() else 0, nl, 3))
+        exact = np.zeros((E.shape[0], nl), dtype=bool)
+        if want.any():
+            hit = np.nonzero(prim >= 0)[0]
+            if hit.size:
+                g = integ.scene.geometry
+                p, ng, ns, _ = surface_interaction(g.vertices, g.face_normal, g.normals, g.st,
+                                                   prim[hit].astype(np.int64), b1[hit], b2[hit],
+                                                   np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
+                if surf[3].shape[0]:
+                    ns = surf[3]  # normal-mapped shading normals, as the general path's ctx.ns
+                ctx = ShadingContext(p, ng, ns)
+                for li in np.nonzero(want)[0]:
+                    E[hit, li], exact[hit, li] = integ.lights.irradiance(np.full(hit.size, li, dtype=np.int64), ctx)
+        n_groups = n * (min(1, int(np.count_nonzero(want))) if self.picks else int(np.count_nonzero(want)))
+        est = (self.est_tok, self.est_alpha, np.ascontiguousarray(N, dtype=np.int64), np.ascontiguousarray(cont),
+               np.ascontiguousarray(cont_prev), E, exact, np.uint64(key2))
+        est_out = (np.empty((n * cap, 3)), np.empty(n * cap), np.empty((n_groups, 5), dtype=np.int64),
+                   np.empty((n_groups, 6)))
+        return est, est_out, cap
 
     def _surfaces(self, prim, b1, b2, S):
         """The kernel's per-hit surface record (vertex_kernel's surf) for textured, emissive,

@@ -1,0 +1,131 @@
+"""The compiled path's per-light estimators (renderer/estimators/compiled.py, drawn by
+_vertex_kernels._direct_pair) estimate what the general path's numpy estimators estimate.
+
+Each talk stage (stages/talk) is rendered with one estimator forced on every light, by the fast
+path and by the general path (``fast_path=False``) with independent seeds, and the image means
+are z-tested over the whole image and in 16 blocks, each film's per-pixel variance of the mean
+giving the error (test_fast_path._block_z). The biased estimators (averageVisibility, ratio) have
+the same bias in both paths (same N, same formula: kernels/direct.diffuse_combine_row), so their
+expectations agree too. Depth 3 with roulette from depth 1 covers the first-vertex rule (N =
+illum:samples) and the deeper one (N = 1, the control variate on alpha = 1). The rect-lit room of
+test_fast_path with a sphere, a point (delta), an elliptical disk (no exact F: MIS fallback), a
+sky, a sun and a delta distant light covers the other light kinds. A 5 % error in the
+control variate's diffuse combination must fail the same comparison.
+"""
+
+import numpy as np
+import pytest
+from pxr import Sdf, Usd
+
+import renderer.integrators._vertex_kernels as vk
+from renderer.render import RenderOptions, render
+from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _room
+
+CASES = [
+    ("penumbra", "controlVariate", "averageVisibilityUnbiased", 4),
+    ("penumbra", "ratio", "one", 4),
+    ("penumbra", "mis", "one", 4),
+    ("disks", "controlVariate", "averageVisibility", 4),
+    ("dome", "controlVariate", "averageVisibilityUnbiased", 4),
+    ("dome", "ratio", "one", 2),
+    ("furnace", "controlVariate", "averageVisibility", 4),
+    ("sphere_occluder", "lightSampling", "one", 2),
+    ("sphere_occluder", "bsdfSampling", "one", 1),
+    ("large_rect", "controlVariate", "one", 3),
+]
+
+
+def _pair(stage, estimator, alpha, N, seeds=(1, 8), spp=96, res=(40, 30)):
+    common = dict(max_depth=3, rr_depth=1, threads=1, estimator={"": estimator}, cv_alpha={"": alpha},
+                  light_samples={"": N}, spp=spp, resolution=res, pixel_filter_mode="importance")
+    fast = render(str(stage), RenderOptions(seed=seeds[0], **common))
+    slow = render(str(stage), RenderOptions(seed=seeds[1], fast_path=False, **common))
+    assert fast.stats["fast_path"] == "on"
+    assert slow.stats["fast_path"].startswith("disabled")
+    return fast, slow
+
+
+def _check(fast, slow):
+    z, zs = _block_z(fast, slow)
+    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
+    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
+    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
+    # The same rules apply (own samples at the first vertex, alpha = 1 deeper, continuation MIS).
+    for k in ("own_samples", "alpha_one_fallback", "continuation_mis"):
+        assert (fast.stats["direct_rule"][k] > 0) == (slow.stats["direct_rule"][k] > 0), k
+
+
+@pytest.mark.parametrize("name,estimator,alpha,N", CASES)
+def test_talk_stage_estimator_matches_the_general_path(name, estimator, alpha, N):
+    fast, slow = _pair(f"stages/talk/{name}.usda", estimator, alpha, N)
+    _check(fast, slow)
+    # Continuation MIS only for mis lights at deeper vertices (N = 1 there).
+    assert (fast.stats["direct_rule"]["continuation_mis"] > 0) == (estimator == "mis")
+
+
+def test_balance_heuristic_mis_with_samples_matches_the_general_path(tmp_path):
+    stage = Usd.Stage.Open("stages/talk/sphere_occluder.usda")
+    stage.GetPrimAtPath("/World/Lights/Key").CreateAttribute(
+        "illum:mis:heuristic", Sdf.ValueTypeNames.Token, variability=Sdf.VariabilityUniform).Set("balance")
+    path = tmp_path / "balance.usda"
+    stage.Export(str(path))
+    _check(*_pair(path, "mis", "one", 3))
+
+
+@pytest.mark.parametrize("kw,estimator,alpha,N", [
+    ({"more_kinds": True}, "controlVariate", "averageVisibilityUnbiased", 3),
+    ({"more_kinds": True}, "mis", "one", 2),
+    ({"infinite": True, "sky_texture": True}, "controlVariate", "averageVisibilityUnbiased", 3),
+    ({"infinite": True, "sky_texture": True}, "lightSampling", "one", 2),
+    ({"infinite": True}, "ratio", "one", 2),
+])
+def test_every_light_kind_matches_the_general_path(tmp_path, kw, estimator, alpha, N):
+    stage = tmp_path / "room.usda"
+    _room(stage, **kw)
+    _check(*_pair(stage, estimator, alpha, N, spp=64, res=(48, 36)))
+
+
+def test_auto_matches_the_general_path():
+    # auto's pilot runs on the general path before either renders (same seed: the same picks).
+    fast, slow = _pair("stages/talk/penumbra.usda", "auto", "one", 4, seeds=(3, 3))
+    _check(fast, slow)
+
+
+def test_the_comparison_detects_a_five_percent_error(monkeypatch):
+    orig = vk.resolve_groups_kernel
+
+    def scaled(L, g_int, g_f, *a):
+        g_f = g_f.copy()
+        g_f[:, 3:6] *= 1.05
+        orig(L, g_int, g_f, *a)
+
+    monkeypatch.setattr(vk, "resolve_groups_kernel", scaled)
+    fast, slow = _pair("stages/talk/penumbra.usda", "controlVariate", "averageVisibilityUnbiased", 4)
+    z, _ = _block_z(fast, slow)
+    assert abs(z) > Z_MAX, f"a 5% error went unseen (z = {z:.2f})"
+
+
+@pytest.mark.parametrize("sampler,estimator,alpha,N", [
+    ("bvh", {"": "controlVariate"}, "averageVisibilityUnbiased", {"": 3}),
+    # Mixed: the bulb on continuation MIS at every vertex, the disk from the second vertex on
+    # (N = 2 at the first), the other lights on the ratio estimator.
+    ("power", {"": "ratio", "/World/Bulb": "mis", "/World/Disk": "mis"}, "one", {"": 2, "/World/Bulb": 1}),
+])
+def test_picking_service_with_per_light_estimators(tmp_path, sampler, estimator, alpha, N):
+    """A lighting service that picks one light per vertex together with estimators other than
+    continuation MIS (path.py _direct: the picked light's estimator, divided by the pmf; MIS
+    lights with N = 1 by continuation MIS with the pmf replayed on the extension ray)."""
+    stage = tmp_path / "room.usda"
+    _room(stage, more_kinds=True, infinite=True)
+    common = dict(max_depth=3, rr_depth=1, threads=1, estimator=estimator, cv_alpha={"": alpha}, light_samples=N,
+                  spp=96, resolution=(48, 36), pixel_filter_mode="importance", light_sampler=sampler)
+    fast = render(str(stage), RenderOptions(seed=2, **common))
+    slow = render(str(stage), RenderOptions(seed=9, fast_path=False, **common))
+    assert fast.stats["fast_path"] == "on" and fast.stats["light_sampler"] == sampler
+    assert slow.stats["fast_path"].startswith("disabled") and slow.stats["light_sampler"] == sampler
+    _check(fast, slow)
+    assert (fast.stats["direct_rule"]["continuation_mis"] > 0) == ("/World/Bulb" in estimator)
+    # One light per vertex: at most 2 N shadow rays there, where the exhaustive service traces
+    # them for all nine lights.
+    n_max = 2 * max(N.values())
+    assert fast.stats["rays"]["shadow"] <= n_max * (fast.stats["rays"]["camera"] + fast.stats["rays"]["extension"])
