@@ -27,8 +27,9 @@ A scene qualifies when it has
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); no mesh lights, one camera ray per pixel and pass (emitter samples 1), and a
-  maximum depth of at least 2.
+  each hit); no mesh lights, and a maximum depth of at least 2. With K emitter samples the K - 1
+  extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
+  weighted 1/K by PathIntegrator._trace_camera.
 
 Cut-outs (opacity as presence, renderer/materials.py) as in the general path: a camera or
 extension ray that finds a surface absent (one draw against its presence) goes on from just
@@ -92,8 +93,6 @@ def fast_path_reason(integ) -> str:
         return "a light with a diffuse or specular multiplier or a ShadowAPI shadow"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
-    if integ.emitter_samples != 1:
-        return "emitter samples > 1"
     if opt.max_depth <= 1:
         # Direct lighting only: the general path traces no extension rays at all there, where
         # this one would trace one per pixel for the BSDF half (module docstring).

@@ -359,7 +359,7 @@ class PathIntegrator:
         self.rays.add(camera=m)
         # Near clip: start the ray at the near plane.
         o, tmax = rays.at_near_plane()
-        L = self.trace(o, rays.d, tmax, rng, emit0=1.0 / K)
+        L = self._trace_camera(o, rays.d, tmax, rng, K)
         parts = [(u_filter, L)] if split else None
         for k in range(1, K):
             u_k = pixel_sequence(self.opt.seed, pixel, pass_index * K + k)
@@ -373,6 +373,19 @@ class PathIntegrator:
                 L += L_k
         return parts if split else L
 
+    def _trace_camera(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
+                      K: int) -> np.ndarray:
+        """trace for the path-carrying camera ray of trace_paths: the emission it sees directly
+        weighted 1 / K. The compiled path weighs a camera ray's emission fully, so there
+        (1 - 1/K) of it is taken off again, traced a second time at depth 0. That is the same
+        emission (depth 0 draws no random number), except behind a stochastic cut-out, where the
+        two presence draws are independent and each term stays unbiased."""
+        if K == 1 or self.fast is None:
+            return self.trace(o, d, tmax, rng, emit0=1.0 / K)
+        L = self.fast.trace(o, d, tmax, rng, self.opt.max_depth)
+        L -= (1.0 - 1.0 / K) * self.fast.trace(o, d, tmax, rng, 0)
+        return L
+
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               emit0: float = 1.0, max_depth: int | None = None) -> np.ndarray:
         """Radiance (m, 3) arriving at the origins o (m, 3) along -d (unsampled primary rays).
@@ -383,8 +396,10 @@ class PathIntegrator:
         scene = self.scene
         opt = self.opt
         max_depth = opt.max_depth if max_depth is None else max_depth
-        if self.fast is not None and emit0 == 1.0:
-            return self.fast.trace(o, d, tmax, rng, max_depth)
+        if self.fast is not None and (emit0 == 1.0 or max_depth == 0):
+            # At depth 0 every contribution is emission seen directly: scaling by emit0 is exact.
+            L = self.fast.trace(o, d, tmax, rng, max_depth)
+            return L if emit0 == 1.0 else L * emit0
         m = o.shape[0]
 
         # ---- loop state: one row per live ray ---------------------------------------------
