@@ -57,6 +57,9 @@ class RenderResult:
     camera: object
     warnings: list[str]
     aovs: object = None   # renderer/aov.py AovResult: alpha, passes, denoised beauty
+    # The traced scene's translation (renderer/scene.py recentre): camera is in the re-centred
+    # frame, p_world = p + origin.
+    origin: object = None
 
 
 ProgressFn = Callable[[int, Optional[int], float], None]   # (spp done, spp target or None, fraction 0..1)
@@ -308,7 +311,7 @@ def render(
         metadata["illum:sppRange"] = f"{int(film.count.min())} {int(film.count.max())}"
 
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings),
-                        aovs=aovs)
+                        aovs=aovs, origin=scene.origin)
 
 
 def _aov_setup(opt: RenderOptions, desc, scene, camera, film, integrator):

@@ -70,7 +70,8 @@ def _floor_mask(res) -> np.ndarray:
     cam = res.camera
     rng = np.random.default_rng(0)
     d = rng.normal(size=(20000, 3))
-    pts = OCC_CENTER + OCC_RADIUS * d / np.linalg.norm(d, axis=1, keepdims=True)
+    # (the camera is the traced one, re-centred by res.origin)
+    pts = OCC_CENTER + OCC_RADIUS * d / np.linalg.norm(d, axis=1, keepdims=True) - res.origin
     pc = (cam.world_to_camera() @ np.c_[pts, np.ones(len(pts))].T).T
     wx0, wx1, wy0, wy1 = cam.window
     sx, sy = pc[:, 0] / -pc[:, 2], pc[:, 1] / -pc[:, 2]
