@@ -217,6 +217,12 @@ def test_malformed_stages_fail_cleanly(secure, authed):
         up = authed.post("/uploads", params={"filename": name}, content=data)
         assert up.status_code == 201, up.text
         ids[name] = authed.post("/jobs", json={"upload": up.json()["upload"], "settings": dict(TINY)}).json()["id"]
+    # A valid but empty stage is not malformed: it renders black through the default framing
+    # camera, with the no-camera and no-light warnings (#19), like usdrecord.
+    empty = wait_job(authed, ids.pop("empty.usda"))
+    assert empty["state"] == "succeeded", empty
+    warnings = " ".join(empty["result"]["warnings"])
+    assert "camera" in warnings and "light" in warnings, warnings
     for name, jid in ids.items():
         done = wait_job(authed, jid)
         assert done["state"] == "failed", (name, done)
