@@ -41,7 +41,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 stress: $(STAMP)
-	ILLUM_HYPOTHESIS_PROFILE=long $(BIN)/python -m pytest -q -m slow
+	ILLUM_HYPOTHESIS_PROFILE=long ILLUM_SLOW=1 $(BIN)/python -m pytest -q -m 'slow or heavy'
 
 clean:
 	rm -rf $(OUT) .pytest_cache .hypothesis

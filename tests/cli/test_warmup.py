@@ -91,7 +91,37 @@ def _illum(*args, env):
                           text=True, cwd=ROOT, env=env, timeout=3600)
 
 
-@pytest.mark.slow
+# Renders that follow `illum warmup`: the routes of the warm-up (fast and general path,
+# estimators, light kinds, the irradiance table's kernels in a fresh ILLUM_CACHE_DIR).
+WARM_CASES = [
+    ("cornell_box.usda", "--res", 64, 64, "--spp", 1),
+    ("talk/dome.usda", "--res", 32, 32, "--spp", 1, "--estimator", "controlVariate"),
+    ("shaping/spotlights.usda", "--res", 32, 32, "--spp", 1, "--no-fast-path"),
+    ("lux_extra/mesh_light_room.usda", "--res", 32, 32, "--spp", 1),
+]
+
+
+def _warmup_then_nothing_compiles(tmp_path, env):
+    w = _illum("warmup", env=env)
+    assert w.returncode == 0, w.stderr
+    assert "routes rendered" in w.stderr and "illum preconvolve" in w.stderr
+    for i, (stage, *args) in enumerate(WARM_CASES):
+        stats = tmp_path / f"warm{i}.json"
+        r = _illum("render", os.path.join(STAGES, stage), "-o", tmp_path / f"warm{i}.exr", *args,
+                   "--stats", stats, env=env)
+        assert r.returncode == 0, r.stderr
+        assert "compiling" not in r.stderr, (stage, r.stderr)
+        assert json.loads(stats.read_text())["kernels_compiled"] == 0, stage
+
+
+def test_warmup_leaves_nothing_to_compile(tmp_path):
+    """The reduced form of the cold test below, on the suite's own kernel cache (warm after the
+    install's `illum warmup`, or made warm here by the warm-up under test)."""
+    env = dict(os.environ, ILLUM_CACHE_DIR=str(tmp_path / "irradiance"))
+    _warmup_then_nothing_compiles(tmp_path, env)
+
+
+@pytest.mark.heavy
 def test_cold_render_says_so_and_warmup_leaves_nothing_to_compile(tmp_path):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"), ILLUM_CACHE_DIR=str(tmp_path / "irradiance"))
     cornell = os.path.join(STAGES, "cornell_box.usda")
@@ -108,23 +138,5 @@ def test_cold_render_says_so_and_warmup_leaves_nothing_to_compile(tmp_path):
     assert s["seconds"]["compile"] > 1.0  # the compile alone outlasts the budget ...
     assert s["spp"] > 1  # ... and still passes were rendered after it
 
-    w = _illum("warmup", env=env)
-    assert w.returncode == 0, w.stderr
-    assert "routes rendered" in w.stderr and "illum preconvolve" in w.stderr
-
-    # Warm: the routes of the warm-up (fast and general path, estimators, light kinds, the
-    # irradiance table's kernels in a fresh ILLUM_CACHE_DIR) compile nothing and print nothing
-    # about compiling.
-    cases = [
-        ("cornell_box.usda", "--res", 64, 64, "--spp", 1),
-        ("talk/dome.usda", "--res", 32, 32, "--spp", 1, "--estimator", "controlVariate"),
-        ("shaping/spotlights.usda", "--res", 32, 32, "--spp", 1, "--no-fast-path"),
-        ("lux_extra/mesh_light_room.usda", "--res", 32, 32, "--spp", 1),
-    ]
-    for i, (stage, *args) in enumerate(cases):
-        stats = tmp_path / f"warm{i}.json"
-        r = _illum("render", os.path.join(STAGES, stage), "-o", tmp_path / f"warm{i}.exr", *args,
-                   "--stats", stats, env=env)
-        assert r.returncode == 0, r.stderr
-        assert "compiling" not in r.stderr, (stage, r.stderr)
-        assert json.loads(stats.read_text())["kernels_compiled"] == 0, stage
+    # Warm: the routes of the warm-up compile nothing and print nothing about compiling.
+    _warmup_then_nothing_compiles(tmp_path, env)
