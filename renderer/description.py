@@ -43,6 +43,9 @@ class TextureDesc:
     st_primvar: name of the primvar read by the UsdPrimvarReader_float2 ('st' by default).
     st_transform: UsdTransform2d nodes between the reader and the texture, composed:
         (m00, m01, m10, m11, t0, t1) with st' = M st + t, or () for none.
+    udim_tiles: for a UDIM path (``file`` then holds the pattern with ``<UDIM>``), the tiles
+        found: ((tile number, file), ...), tile 1001 + u + 10 v covering st' in [u, u + 1) x
+        [v, v + 1); () for a plain image. udim_data: each tile's bytes (or None), as ``data``.
     """
 
     file: str
@@ -56,6 +59,8 @@ class TextureDesc:
     st_primvar: str = "st"
     st_transform: tuple = ()
     data: Optional[bytes] = field(default=None, compare=False, repr=False)
+    udim_tiles: tuple = ()
+    udim_data: tuple = field(default=(), compare=False, repr=False)
 
 
 @dataclass(frozen=True)

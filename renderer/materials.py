@@ -78,6 +78,12 @@ _TEXTURABLE = (
 _FLAT = (0.0, 0.0, 1.0)  # the tangent-space normal that leaves the shading normal as it is
 
 
+def texture_inputs(mat: MaterialDesc) -> list[tuple[str, TextureDesc]]:
+    """(UsdPreviewSurface input name, TextureDesc) of every textured input of ``mat``."""
+    return [(usd_name, getattr(mat, attr).texture) for attr, _f, _k, usd_name in _TEXTURABLE
+            if getattr(mat, attr).texture is not None]
+
+
 def normal_mapped(desc: MaterialDesc) -> bool:
     """Whether a material bends shading normals: a textured ``normal`` or a constant other than
     (0, 0, 1)."""
@@ -198,6 +204,7 @@ def _texture_key(tex: TextureDesc) -> tuple:
     """A hashable identity for a TextureDesc (its sequences may arrive as lists)."""
     return (
         tex.file,
+        tex.udim_tiles,
         tex.source_color_space,
         tex.wrap_s,
         tex.wrap_t,
@@ -487,9 +494,13 @@ class MaterialTable:
     @property
     def presence_compiled(self) -> bool:
         """Whether presence_table describes presence exactly: no primvar reader feeds an
-        opacity, and every opacity texture reads the hits' first st set (columns 0-1)."""
+        opacity, and every opacity texture is one image (not UDIM tiles) read at the hits'
+        first st set (columns 0-1)."""
         if any(fname == "opacity" for fname, _ in self._primvar):
             return False
+        if any(any(b.field == "opacity" for b in binds) and self.textures[s].udim_tiles
+               for s, (_, binds) in enumerate(self._by_texture)):
+            return False  # presence_hit reads one image per texture, not UDIM tiles
         return not any(any(b.field == "opacity" for b in binds) and self.textures[s].st_primvar in self.primvar_layout
                        for s, (_, binds) in enumerate(self._by_texture))
 

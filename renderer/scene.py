@@ -129,6 +129,40 @@ def normal_map_warnings(desc: SceneDescription) -> list[str]:
     return out
 
 
+def wrap_warnings(desc: SceneDescription, textures) -> list[str]:
+    """One warning per texture file whose wrap mode 'useMetadata' falls back to black (the file
+    declares no wrap modes: the UsdPreviewSurface spec's rule) on an axis along which some
+    mesh's st, after the texture's st transform, leaves [0, 1]. Those lookups are black, where
+    usdview repeats: said once, before rendering, instead of a silently black surface."""
+    from .materials import texture_inputs
+
+    out: dict[str, str] = {}
+    for m in desc.meshes:
+        if not m.triangles.size:
+            continue
+        for name, tex in texture_inputs(desc.materials[m.material]):
+            if tex.udim_tiles or tex.file in out or "useMetadata" not in (tex.wrap_s, tex.wrap_t):
+                continue
+            st = m.st if tex.st_primvar == "st" else m.primvars.get(tex.st_primvar, m.st)
+            if st is None:
+                continue
+            st = np.asarray(st, dtype=np.float64).reshape(-1, st.shape[-1])[:, :2]
+            if tex.st_transform:
+                m00, m01, m10, m11, t0, t1 = tex.st_transform
+                st = np.stack([m00 * st[:, 0] + m01 * st[:, 1] + t0, m10 * st[:, 0] + m11 * st[:, 1] + t1], axis=1)
+            resolved = textures.wrap_modes(tex)
+            for axis, (authored, mode, wrap) in enumerate(zip((tex.wrap_s, tex.wrap_t), resolved, ("S", "T"))):
+                c = st[:, axis][np.isfinite(st[:, axis])]
+                if authored == "useMetadata" and mode == "black" and c.size and (c.min() < 0.0 or c.max() > 1.0):
+                    out[tex.file] = (
+                        f"{m.path}: material {desc.materials[m.material].path} {name}: texture '{tex.file}' has "
+                        f"inputs:wrap{wrap} = useMetadata and the file declares no wrap mode, so it is black "
+                        f"outside [0, 1] (the UsdPreviewSurface spec; usdview repeats there); this mesh's "
+                        f"{'st'[axis]} spans [{c.min():.3g}, {c.max():.3g}]. Author wrap{wrap} = repeat to tile it")
+                    break
+    return list(out.values())
+
+
 @dataclass
 class Scene:
     """Everything the integrators need, built once per render.
@@ -228,7 +262,7 @@ def build_scene(desc: SceneDescription, *, threads: int | None = None, light_sam
     lights = LightSet.build(desc.lights, center, radius)
     tri_light, tri_absorb = mesh_light_tables(lights, geo)
     warnings = list(desc.warnings) + list(getattr(lights, "warnings", [])) + list(getattr(textures, "warnings", []))
-    warnings += normal_map_warnings(desc) + far_warnings
+    warnings += normal_map_warnings(desc) + wrap_warnings(desc, textures) + far_warnings
     skipped = []
     for path in getattr(lights, "dropped", []):
         skipped.append(f"light {path}: emits nothing or is degenerate; dropped before the lighting services")

@@ -36,6 +36,10 @@ Conventions
   ``strict=True`` (``illum render --strict``: every missing or unreadable asset is an error).
   The stage reader has already applied that policy to files it could not find or whose header
   it could not read (renderer/usd), naming the layer, prim and attribute.
+* **UDIM**: a texture with ``udim_tiles`` looks up st' (after its st transform) in tile
+  1001 + floor(s') + 10 floor(t') at (s' - floor(s'), t' - floor(t')), each tile clamped at its
+  own edges (no filtering across tiles); where st' falls on no tile (s' outside [0, 10),
+  t' < 0, or a tile that was not found) the lookup gives ``fallback``, as where a file is missing.
 * **Packages**: a texture inside a ``.usdz`` package carries its bytes (``TextureDesc.data``,
   read through USD's asset resolver); it is decoded from them (renderer/assets.py).
 
@@ -46,7 +50,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable, Optional
 
 import numpy as np
@@ -332,12 +336,24 @@ class TextureCache:
             return img.is_8bit and img.channels in (3, 4)
         raise StageError(f"unknown sourceColorSpace {cs!r}", file=tex.file)
 
+    @staticmethod
+    def udim_tile(tex: TextureDesc, i: int) -> TextureDesc:
+        """Tile i of a UDIM texture as a plain texture: its own file, clamped at its edges,
+        looked up at tile-local st (the st transform is applied before the tile is chosen)."""
+        return replace(tex, file=tex.udim_tiles[i][1], data=tex.udim_data[i] if tex.udim_data else None,
+                       wrap_s="clamp", wrap_t="clamp", st_transform=(), udim_tiles=(), udim_data=())
+
     def add(self, tex: TextureDesc) -> None:
-        """Load (once) and decode the image of ``tex``; validate its wrap modes and output."""
+        """Load (once) and decode the image of ``tex`` (each tile of a UDIM texture); validate
+        its wrap modes and output."""
         for mode in (tex.wrap_s, tex.wrap_t):
             if mode not in WRAP_MODES and mode != "useMetadata":
                 raise StageError(f"unknown texture wrap mode {mode!r}", file=tex.file)
         output_channels(tex.output)
+        if tex.udim_tiles:
+            for i in range(len(tex.udim_tiles)):
+                self.add(self.udim_tile(tex, i))
+            return
         img = self._load_file(tex.file, tex.data)
         if img is None:
             return
@@ -390,11 +406,30 @@ class TextureCache:
         st = np.asarray(st, dtype=np.float64).reshape(-1, 2)
         n = st.shape[0]
         fallback = np.asarray(tex.fallback, dtype=np.float64)
+        if tex.udim_tiles:
+            return self._lookup_udim(tex, st, fallback)
         px = self.image(tex)
         if px is None or n == 0:
             return np.broadcast_to(fallback, (n, 4)).copy()
         xf = np.asarray(tex.st_transform if tex.st_transform else (), dtype=np.float64)
         return _lookup(px, st, *self.wrap_modes(tex), xf, tex.scale, tex.bias, fallback)
+
+    def _lookup_udim(self, tex: TextureDesc, st: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+        """lookup for a UDIM texture (module docstring): each tile's rows at tile-local st."""
+        out = np.broadcast_to(fallback, (st.shape[0], 4)).copy()
+        if tex.st_transform:
+            m00, m01, m10, m11, t0, t1 = tex.st_transform
+            st = np.stack([m00 * st[:, 0] + m01 * st[:, 1] + t0, m10 * st[:, 0] + m11 * st[:, 1] + t1], axis=1)
+        with np.errstate(invalid="ignore"):
+            cell = np.floor(np.where(np.isfinite(st), st, -1.0))
+        u, v = cell[:, 0], cell[:, 1]
+        tile = np.where((u >= 0) & (u < 10) & (v >= 0) & (v < 1e6), 1001 + u + 10 * v, -1).astype(np.int64)
+        local = st - cell
+        for i, (number, _file) in enumerate(tex.udim_tiles):
+            rows = np.nonzero(tile == number)[0]
+            if rows.size:
+                out[rows] = self.lookup(self.udim_tile(tex, i), local[rows])
+        return out
 
     def lookup_output(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
         """The connected output only: (n, 3) for 'rgb', (n, 1) for 'r' / 'g' / 'b' / 'a'."""

@@ -21,7 +21,8 @@ What is read and what is not (each unsupported feature gives one warning per sta
 * Materials: UsdPreviewSurface (universal render context) with UsdUVTexture, UsdTransform2d
   and UsdPrimvarReader_* (numeric readers on any UsdPreviewSurface input are read per hit;
   ``materials``); materialBind GeomSubsets split a mesh by material; displacement, clearcoat
-  and occlusion inputs are ignored; UDIM paths use the fallback.
+  and occlusion inputs are ignored; a ``<UDIM>`` file path reads its tiles 1001-1100
+  (``MaterialReader._udim_tiles``).
 * displayColor fallback: ``primvars:displayColor`` per hit on meshes (constant, uniform, vertex,
   faceVarying; a constant one may be inherited from an ancestor, UsdGeom primvar inheritance).
 * Assets (textures, light textures, IES profiles) resolve through Ar, so files inside ``.usdz``

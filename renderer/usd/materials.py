@@ -27,6 +27,11 @@ from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc,
 
 from .common import ReadContext
 
+# UDIM tiles looked for: 1001 + u + 10 v for u, v in 0..9 (the 10 x 10 tiles Mari, Substance
+# and Houdini lay out by default).
+UDIM_FIRST = 1001
+UDIM_TILES = 100
+
 __all__ = ["MaterialTable"]
 
 _SURFACE_ID = "UsdPreviewSurface"
@@ -370,11 +375,35 @@ class MaterialTable:
         if not authored:
             ctx.warn("texture-no-file", f"{prim.GetPath()}: UsdUVTexture has no inputs:file; using its fallback")
             return None
-        if "<UDIM>" in authored:
-            ctx.warn("texture-udim", f"{prim.GetPath()}: UDIM textures are not supported; using the fallback")
-            return None
         # The attribute that holds the path (a Material interface input, when connected).
         return self._texture_desc(tex, output, file_attr.GetPrim(), file_attr.GetName(), raw)
+
+    def _udim_tiles(self, where: Usd.Prim, where_name: str, authored: str,
+                    consequence: str) -> tuple[str, tuple, tuple] | None:
+        """The tiles of a UDIM path (``<UDIM>`` replaced by 1001 + u + 10 v, u in 0..9, v in
+        0..9) authored on ``where``.``where_name``: (the anchored pattern, ((tile, file), ...),
+        (bytes or None, ...)), or None when no tile resolves (the missing-asset policy applied).
+        Each tile is resolved through Ar like any asset, so tiles inside a .usdz work too."""
+        ctx = self.ctx
+        attr = where.GetAttribute(where_name)
+        stack = attr.GetPropertyStack(ctx.time) if attr else []
+        anchor = (lambda p: stack[0].layer.ComputeAbsolutePath(p)) if stack else (lambda p: p)
+        resolver = Ar.GetResolver()
+        tiles, data = [], []
+        for tile in range(UDIM_FIRST, UDIM_FIRST + UDIM_TILES):
+            path = authored.replace("<UDIM>", str(tile))
+            resolved = str(resolver.Resolve(anchor(path)))
+            if not resolved:
+                continue
+            asset = ctx.read_image_asset(where, where_name, Sdf.AssetPath(path, resolved), consequence)
+            if asset is not None:
+                tiles.append((tile, asset[0]))
+                data.append(asset[1])
+        if not tiles:
+            ctx.asset_unusable(where, where_name, authored,
+                               f"no UDIM tile found ({UDIM_FIRST}-{UDIM_FIRST + UDIM_TILES - 1})", consequence)
+            return None
+        return anchor(authored), tuple(tiles), tuple(data)
 
     def _texture_from_gprim(self, tex: UsdShade.Shader, file_attr, output: str) -> TextureDesc | None:
         """UsdUVTexture.file fed by a UsdPrimvarReader_string: the gprim's string primvar, a path
@@ -403,10 +432,18 @@ class MaterialTable:
         ctx = self.ctx
         prim = tex.GetPrim()
         fallback_note = f"{prim.GetPath()} uses its inputs:fallback"
-        asset = ctx.read_image_asset(where, where_name, raw, fallback_note)
-        if asset is None:
-            return None
-        path, data = asset
+        authored = getattr(raw, "path", raw) or ""
+        tiles, tile_data = (), ()
+        if "<UDIM>" in authored:
+            udim = self._udim_tiles(where, where_name, authored, fallback_note)
+            if udim is None:
+                return None
+            (path, tiles, tile_data), data = udim, None
+        else:
+            asset = ctx.read_image_asset(where, where_name, raw, fallback_note)
+            if asset is None:
+                return None
+            path, data = asset
 
         def wrap(name: str) -> str:
             mode = str(self._texture_value(tex, name))
@@ -436,6 +473,8 @@ class MaterialTable:
             st_primvar=st_name,
             st_transform=st_transform,
             data=data,
+            udim_tiles=tiles,
+            udim_data=tile_data,
         )
 
     def _st_primvar(self, tex: UsdShade.Shader) -> tuple[str, tuple]:
