@@ -1,0 +1,164 @@
+"""Adaptive sampling: pixels stop receiving samples once their noise is below a threshold.
+
+The rule (``--noise-threshold T``, or IllumRenderSettingsAPI ``illum:adaptive:noiseThreshold``):
+
+* Every pixel traces two independent streams of camera samples. Pass t of the render (counting
+  from 0) is a *decision* pass when ``t % DECISION_EVERY == DECISION_EVERY - 1`` and an *image*
+  pass otherwise: a pixel's samples are 3 image samples to 1 decision sample. The two streams
+  have different seeds (their own chunk streams and their own scrambles of each pixel's Sobol'
+  sequence, ``decision_seed``), so the decision samples are independent of the image samples.
+* The image (the beauty film, its AOVs, the denoiser's input) holds the image samples only: a
+  pixel's value is the mean of its n_B image samples.
+* After each decision pass, an active pixel stops when it has traced at least the minimum
+  samples (``--adaptive-min-spp``, default ``DEFAULT_MIN_SPP``; both streams count), has at least
+  two decision samples, and
+
+      sum_c w_c SE_c  <  T * sum_c w_c mu_c,
+
+  with w the Rec.709 luminance weights (renderer/color.py), mu_c the mean of its n_D decision
+  samples in channel c and SE_c = s_c / sqrt(n_B) the standard error its image mean will have
+  (s_c^2 the decision samples' variance, Film.variance_of_mean times n_D). The left side bounds
+  the standard error of the luminance from above (the standard deviation of a sum is at most the
+  sum of the standard deviations), so the rule reads: the relative standard error of the
+  pixel's mean luminance is below T. A pixel whose decision samples all agree (SE = 0, a sky
+  or a black background) stops at the minimum; one whose mean luminance is not positive and
+  whose samples vary never stops by the rule.
+* ``--spp`` (default 64; both streams count) and ``--time-budget`` cap every pixel as in a
+  uniform render; the render ends early once every pixel has stopped.
+
+Why the image stays unbiased: when a pixel stops depends on its decision samples only, which are
+independent of its image samples. Given its stopping count n_B, the image samples are still
+i.i.d. draws of the pixel estimator (each Sobol' point with its random digital shift is uniform
+in the pixel), so E[mean of the n_B image samples | n_B] is the pixel's value, and so is the
+expectation over n_B. The textbook rule -- decide from the samples that form the image -- is
+biased: a pixel stops when its samples happen to agree, i.e. before the rare large sample of a
+caustic or a small light has come; its mean is biased low where the distribution has a long
+right tail (tests/core/test_adaptive.py measures that bias on the decision film itself, and the
+z-test that finds no bias in the image does find it there). The same holds for Cycles' split,
+which decides from the difference between all samples and one half and keeps both in the image.
+The price is the decision quarter: at a given number of traced samples the image's variance is
+4/3 of what all samples would give (bench/results/adaptive/README.md weighs it).
+
+Only filter importance sampling (``--pixel-filter-mode importance``, adaptive sampling's
+default) is allowed: a splatted pixel mixes its neighbours' samples, and where their sample
+counts differ it would weigh their parts of its footprint by their sample density, a different
+image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .color import REC709_LUMINANCE
+from .errors import SettingsError
+from .film import Film
+
+__all__ = ["DECISION_EVERY", "DEFAULT_MIN_SPP", "Adaptive", "adaptive_settings", "decision_seed"]
+
+# One pass in DECISION_EVERY is a decision pass. A quarter, not Cycles' half: the decision samples
+# cost image variance (4/3 here, 2 with a half), and at the default minimum of 32 samples a
+# quarter still gives 8 decision samples (7 degrees of freedom: a pixel's variance is
+# underestimated 4-fold with probability 0.4 %, P(chi2_7 / 7 < 1/4)).
+DECISION_EVERY = 4
+DEFAULT_MIN_SPP = 32
+_DECISION_KEY = 0xA5A5A5A5   # flips bits of the low byte: the pixel sequences' 32-bit keys differ
+
+
+def decision_seed(seed: int) -> int:
+    """The seed of the decision stream: a non-negative integer whose chunk streams and pixel
+    sequence scrambles (renderer/sampling.py pixel_sequence, keyed by its low 32 bits) differ from
+    ``seed``'s."""
+    return int(seed) ^ _DECISION_KEY
+
+
+def adaptive_settings(opt, settings) -> tuple[float, int]:
+    """(noise threshold, min spp) of a render: each from the options where given, else from the
+    RenderSettings (IllumRenderSettingsAPI, renderer/usd/estimator_api.py read_adaptive), else
+    off / DEFAULT_MIN_SPP. A threshold of 0 is off."""
+    threshold = opt.noise_threshold if opt.noise_threshold is not None else settings.noise_threshold
+    min_spp = opt.adaptive_min_spp or settings.adaptive_min_spp or DEFAULT_MIN_SPP
+    return float(threshold or 0.0), int(min_spp)
+
+
+def check_mode(mode: str, where: str) -> None:
+    """SettingsError unless a film of pixel filter ``mode`` (set by ``where``) can be sampled
+    adaptively (module docstring)."""
+    if mode != "importance":
+        raise SettingsError(f"adaptive sampling (a noise threshold) needs --pixel-filter-mode importance, but {where} "
+                            f"sets {mode}: a splatted pixel mixes its neighbours' samples, and where their sample "
+                            "counts differ it would weigh them by their sample density",
+                            attribute="pixel_filter_mode")
+
+
+class Adaptive:
+    """The state of an adaptive render (module docstring): the decision film, which pixels are
+    still active, and how many samples each traced.
+
+    film: the beauty (image) film; threshold: T; min_spp: samples before a pixel may stop; seed:
+    the image stream's seed (the decision stream's is decision_seed(seed)). A resumed film's
+    image samples count toward its pixels' totals; its decisions start afresh.
+    """
+
+    def __init__(self, film: Film, threshold: float, min_spp: int, seed: int):
+        self.threshold, self.min_spp = float(threshold), int(min_spp)
+        self.seed = decision_seed(seed)
+        self.decision = Film(film.width, film.height, film.window)
+        self.active = np.ones(film.count.size, dtype=bool)
+        self.stopped_at = np.zeros(film.count.size, dtype=np.int64)   # total samples at the stop, 0: never
+        self.decision_passes = 0
+        self.samples = 0   # camera samples traced this run, both streams
+
+    @staticmethod
+    def is_decision_pass(t: int) -> bool:
+        """Whether render pass t (counting from 0) is a decision pass."""
+        return t % DECISION_EVERY == DECISION_EVERY - 1
+
+    def rows(self) -> np.ndarray | None:
+        """(n,) int64 flat data-window pixels still active, None while every pixel is (the
+        integrator's full pass: the uniform render's streams exactly)."""
+        return None if self.active.all() else np.flatnonzero(self.active)
+
+    def count(self, film: Film) -> np.ndarray:
+        """(h, w) int64 camera samples traced in each pixel, both streams (the sampleCount pass)."""
+        return film.count + self.decision.count
+
+    def decision_pass(self, integrator, rows) -> None:
+        """Trace one decision sample in each pixel of rows (None: all) and stop the pixels the
+        rule now lets stop."""
+        integrator.render_pass(self.decision, self.decision_passes, rows=rows, seed=self.seed)
+        self.decision_passes += 1
+
+    def relative_error(self, film: Film) -> np.ndarray:
+        """(h, w) the rule's relative standard error of each pixel's image mean (module
+        docstring), estimated from its decision samples; inf where there is nothing to estimate
+        it from yet or where the mean luminance is not positive while the samples vary."""
+        d = self.decision
+        n_d = d.count[:, :, None].astype(np.float64)
+        n_b = np.maximum(film.count[:, :, None], 1).astype(np.float64)
+        se = np.sqrt(d.variance_of_mean() * n_d / n_b) @ REC709_LUMINANCE
+        mu = (d.sum / np.maximum(n_d, 1.0)) @ REC709_LUMINANCE
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(se == 0.0, 0.0, np.where(mu > 0.0, se / mu, np.inf))
+        return np.where(d.count >= 2, rel, np.inf)
+
+    def update(self, film: Film) -> int:
+        """Stop the active pixels that the rule lets stop; returns how many are still active."""
+        total = self.count(film).reshape(-1)
+        stop = self.active & (total >= self.min_spp) & (self.relative_error(film).reshape(-1) < self.threshold)
+        self.stopped_at[stop] = total[stop]
+        self.active &= ~stop
+        return int(self.active.sum())
+
+    def stats(self, film: Film) -> dict:
+        """What the render's statistics record about the adaptive sampling."""
+        total = self.count(film)
+        n = max(total.size, 1)
+        return {"noise_threshold": self.threshold, "min_spp": self.min_spp, "decision_every": DECISION_EVERY,
+                "rule": "a pixel stops once its relative standard error of the mean luminance, estimated from "
+                        f"1 in {DECISION_EVERY} of its samples kept out of the image, is below the threshold",
+                "pixels_stopped": int((~self.active).sum()), "pixels": int(total.size),
+                "samples_per_pixel": {"min": int(total.min()) if total.size else 0,
+                                      "max": int(total.max()) if total.size else 0,
+                                      "mean": float(total.sum() / n)},
+                "image_samples_per_pixel": float(film.count.sum() / n),
+                "decision_samples_per_pixel": float(self.decision.count.sum() / n)}
