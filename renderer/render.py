@@ -61,6 +61,8 @@ class RenderResult:
     # The traced scene's translation (renderer/scene.py recentre): camera is in the re-centred
     # frame, p_world = p + origin.
     origin: object = None
+    # renderer/adaptive.py Adaptive (its decision film, which pixels stopped), None when uniform.
+    adaptive: object = None
 
 
 ProgressFn = Callable[[int, Optional[int], float], None]   # (spp done, spp target or None, fraction 0..1)
@@ -333,7 +335,7 @@ def render(
         metadata["illum:sppRange"] = f"{int(count.min())} {int(count.max())}"
 
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings),
-                        aovs=aovs, origin=scene.origin)
+                        aovs=aovs, origin=scene.origin, adaptive=adaptive)
 
 
 def _aov_setup(opt: RenderOptions, desc, scene, camera, film, integrator):
