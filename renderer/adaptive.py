@@ -2,14 +2,16 @@
 
 The rule (``--noise-threshold T``, or IllumRenderSettingsAPI ``illum:adaptive:noiseThreshold``):
 
-* Every pixel traces two independent streams of camera samples. Pass t of the render (counting
-  from 0) is a *decision* pass when ``t % DECISION_EVERY == DECISION_EVERY - 1`` and an *image*
-  pass otherwise: a pixel's samples are 3 image samples to 1 decision sample. The two streams
-  have different seeds (their own chunk streams and their own scrambles of each pixel's Sobol'
-  sequence, ``decision_seed``), so the decision samples are independent of the image samples.
+* Every pixel traces two independent streams of camera samples. Of the first t passes of the
+  render, ``decisions(t) = floor(min(t / 4, 2 sqrt(t)))`` are *decision* passes (pass t, counting
+  from 0, is one when decisions(t + 1) > decisions(t)) and the others *image* passes: one in four
+  up to 64 samples (16 decision samples), then ever fewer (32 of 256, 64 of 1024). The two
+  streams have different seeds (their own chunk streams and their own scrambles of each pixel's
+  Sobol' sequence, ``decision_seed``), so the decision samples are independent of the image
+  samples.
 * The image (the beauty film, its AOVs, the denoiser's input) holds the image samples only: a
   pixel's value is the mean of its n_B image samples.
-* After each decision pass, an active pixel stops when it has traced at least the minimum
+* After each pass, an active pixel stops when it has traced at least the minimum
   samples (``--adaptive-min-spp``, default ``DEFAULT_MIN_SPP``; both streams count), has at least
   two decision samples, and
 
@@ -36,8 +38,10 @@ caustic or a small light has come; its mean is biased low where the distribution
 right tail (tests/core/test_adaptive.py measures that bias on the decision film itself, and the
 z-test that finds no bias in the image does find it there). The same holds for Cycles' split,
 which decides from the difference between all samples and one half and keeps both in the image.
-The price is the decision quarter: at a given number of traced samples the image's variance is
-4/3 of what all samples would give (bench/results/adaptive/README.md weighs it).
+The price is the decision samples: at a given number of traced samples the image's variance is
+t / (t - decisions(t)) of what all samples would give: 4/3 up to 64 samples, 1.14 at 256, 1.07
+at 1024 (bench/results/adaptive/README.md weighs it). Between decision passes the rule is
+evaluated again as n_B grows: the stopping count still depends on the decision samples alone.
 
 Only filter importance sampling (``--pixel-filter-mode importance``, adaptive sampling's
 default) is allowed: a splatted pixel mixes its neighbours' samples, and where their sample
@@ -53,15 +57,24 @@ from .color import REC709_LUMINANCE
 from .errors import SettingsError
 from .film import Film
 
-__all__ = ["DECISION_EVERY", "DEFAULT_MIN_SPP", "Adaptive", "adaptive_settings", "decision_seed"]
+__all__ = ["DEFAULT_MIN_SPP", "Adaptive", "adaptive_settings", "decision_seed", "decisions"]
 
-# One pass in DECISION_EVERY is a decision pass. A quarter, not Cycles' half: the decision samples
-# cost image variance (4/3 here, 2 with a half), and at the default minimum of 32 samples a
-# quarter still gives 8 decision samples (7 degrees of freedom: a pixel's variance is
-# underestimated 4-fold with probability 0.4 %, P(chi2_7 / 7 < 1/4)).
-DECISION_EVERY = 4
+# The decision share: a quarter at first, not Cycles' half: the decision samples cost image
+# variance (4/3 here, 2 with a half), and at the default minimum of 32 samples a quarter still
+# gives 8 decision samples (7 degrees of freedom: a pixel's variance is underestimated 4-fold with
+# probability 0.4 %, P(chi2_7 / 7 < 1/4)). Later the variance estimate is good enough that more
+# decision samples change few decisions: their number grows as 2 sqrt(t) (the estimate's relative
+# error as t^-1/4), so their share falls.
+DECISION_SHARE = 4
+DECISION_SQRT = 2.0
 DEFAULT_MIN_SPP = 32
 _DECISION_KEY = 0xA5A5A5A5   # flips bits of the low byte: the pixel sequences' 32-bit keys differ
+
+
+def decisions(t):
+    """How many of the first t passes (int or int array) are decision passes (module docstring)."""
+    t = np.asarray(t)
+    return np.floor(np.minimum(t / DECISION_SHARE, DECISION_SQRT * np.sqrt(t))).astype(np.int64)
 
 
 def decision_seed(seed: int) -> int:
@@ -106,12 +119,12 @@ class Adaptive:
         self.active = np.ones(film.count.size, dtype=bool)
         self.stopped_at = np.zeros(film.count.size, dtype=np.int64)   # total samples at the stop, 0: never
         self.decision_passes = 0
-        self.samples = 0   # camera samples traced this run, both streams
+        self._spread = self._mu = None
 
     @staticmethod
     def is_decision_pass(t: int) -> bool:
         """Whether render pass t (counting from 0) is a decision pass."""
-        return t % DECISION_EVERY == DECISION_EVERY - 1
+        return bool(decisions(t + 1) > decisions(t))
 
     def rows(self) -> np.ndarray | None:
         """(n,) int64 flat data-window pixels still active, None while every pixel is (the
@@ -123,39 +136,53 @@ class Adaptive:
         return film.count + self.decision.count
 
     def decision_pass(self, integrator, rows) -> None:
-        """Trace one decision sample in each pixel of rows (None: all) and stop the pixels the
-        rule now lets stop."""
+        """Trace one decision sample in each pixel of rows (None: all)."""
         integrator.render_pass(self.decision, self.decision_passes, rows=rows, seed=self.seed)
         self.decision_passes += 1
+        self._spread = None
 
-    def relative_error(self, film: Film) -> np.ndarray:
-        """(h, w) the rule's relative standard error of each pixel's image mean (module
-        docstring), estimated from its decision samples; inf where there is nothing to estimate
-        it from yet or where the mean luminance is not positive while the samples vary."""
-        d = self.decision
-        n_d = d.count[:, :, None].astype(np.float64)
-        n_b = np.maximum(film.count[:, :, None], 1).astype(np.float64)
-        se = np.sqrt(d.variance_of_mean() * n_d / n_b) @ REC709_LUMINANCE
-        mu = (d.sum / np.maximum(n_d, 1.0)) @ REC709_LUMINANCE
+    def _decision_moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """(spread, mu), flat (h w,): sum_c w_c s_c and sum_c w_c mu_c of the decision samples
+        (module docstring); spread is inf where fewer than two decision samples were taken. Kept
+        until the next decision pass: between them only n_B changes."""
+        if self._spread is None:
+            d = self.decision
+            n_d = d.count[:, :, None].astype(np.float64)
+            spread = np.sqrt(d.variance_of_mean() * n_d) @ REC709_LUMINANCE
+            self._spread = np.where(d.count >= 2, spread, np.inf).reshape(-1)
+            self._mu = ((d.sum / np.maximum(n_d, 1.0)) @ REC709_LUMINANCE).reshape(-1)
+        return self._spread, self._mu
+
+    def relative_error(self, film: Film, pixels: np.ndarray | None = None) -> np.ndarray:
+        """The rule's relative standard error of the image mean of each flat pixel (all, or
+        ``pixels``) (module docstring), estimated from its decision samples: inf where there is
+        nothing to estimate it from yet or where the mean luminance is not positive while the
+        samples vary."""
+        spread, mu = self._decision_moments()
+        n_b = film.count.reshape(-1)
+        if pixels is not None:
+            spread, mu, n_b = spread[pixels], mu[pixels], n_b[pixels]
+        se = spread / np.sqrt(np.maximum(n_b, 1))
         with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where(se == 0.0, 0.0, np.where(mu > 0.0, se / mu, np.inf))
-        return np.where(d.count >= 2, rel, np.inf)
+            return np.where(se == 0.0, 0.0, np.where(mu > 0.0, se / mu, np.inf))
 
     def update(self, film: Film) -> int:
         """Stop the active pixels that the rule lets stop; returns how many are still active."""
-        total = self.count(film).reshape(-1)
-        stop = self.active & (total >= self.min_spp) & (self.relative_error(film).reshape(-1) < self.threshold)
-        self.stopped_at[stop] = total[stop]
-        self.active &= ~stop
-        return int(self.active.sum())
+        pixels = np.flatnonzero(self.active)
+        total = self.count(film).reshape(-1)[pixels]
+        stop = (total >= self.min_spp) & (self.relative_error(film, pixels) < self.threshold)
+        self.stopped_at[pixels[stop]] = total[stop]
+        self.active[pixels[stop]] = False
+        return int(pixels.size - stop.sum())
 
     def stats(self, film: Film) -> dict:
         """What the render's statistics record about the adaptive sampling."""
         total = self.count(film)
         n = max(total.size, 1)
-        return {"noise_threshold": self.threshold, "min_spp": self.min_spp, "decision_every": DECISION_EVERY,
+        return {"noise_threshold": self.threshold, "min_spp": self.min_spp,
                 "rule": "a pixel stops once its relative standard error of the mean luminance, estimated from "
-                        f"1 in {DECISION_EVERY} of its samples kept out of the image, is below the threshold",
+                        "decision samples kept out of the image (floor(min(t / 4, 2 sqrt(t))) of its first t), "
+                        "is below the threshold",
                 "pixels_stopped": int((~self.active).sum()), "pixels": int(total.size),
                 "samples_per_pixel": {"min": int(total.min()) if total.size else 0,
                                       "max": int(total.max()) if total.size else 0,

@@ -260,10 +260,12 @@ OPTIONS: tuple[Option, ...] = (
     Option("denoise", "bool", False, "also write an OIDN-denoised beauty (layer 'denoised' of the EXR, or "
            "NAME_denoised.EXT), guided by first-hit albedo and normal; needs the pyoidn package "
            "(pip install 'illum[denoise]'); the raw beauty is kept", flags=("--denoise",), example=True),
-    Option("noise_threshold", "float", None, "adaptive sampling: a pixel stops receiving samples once its relative "
-           "standard error of the mean (of luminance) falls below T, estimated from a separate quarter of its samples "
-           "that never enter the image, so the image stays unbiased (docs/adaptive.md); --spp (default 64) or "
-           "--time-budget caps it; 0 = off (default: RenderSettings illum:adaptive:noiseThreshold, else off)",
+    Option("noise_threshold", "float", None, "adaptive sampling: after --adaptive-min-spp samples, a pixel stops "
+           "receiving samples once the relative standard error of its mean luminance falls below T (0.01 = 1%), "
+           "estimated from 1 in 4 of its samples, which are kept out of the image so that the image stays unbiased "
+           "(docs/adaptive.md); --spp (default 64) or --time-budget still caps every pixel; needs "
+           "--pixel-filter-mode importance (its default then); 0 = off (default: RenderSettings "
+           "illum:adaptive:noiseThreshold, else off)",
            flags=("--noise-threshold",), metavar="T", lo=0, hi=1, example=0.05),
     Option("adaptive_min_spp", "int", None, "adaptive sampling: samples every pixel takes before it may stop "
            "(default: RenderSettings illum:adaptive:minSpp, else 32)", flags=("--adaptive-min-spp",), metavar="N",

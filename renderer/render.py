@@ -200,8 +200,8 @@ def render(
     first_hit = aovs.passes
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
-    # Adaptive sampling (renderer/adaptive.py): passes over the pixels still active, one in
-    # DECISION_EVERY into the decision film; image passes keep their own index (image_pass).
+    # Adaptive sampling (renderer/adaptive.py): passes over the pixels still active, some into
+    # the decision film (adaptive.decisions); image passes keep their own index (image_pass).
     threshold, min_spp = adaptive_settings(opt, settings)
     adaptive = Adaptive(film, threshold, min_spp, integrator.opt.seed) if threshold > 0.0 else None
     image_pass = done
@@ -228,13 +228,12 @@ def render(
             samples += film.count.size if rows is None else rows.size
             if adaptive is not None and adaptive.is_decision_pass(passes):
                 adaptive.decision_pass(integrator, rows)
-                active = adaptive.update(film)
             else:
                 integrator.render_pass(film, image_pass, rows=rows)
                 if first_hit is not None:
                     first_hit.render_pass(film, image_pass, pool=integrator.pool, rows=rows)
                 image_pass += 1
-                active = 1
+            active = adaptive.update(film) if adaptive is not None else 1
             done += 1
             passes += 1
             now = time.perf_counter()

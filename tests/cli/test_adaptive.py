@@ -11,7 +11,7 @@ import OpenImageIO as oiio
 import pytest
 from pxr import Sdf
 
-from renderer.adaptive import DECISION_EVERY, DEFAULT_MIN_SPP
+from renderer.adaptive import DEFAULT_MIN_SPP, decisions
 from renderer.errors import SettingsError
 from renderer.render import RenderOptions, render, write_outputs
 from tests.stage_builders import sky_room_stage
@@ -99,8 +99,8 @@ def test_a_pass_traces_only_the_active_pixels_on_both_routes(room):
         total = r.adaptive.count(r.film)
         assert total.min() == 8 and total.max() == 24
         assert r.stats["rays"]["camera"] == int(total.sum())
-        # Decision passes are every DECISION_EVERY-th: each pixel's image share follows.
-        np.testing.assert_array_equal(r.adaptive.decision.count, total // DECISION_EVERY)
+        # The decision passes follow the schedule: a pixel's decision share is that of its count.
+        np.testing.assert_array_equal(r.adaptive.decision.count, decisions(total))
         rays[fast] = total
     assert rays[True].sum() < 24 * 144
 
