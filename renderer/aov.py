@@ -20,7 +20,8 @@ depth (Z, Pz)  one       camera-space distance along the view axis (-z of USD ca
 P              .X .Y .Z  world position of the first hit; 0 where no sample hits
 primId         one       index of the gprim (EXR metadata illum:primPaths lists their paths),
 materialId               the material's index (illum:materialPaths); -1 where nothing is hit
-sampleCount    one       camera samples of each pixel (the film's count)
+sampleCount    one       camera samples traced in each pixel (the film's count; with adaptive
+                         sampling also the decision samples, renderer/adaptive.py)
 =============  ========  =====================================================================
 
 Filtering: every pass but the ids and the sample count goes through the same film as the
