@@ -29,15 +29,16 @@ The rule (``--noise-threshold T``, or IllumRenderSettingsAPI ``illum:adaptive:no
   uniform render; the render ends early once every pixel has stopped.
 
 Why the image stays unbiased: when a pixel stops depends on its decision samples only, which are
-independent of its image samples. Given its stopping count n_B, the image samples are still
-i.i.d. draws of the pixel estimator (each Sobol' point with its random digital shift is uniform
-in the pixel), so E[mean of the n_B image samples | n_B] is the pixel's value, and so is the
-expectation over n_B. The textbook rule -- decide from the samples that form the image -- is
-biased: a pixel stops when its samples happen to agree, i.e. before the rare large sample of a
-caustic or a small light has come; its mean is biased low where the distribution has a long
-right tail (tests/core/test_adaptive.py measures that bias on the decision film itself, and the
-z-test that finds no bias in the image does find it there). The same holds for Cycles' split,
-which decides from the difference between all samples and one half and keeps both in the image.
+independent of its image samples. Given its stopping count n_B, its image samples are still what
+they would have been without the rule (each an unbiased sample of the pixel: its Sobol' point,
+randomly shifted, is uniform in the pixel), so E[mean of the n_B image samples | n_B] is the
+pixel's value, and so is the expectation over n_B. The textbook rule -- decide from the samples
+that form the image -- is biased: a pixel stops when its samples happen to agree or, with a
+relative threshold, when their mean happens to be high (biased high: tests/cli/test_adaptive.py
+finds it in the decision film of the pixels that stopped early, with the z-test that finds no
+bias in the image), and before the rare large sample of a caustic or a small light has come
+(biased low). Cycles' split, which decides from the difference between all samples and one half
+and keeps both in the image, keeps part of that bias.
 The price is the decision samples: at a given number of traced samples the image's variance is
 t / (t - decisions(t)) of what all samples would give: 4/3 up to 64 samples, 1.14 at 256, 1.07
 at 1024 (bench/results/adaptive/README.md weighs it). Between decision passes the rule is

@@ -18,10 +18,10 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from .adaptive import Adaptive, adaptive_settings, check_mode
 from .allocator import tune_allocator
 from .deadline import deadline
 from .errors import SettingsError
-from .adaptive import Adaptive, adaptive_settings, check_mode
 from .film import Film
 from .memory import MemoryBudget
 from .options import make_options_class
