@@ -129,13 +129,16 @@ def add_point_instancer(stage, path, prototypes, proto_indices, positions, *, or
     return pi
 
 
-def add_quad(stage, path, corners, mat=None):
-    """A one-quad polygonal mesh at ``path`` with corners (4, 3) in order; bound to mat when given."""
+def add_quad(stage, path, corners, mat=None, double_sided=False):
+    """A one-quad polygonal mesh at ``path`` with corners (4, 3) in order; bound to mat when given,
+    doubleSided authored true when asked."""
     quad = UsdGeom.Mesh.Define(stage, path)
     quad.CreatePointsAttr([Gf.Vec3f(*c) for c in corners])
     quad.CreateFaceVertexCountsAttr([4])
     quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
     quad.CreateSubdivisionSchemeAttr("none")
+    if double_sided:
+        quad.CreateDoubleSidedAttr(True)
     if mat is not None:
         bind(quad.GetPrim(), mat)
     return quad
