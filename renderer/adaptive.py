@@ -63,13 +63,13 @@ __all__ = ["DEFAULT_MIN_SPP", "Adaptive", "adaptive_settings", "decision_seed", 
 # The decision share: a quarter at first, not Cycles' half: the decision samples cost image
 # variance (4/3 here, 2 with a half), and at the default minimum of 32 samples a quarter still
 # gives 8 decision samples (7 degrees of freedom: a pixel's variance is underestimated 4-fold with
-# probability 0.4 %, P(chi2_7 / 7 < 1/4)). Later the variance estimate is good enough that more
-# decision samples change few decisions: their number grows as 2 sqrt(t) (the estimate's relative
-# error as t^-1/4), so their share falls.
+# probability 2.8 %, P(chi2_7 / 7 < 1/4), against 14 % with 4 samples). Later the variance
+# estimate is good enough that more decision samples change few decisions: their number grows as
+# 2 sqrt(t) (the estimate's relative error as t^-1/4), so their share falls.
 DECISION_SHARE = 4
 DECISION_SQRT = 2.0
 DEFAULT_MIN_SPP = 32
-_DECISION_KEY = 0xA5A5A5A5   # flips bits of the low byte: the pixel sequences' 32-bit keys differ
+_DECISION_KEY = 0xA5A5A5A5   # flips bits of every byte of the low 32, which key the pixel sequences
 
 
 def decisions(t):
