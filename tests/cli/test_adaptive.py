@@ -136,3 +136,21 @@ def test_bad_adaptive_input_is_refused_naming_it(room, tmp_path):
                                                             Sdf.ValueTypeNames.Float).Set(2.0)
     stage.GetRootLayer().Save()
     _error(run("render", p, "-o", tmp_path / "o.exr"), "illum:adaptive:noiseThreshold", "/Render/Settings")
+
+
+def test_passes_follow_the_image_samples_of_an_adaptive_render(room, tmp_path):
+    """The first-hit passes replay the image stream's camera rays over the same active pixels:
+    the same sample count per pixel, and a transparent sky taken out of the beauty exactly."""
+    r = render(str(room), RenderOptions(spp=24, seed=2, noise_threshold=T, adaptive_min_spp=8, resolution=(12, 12),
+                                        alpha_dome_transparent=True, aov=("sampleCount", "depth")))
+    total = r.adaptive.count(r.film)
+    assert total.min() < total.max()   # premise: the pixels stopped at different counts
+    np.testing.assert_array_equal(r.aovs.passes.weight, r.film.count)
+    out = tmp_path / "p.exr"
+    write_outputs(r, exr=str(out))
+    ch, _ = _exr(out)
+    np.testing.assert_array_equal(ch["sampleCount"], total)
+    sky = ch["A"] == 0.0
+    assert sky.sum() >= 10
+    for c in "RGB":
+        assert np.all(np.abs(ch[c][sky]) <= 1e-6)
