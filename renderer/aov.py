@@ -20,7 +20,8 @@ depth (Z, Pz)  one       camera-space distance along the view axis (-z of USD ca
 P              .X .Y .Z  world position of the first hit; 0 where no sample hits
 primId         one       index of the gprim (EXR metadata illum:primPaths lists their paths),
 materialId               the material's index (illum:materialPaths); -1 where nothing is hit
-sampleCount    one       camera samples of each pixel (the film's count)
+sampleCount    one       camera samples traced in each pixel (the film's count; with adaptive
+                         sampling also the decision samples, renderer/adaptive.py)
 =============  ========  =====================================================================
 
 Filtering: every pass but the ids and the sample count goes through the same film as the
@@ -200,14 +201,17 @@ class FirstHitPass:
         self.prim_of_mesh = np.array([where[p] for p in paths], dtype=np.int64)
 
     # ------------------------------------------------------------------ tracing
-    def render_pass(self, film, pass_index: int, pool=None) -> None:
+    def render_pass(self, film, pass_index: int, pool=None, rows=None) -> None:
         """Add this pass's camera samples (the ones PathIntegrator.render_pass takes for the
-        beauty film ``film``) to the passes. pool: an executor the chunks are traced on (the
-        integrator's), each in its own thread; they are accumulated in order afterwards."""
+        beauty film ``film``, over the same rows: flat data-window pixels, None for all) to the
+        passes. pool: an executor the chunks are traced on (the integrator's), each in its own
+        thread; they are accumulated in order afterwards."""
         from .accel import serial_tracing
         from .integrators.path import chunk_size
 
         px, py = film.pixel_coords()
+        if rows is not None:
+            px, py = px[rows], py[rows]
         n = px.size
         size = chunk_size(n)
         chunks = [(c, a, min(n, a + size)) for c, a in enumerate(range(0, n, size))]
@@ -219,17 +223,18 @@ class FirstHitPass:
         results = pool.map(work, chunks) if pool is not None and len(chunks) > 1 else map(
             lambda job: self._chunk(job, px, py, film.width, pass_index), chunks)
         splat = film.splat is not None
-        for rows, samples in results:
+        for at, samples in results:
+            pixels = at if rows is None else rows[at]
             for k, (values, offset, hit_ids) in enumerate(samples):
-                self._keep_ids(rows, offset, hit_ids)
+                self._keep_ids(pixels, offset, hit_ids)
                 if splat:
-                    self._add(rows, values, offset, k == 0)
+                    self._add(pixels, values, offset, k == 0)
             if not splat:
-                self._add(rows, sum(v for v, _, _ in samples) / len(samples), None, True)
+                self._add(pixels, sum(v for v, _, _ in samples) / len(samples), None, True)
 
     def _chunk(self, job, px, py, width: int, pass_index: int):
-        """(rows, [(values, offsets, ids) per camera ray k]) of one chunk (c, a, b) of the pass,
-        its rays made as PathIntegrator.trace_paths makes them."""
+        """(positions a..b-1 in px / py, [(values, offsets, ids) per camera ray k]) of one chunk
+        (c, a, b) of the pass, its rays made as PathIntegrator.trace_paths makes them."""
         from .sampling import pixel_sequence
 
         c, a, b = job
@@ -396,6 +401,23 @@ class AovResult:
     material_paths: tuple = ()
     denoised: np.ndarray | None = None   # (h, w, 3) float32 data window
     denoise_seconds: float = 0.0
+    # (h, w) camera samples traced in each pixel when they are more than the beauty film's count
+    # (adaptive sampling's decision samples, renderer/adaptive.py); None: the film's count.
+    sample_count: np.ndarray | None = None
+
+    @property
+    def layered(self) -> bool:
+        """Whether the EXR holds more than the film's RGB: passes, alpha or a denoised layer."""
+        return (self.passes is not None or self.denoised is not None
+                or any(r.source not in ("color",) for r in self.requests))
+
+    def pass_image(self, source: str, film) -> np.ndarray:
+        """(h, w, C) float32 pass ``source`` of the data window (FirstHitPass.image; the sample
+        count needs no first-hit pass)."""
+        count = film.count if self.sample_count is None else self.sample_count
+        if self.passes is None:   # only the sample count is asked for
+            return count[:, :, None].astype(np.float32)
+        return self.passes.image(source, count)
 
     def beauty(self, film) -> np.ndarray:
         """(h, w, 3 or 4) float32 data window: the film's mean, without the dome seen directly
@@ -420,7 +442,7 @@ class AovResult:
             chans = aov_channels(req)
             if req.source in ("color", "alpha") or seen.intersection(chans):
                 continue  # the beauty's own channels, or a pass already written under this name
-            parts.append(self.passes.image(req.source, film.count))
+            parts.append(self.pass_image(req.source, film))
             names += chans
             seen.update(chans)
         if self.denoised is not None:

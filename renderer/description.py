@@ -219,6 +219,8 @@ class RenderSettingsDesc:
     or 0.0 when unauthored (renderer/pixel_filter.py's defaults apply).
     render_vars: the first product's orderedVars (RenderVarDesc), in order.
     alpha_dome_transparent: IllumRenderSettingsAPI illum:alpha:domeTransparent (renderer/aov.py).
+    noise_threshold, adaptive_min_spp: IllumRenderSettingsAPI illum:adaptive:noiseThreshold and
+    illum:adaptive:minSpp (renderer/adaptive.py); 0.0 / 0 when unauthored.
     """
 
     path: str = ""
@@ -237,6 +239,8 @@ class RenderSettingsDesc:
     pixel_filter_mode: str = ""
     render_vars: tuple = ()
     alpha_dome_transparent: bool = False
+    noise_threshold: float = 0.0
+    adaptive_min_spp: int = 0
 
 
 @dataclass(frozen=True)

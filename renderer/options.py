@@ -260,6 +260,16 @@ OPTIONS: tuple[Option, ...] = (
     Option("denoise", "bool", False, "also write an OIDN-denoised beauty (layer 'denoised' of the EXR, or "
            "NAME_denoised.EXT), guided by first-hit albedo and normal; needs the pyoidn package "
            "(pip install 'illum[denoise]'); the raw beauty is kept", flags=("--denoise",), example=True),
+    Option("noise_threshold", "float", None, "adaptive sampling: after --adaptive-min-spp samples, a pixel stops "
+           "receiving samples once the relative standard error of its mean luminance falls below T (0.01 = 1%), "
+           "estimated from 1 in 4 of its samples, which are kept out of the image so that the image stays unbiased "
+           "(docs/adaptive.md); --spp (default 64) or --time-budget still caps every pixel; needs "
+           "--pixel-filter-mode importance (its default then); 0 = off (default: RenderSettings "
+           "illum:adaptive:noiseThreshold, else off)",
+           flags=("--noise-threshold",), metavar="T", lo=0, hi=1, example=0.05),
+    Option("adaptive_min_spp", "int", None, "adaptive sampling: samples every pixel takes before it may stop "
+           "(default: RenderSettings illum:adaptive:minSpp, else 32)", flags=("--adaptive-min-spp",), metavar="N",
+           lo=1, hi=1_000_000, example=8),
     Option("light_samples", "per_light", {}, "light samples per shading point for all lights, or /Light=N for "
            "one (repeatable)", flags=("--light-samples",), metavar="[/Light=|*=]N", item="int", lo=1, hi=4096,
            example={"": 2}),

@@ -18,6 +18,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from .adaptive import Adaptive, adaptive_settings, check_mode
 from .allocator import tune_allocator
 from .deadline import deadline
 from .errors import SettingsError
@@ -60,6 +61,8 @@ class RenderResult:
     # The traced scene's translation (renderer/scene.py recentre): camera is in the re-centred
     # frame, p_world = p + origin.
     origin: object = None
+    # renderer/adaptive.py Adaptive (its decision film, which pixels stopped), None when uniform.
+    adaptive: object = None
 
 
 ProgressFn = Callable[[int, Optional[int], float], None]   # (spp done, spp target or None, fraction 0..1)
@@ -197,6 +200,12 @@ def render(
     first_hit = aovs.passes
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
     done = int(film.count.max()) if film.count.size else 0
+    # Adaptive sampling (renderer/adaptive.py): passes over the pixels still active, some into
+    # the decision film (adaptive.decisions); image passes keep their own index (image_pass).
+    threshold, min_spp = adaptive_settings(opt, settings)
+    adaptive = Adaptive(film, threshold, min_spp, integrator.opt.seed) if threshold > 0.0 else None
+    image_pass = done
+    samples = 0
     t0 = time.perf_counter()
     c0 = COMPILES.seconds()
     last_snapshot = t0
@@ -215,9 +224,16 @@ def render(
                 break
             if cancel is not None and cancel():
                 break
-            integrator.render_pass(film, done)
-            if first_hit is not None:
-                first_hit.render_pass(film, done, pool=integrator.pool)
+            rows = adaptive.rows() if adaptive is not None else None
+            samples += film.count.size if rows is None else rows.size
+            if adaptive is not None and adaptive.is_decision_pass(passes):
+                adaptive.decision_pass(integrator, rows)
+            else:
+                integrator.render_pass(film, image_pass, rows=rows)
+                if first_hit is not None:
+                    first_hit.render_pass(film, image_pass, pool=integrator.pool, rows=rows)
+                image_pass += 1
+            active = adaptive.update(film) if adaptive is not None else 1
             done += 1
             passes += 1
             now = time.perf_counter()
@@ -231,6 +247,8 @@ def render(
             if snapshot is not None and now - last_snapshot >= snapshot_interval:
                 snapshot(film, done)
                 last_snapshot = now
+            if not active:
+                break   # every pixel has stopped
     finally:
         integrator.close()
         if scene_cache is None:
@@ -247,7 +265,6 @@ def render(
     rays = integrator.rays.as_dict()
     total_rays = rays["camera"] + rays["extension"] + rays["shadow"]
     r_sec = max(phases["render"], 1e-9)
-    h, w = film.shape
     light_info = integrator.light_settings
     fallback_notes = _exactness_notes(scene.lights, light_info)
     stats = {
@@ -277,7 +294,7 @@ def render(
         "seconds": phases,
         "rays": rays,
         "mrays_per_second": total_rays / r_sec / 1e6,
-        "samples_per_second": passes * w * h / r_sec,
+        "samples_per_second": samples / r_sec,
         "nonfinite_dropped": film.nonfinite_dropped,
         "negative_samples": film.negative_samples,
         "skipped": list(scene.skipped) + list(integrator.skipped),
@@ -287,6 +304,7 @@ def render(
                         **integrator.rule_counts},
         "warnings": list(scene.warnings) + fallback_notes,
         "aovs": [{"name": r.name, "source": r.source, "render_var": r.path} for r in aovs.requests],
+        "adaptive": adaptive.stats(film) if adaptive is not None else None,
         "alpha": {"written": aovs.alpha, "dome_transparent": first_hit is not None and first_hit.dome_transparent},
         "triangles": int(scene.geometry.count),
         "machine": {"platform": platform.platform(), "python": platform.python_version(),
@@ -307,11 +325,16 @@ def render(
     }
     metadata.update(aovs.metadata())
     metadata["illum:frame"] = float(desc.time_code)
-    if film.count.size:
-        metadata["illum:sppRange"] = f"{int(film.count.min())} {int(film.count.max())}"
+    if adaptive is not None:
+        aovs.sample_count = adaptive.count(film)
+        metadata["illum:noiseThreshold"] = float(threshold)
+        metadata["illum:adaptiveMinSpp"] = int(min_spp)
+    count = aovs.sample_count if aovs.sample_count is not None else film.count
+    if count.size:
+        metadata["illum:sppRange"] = f"{int(count.min())} {int(count.max())}"
 
     return RenderResult(film=film, stats=stats, metadata=metadata, camera=camera, warnings=list(scene.warnings),
-                        aovs=aovs, origin=scene.origin)
+                        aovs=aovs, origin=scene.origin, adaptive=adaptive)
 
 
 def _aov_setup(opt: RenderOptions, desc, scene, camera, film, integrator):
@@ -340,7 +363,8 @@ def _aov_setup(opt: RenderOptions, desc, scene, camera, film, integrator):
 def _pixel_filter(opt: RenderOptions, settings) -> tuple:
     """(PixelFilter, mode) of a render: each of filter, radius and mode from the options where
     given, else from IllumRenderSettingsAPI where authored, else the defaults
-    (renderer/pixel_filter.py; with --denoise the mode's default is importance). A width given
+    (renderer/pixel_filter.py; with --denoise or adaptive sampling the mode's default is
+    importance, and adaptive sampling refuses splat). A width given
     without a filter applies to the stage's filter."""
     from .pixel_filter import DEFAULT_FILTER, DEFAULT_MODE, PixelFilter
 
@@ -354,9 +378,15 @@ def _pixel_filter(opt: RenderOptions, settings) -> tuple:
     # --denoise with no mode chosen: filter importance sampling, whose per-pixel independent
     # noise OIDN removes far better than a splatted film's, correlated across neighbours (Cornell
     # box, 4 spp: denoised relMSE 0.0020 against 0.0138; bench/results/denoise/README.md).
-    default_mode = "importance" if opt.denoise else DEFAULT_MODE
+    # Adaptive sampling needs it (renderer/adaptive.py check_mode).
+    adaptive = adaptive_settings(opt, settings)[0] > 0.0
+    default_mode = "importance" if opt.denoise or adaptive else DEFAULT_MODE
+    mode = opt.pixel_filter_mode or settings.pixel_filter_mode or default_mode
+    if adaptive:
+        check_mode(mode, "--pixel-filter-mode" if opt.pixel_filter_mode else
+                   "the RenderSettings' illum:pixelFilter:mode")
     # PixelFilter validates name and radius (SettingsError naming the attribute).
-    return PixelFilter(name, radius), opt.pixel_filter_mode or settings.pixel_filter_mode or default_mode
+    return PixelFilter(name, radius), mode
 
 
 def _exactness_notes(lights, light_info: list[dict]) -> list[str]:
@@ -458,7 +488,7 @@ def write_outputs(result: RenderResult, exr: str | None = None, png: str | None 
         aovs = result.aovs
         if exr:
             base, ext = os.path.splitext(exr)
-            if aovs is None or aovs.passes is None and aovs.denoised is None:
+            if aovs is None or not aovs.layered:
                 if ext.lower() == ".exr":
                     write_exr(exr, result.film, result.metadata, files=files, compression=compression, half=half)
                 else:

@@ -127,3 +127,38 @@ def add_point_instancer(stage, path, prototypes, proto_indices, positions, *, or
     if invisible_ids is not None:
         pi.CreateInvisibleIdsAttr(list(invisible_ids))
     return pi
+
+
+def add_quad(stage, path, corners, mat=None, double_sided=False):
+    """A one-quad polygonal mesh at ``path`` with corners (4, 3) in order; bound to mat when given,
+    doubleSided authored true when asked."""
+    quad = UsdGeom.Mesh.Define(stage, path)
+    quad.CreatePointsAttr([Gf.Vec3f(*c) for c in corners])
+    quad.CreateFaceVertexCountsAttr([4])
+    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    quad.CreateSubdivisionSchemeAttr("none")
+    if double_sided:
+        quad.CreateDoubleSidedAttr(True)
+    if mat is not None:
+        bind(quad.GetPrim(), mat)
+    return quad
+
+
+def sky_room_stage(path, res=(32, 32), sky=1.0, rho=0.5):
+    """Easy and hard pixels in one frame: a grey (rho) room lit only by a constant sky dome of
+    radiance ``sky``, open at the front, on the right and above its right third, seen from
+    outside. The sky fills the upper right of the frame (zero variance); the room's far left
+    corner, under the ceiling, sees the sky only through bounces (dark and noisy)."""
+    stage = new_stage(path)
+    add_camera(stage, pos=(1.0, 1.2, 4.5))
+    add_settings(stage, res)
+    grey = preview_material(stage, "/World/Looks/Grey", diffuse=(rho, rho, rho), roughness=1.0)
+    h = 2.5
+    add_quad(stage, "/World/Room/Floor", [(-2, 0, -2), (-2, 0, 2), (2, 0, 2), (2, 0, -2)], grey)
+    add_quad(stage, "/World/Room/Back", [(-2, 0, -2), (2, 0, -2), (2, h, -2), (-2, h, -2)], grey)
+    add_quad(stage, "/World/Room/Left", [(-2, 0, -2), (-2, h, -2), (-2, h, 2), (-2, 0, 2)], grey)
+    add_quad(stage, "/World/Room/Ceiling", [(-2, h, -2), (0.6, h, -2), (0.6, h, 2), (-2, h, 2)], grey)
+    dome = UsdLux.DomeLight.Define(stage, "/World/Sky")
+    dome.CreateIntensityAttr(sky)
+    stage.GetRootLayer().Save()
+    return stage

@@ -285,10 +285,20 @@ class PathIntegrator:
             self.pool = None
 
     # ---------------------------------------------------------------------- passes
-    def render_pass(self, film: Film, pass_index: int) -> None:
+    def render_pass(self, film: Film, pass_index: int, rows: np.ndarray | None = None,
+                    seed: int | None = None) -> None:
         """Add one sample to every pixel of the film's data window (a splatting film: one
-        camera sample taken in every pixel, spread over the pixels its filter covers)."""
+        camera sample taken in every pixel, spread over the pixels its filter covers).
+
+        rows: (n,) int64 flat data-window pixels to sample (ascending), None for all; the chunks
+        (and their random streams) are cut from this list, so a pass over fewer pixels traces
+        fewer rows on every route (adaptive sampling, renderer/adaptive.py). seed: the random
+        seed of this pass's streams (chunk streams and pixel sequences) when not the
+        integrator's; a second seed gives samples independent of the first's."""
         px, py = film.pixel_coords()
+        if rows is not None:
+            px, py = px[rows], py[rows]
+        seed = self.opt.seed if seed is None else int(seed)
         n = px.size
         size = chunk_size(n)
         chunks = [(c, s, min(n, s + size)) for c, s in enumerate(range(0, n, size))]
@@ -301,16 +311,17 @@ class PathIntegrator:
 
         def work(job):
             c, a, b = job
-            rng = np.random.default_rng([self.opt.seed, pass_index, c])
+            rng = np.random.default_rng([seed, pass_index, c])
             if not splat:
-                return a, b, self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width) * exposure
+                return a, b, self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width, seed=seed) * exposure
             # With K emitter samples, camera ray k's own L_k is splatted at its own position as
             # K L_k (ray 0 carries the path, weighted 1 / K in trace_paths): a sample (w_k, K L_k)
             # each, so sum(w K L) / sum(w) estimates the filtered pixel as the K-ray sum does
             # with filter importance sampling.
             K = self.emitter_samples
             return a, b, [(u - 0.5, L * (K * exposure))
-                          for u, L in self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width, split=True)]
+                          for u, L in self.trace_paths(px[a:b], py[a:b], rng, pass_index, film.width, split=True,
+                                                       seed=seed)]
 
         if self.pool is not None and len(chunks) > 1:
             # The chunks run in parallel, so each traces its rays in its own thread.
@@ -322,21 +333,22 @@ class PathIntegrator:
         else:
             results = map(work, chunks)
         for a, b, L in results:
-            rows = np.arange(a, b)
+            pixels = np.arange(a, b) if rows is None else rows[a:b]
             if not splat:
-                film.add(rows, L)
+                film.add(pixels, L)
                 continue
             for k, (offsets, L_k) in enumerate(L):
-                film.add(rows, L_k, offsets=offsets, count=k == 0)
+                film.add(pixels, L_k, offsets=offsets, count=k == 0)
 
     # ---------------------------------------------------------------------- paths
     def trace_paths(self, px: np.ndarray, py: np.ndarray, rng: np.random.Generator, pass_index: int | None = None,
-                    width: int = 0, split: bool = False):
+                    width: int = 0, split: bool = False, seed: int | None = None):
         """Radiance estimates (m, 3) for one path through each pixel (px, py); with split, a
         list of (u_filter (m, 2), L_k (m, 3)) for each camera ray k, summing to that estimate.
 
         With pass_index, the filter samples are that pass's point of each pixel's own
-        low-discrepancy sequence (sampling.pixel_sequence); without, independent uniforms.
+        low-discrepancy sequence (sampling.pixel_sequence, scrambled by seed, else the
+        integrator's); without, independent uniforms.
 
         With K = self.emitter_samples > 1, the emitters seen directly (depth 0: lights, the
         environment, emissive surfaces, through cutouts) are estimated from K camera rays per
@@ -347,11 +359,12 @@ class PathIntegrator:
         K - 1 rays that do not scatter.
         """
         m = px.size
+        seed = self.opt.seed if seed is None else seed
         K = self.emitter_samples if pass_index is not None else 1
         pixel = py.astype(np.int64) * max(width, 1) + px
         # Draw only the numbers the camera uses (~9 ns a pixel otherwise): the filter's come from
         # the pixel's sequence in a progressive pass, the lens's only for a thin lens.
-        u_filter = (pixel_sequence(self.opt.seed, pixel, pass_index * K) if pass_index is not None
+        u_filter = (pixel_sequence(seed, pixel, pass_index * K) if pass_index is not None
                     else rng.random((m, 2)))
         thin_lens = self.camera.lens_radius > 0.0
         u_lens = rng.random((m, 2)) if thin_lens else np.zeros((m, 2))
@@ -362,7 +375,7 @@ class PathIntegrator:
         L = self._trace_camera(o, rays.d, tmax, rng, K)
         parts = [(u_filter, L)] if split else None
         for k in range(1, K):
-            u_k = pixel_sequence(self.opt.seed, pixel, pass_index * K + k)
+            u_k = pixel_sequence(seed, pixel, pass_index * K + k)
             rays = self.camera.generate(px, py, u_k, rng.random((m, 2)) if thin_lens else u_lens)
             self.rays.add(camera=m)
             o, tmax = rays.at_near_plane()

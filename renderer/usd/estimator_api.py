@@ -27,6 +27,7 @@ __all__ = [
     "read_default_estimator",
     "read_pixel_filter",
     "read_alpha_dome_transparent",
+    "read_adaptive",
     "has_light_api",
     "check_light_api_target",
 ]
@@ -49,6 +50,8 @@ _PIXEL_FILTER = ("illum:pixelFilter", DEFAULT_FILTER, FILTERS)
 _PIXEL_FILTER_MODE = ("illum:pixelFilter:mode", DEFAULT_MODE, MODES)
 _PIXEL_FILTER_WIDTH = "illum:pixelFilter:width"
 _ALPHA_DOME_TRANSPARENT = "illum:alpha:domeTransparent"
+_NOISE_THRESHOLD = "illum:adaptive:noiseThreshold"
+_ADAPTIVE_MIN_SPP = "illum:adaptive:minSpp"
 
 
 def _authored(prim: Usd.Prim, name: str, ctx: ReadContext):
@@ -165,3 +168,20 @@ def read_alpha_dome_transparent(prim: Usd.Prim, ctx: ReadContext) -> bool:
     if not isinstance(raw, bool):
         raise ctx.error(f"must be a bool, got {raw!r}", prim, _ALPHA_DOME_TRANSPARENT)
     return raw
+
+
+def read_adaptive(prim: Usd.Prim, ctx: ReadContext) -> tuple[float, int]:
+    """IllumRenderSettingsAPI ``illum:adaptive:noiseThreshold`` and ``illum:adaptive:minSpp``:
+    (threshold, min spp), 0.0 / 0 where unauthored (adaptive sampling off; the renderer's
+    default minimum, renderer/adaptive.py), else validated: a threshold in [0, 1], a min spp >= 1."""
+    threshold = _authored(prim, _NOISE_THRESHOLD, ctx)
+    if threshold is None:
+        threshold = 0.0
+    elif isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0.0 <= threshold <= 1.0:
+        raise ctx.error(f"must be a number in [0, 1], got {threshold!r}", prim, _NOISE_THRESHOLD)
+    min_spp = _authored(prim, _ADAPTIVE_MIN_SPP, ctx)
+    if min_spp is None:
+        min_spp = 0
+    elif isinstance(min_spp, bool) or not isinstance(min_spp, int) or min_spp < 1:
+        raise ctx.error(f"must be an integer >= 1, got {min_spp!r}", prim, _ADAPTIVE_MIN_SPP)
+    return float(threshold), int(min_spp)

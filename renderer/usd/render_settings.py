@@ -9,7 +9,7 @@ from renderer.description import RenderSettingsDesc, RenderVarDesc
 from renderer.errors import SettingsError
 
 from .common import ReadContext
-from .estimator_api import read_alpha_dome_transparent, read_default_estimator, read_light_sampler, read_pixel_filter
+from .estimator_api import read_adaptive, read_alpha_dome_transparent, read_default_estimator, read_light_sampler, read_pixel_filter
 
 __all__ = ["find_settings_prim", "read_render_settings", "MAX_SIDE", "MAX_PIXELS"]
 
@@ -141,6 +141,7 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
 
     pixel_filter, pixel_filter_width, pixel_filter_mode = read_pixel_filter(settings, ctx)
     render_vars = read_render_vars(ctx, product) if product is not None else ()
+    noise_threshold, adaptive_min_spp = read_adaptive(settings, ctx)
     desc = RenderSettingsDesc(
         path=str(settings.GetPath()),
         resolution=(w, h),
@@ -158,6 +159,8 @@ def read_render_settings(ctx: ReadContext, settings: Usd.Prim | None,
         pixel_filter_mode=pixel_filter_mode,
         render_vars=render_vars,
         alpha_dome_transparent=read_alpha_dome_transparent(settings, ctx),
+        noise_threshold=noise_threshold,
+        adaptive_min_spp=adaptive_min_spp,
     )
     return desc, bool(dof_off)
 

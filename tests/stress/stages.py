@@ -11,19 +11,11 @@ from __future__ import annotations
 import numpy as np
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade, Vt
 
-from tests.stage_builders import add_settings, bind, new_stage, preview_material
+from tests.stage_builders import add_quad, add_settings, new_stage, preview_material
 
 
 def _quad(stage, path, corners, material=None):
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    mesh.CreatePointsAttr([Gf.Vec3f(*c) for c in corners])
-    mesh.CreateFaceVertexCountsAttr([4])
-    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    mesh.CreateSubdivisionSchemeAttr("none")
-    mesh.CreateDoubleSidedAttr(True)
-    if material is not None:
-        bind(mesh.GetPrim(), material)
-    return mesh
+    return add_quad(stage, path, corners, material, double_sided=True)
 
 
 def penumbra_stage(path, *, res=(24, 24), offset=(0.0, 0.0, 0.0), intensity=4.0, light_kind="rect",

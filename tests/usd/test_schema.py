@@ -10,6 +10,7 @@ import textwrap
 import pytest
 
 import usd_schemas
+from renderer.adaptive import DEFAULT_MIN_SPP
 from renderer.usd import estimator_api
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -79,7 +80,9 @@ def test_registered_schema_matches_the_reader_fallbacks():
                   "illum:pixelFilter": ["gaussian", ["gaussian", "box", "blackman-harris"], "token"],
                   "illum:pixelFilter:width": ["None", [], "float"],
                   "illum:pixelFilter:mode": ["splat", ["splat", "importance"], "token"],
-                  "illum:alpha:domeTransparent": ["False", [], "bool"]}
+                  "illum:alpha:domeTransparent": ["False", [], "bool"],
+                  "illum:adaptive:noiseThreshold": ["0.0", [], "float"],
+                  "illum:adaptive:minSpp": [str(DEFAULT_MIN_SPP), [], "int"]}
     assert got["can_apply"] == [True, False]
     assert "IllumIllumLightAPI" in got["tftype"]
 
