@@ -215,6 +215,13 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(404, f"no job {job_id}")
         return job
 
+    def api_log(job: Job, message: str) -> None:
+        # The log tells the whole story, also for a job no worker has taken yet.
+        d = config.job_dir(job.id)
+        with contextlib.suppress(OSError):
+            os.makedirs(d, exist_ok=True)
+        append_job_log(d, f"[api] {message}")
+
     def job_json(job: Job) -> dict:
         out = job.public()
         d = config.job_dir(job.id)
@@ -466,11 +473,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(404, f"no job {job_id}")
         if job.state in ("succeeded", "failed"):
             raise HTTPException(409, f"job {job_id} already {job.state}")
-        # The log tells the whole story, also for a job canceled before any worker took it.
-        d = config.job_dir(job.id)
-        with contextlib.suppress(OSError):
-            os.makedirs(d, exist_ok=True)
-        append_job_log(d, f"[api] canceled by request (attempts so far: {job.attempts})")
+        api_log(job, f"canceled by request (attempts so far: {job.attempts})")
         return job_json(job)
 
     @app.patch("/jobs/{job_id}", dependencies=auth, summary="Change a queued or running job's priority",
@@ -484,7 +487,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if not changed:
             raise HTTPException(409, f"job {job_id} already {job.state}: only queued or running jobs take a new "
                                      "priority (requeue it with one)")
-        append_job_log(config.job_dir(job.id), f"[api] priority set to {body.priority}")
+        api_log(job, f"priority set to {body.priority}")
         return job_json(job)
 
     @app.post("/jobs/{job_id}/requeue", dependencies=auth, summary="Run a failed or canceled job again",
@@ -503,10 +506,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if requeued:
             if job.kind == "render":
                 checks.notify()
-            d = config.job_dir(job.id)
-            with contextlib.suppress(OSError):
-                os.makedirs(d, exist_ok=True)
-            append_job_log(d, f"[api] requeued by request (requeue {job.row['requeues']}, {job.attempts} attempts "
+            api_log(job, f"requeued by request (requeue {job.row['requeues']}, {job.attempts} attempts "
                               f"so far; a fresh {job.max_attempts} attempts"
                               + (f", priority {job.priority}" if priority is not None else "") + ")")
         return job_json(job)
