@@ -20,6 +20,7 @@ import pytest
 from service.store import HISTOGRAMS, JobStore
 
 from .conftest import start_server, wait_for, wait_job
+from .test_browser import _enter_token, _only_refusals, browser  # noqa: F401 (browser is a fixture)
 
 TOKEN = "queue-token"
 
@@ -308,3 +309,124 @@ def test_thumbnail_is_a_box_filter():
     assert thumbnail(img[:20, :20], size=10).mean() == pytest.approx(img[:20, :20].mean(), rel=1e-6)
     assert small.dtype == np.float32
     np.testing.assert_array_equal(thumbnail(img, size=64), img)                  # never enlarged
+
+
+# ------------------------------------------------------------------ the page, in headless Chromium
+def _row(job_id: str, what: str) -> str:
+    """JS: a property of the job's row in the table (null while the row is absent)."""
+    return f"(() => {{ const tr = document.querySelector('#jobs-body tr[data-id=\"{job_id}\"]'); return tr ? {what} : null; }})()"
+
+
+def _click(b, element_id: str) -> None:
+    b.eval(f"document.getElementById('{element_id}').click(), true")
+
+
+def test_page_queue_controls(idle_server, api, store, browser):
+    """Priority edit, requeue, filters and delete with its confirmation, from the page."""
+    b = browser
+    b.goto(idle_server.url + "/")
+    _enter_token(b, TOKEN)
+    b.wait("document.querySelectorAll('#stage option').length > 0", what="the stage list")
+    shot = _submit(api, stage="shots/a.usda", priority=40)
+    box = _submit(api, stage="cornell_box.usda", priority=40)
+    broken = _submit(api, stage="cornell_box.usda", priority=20)
+    for j in (shot, box, broken):
+        _checked(api, j["id"])
+    order = [i for i in store.queue_order() if i in (shot["id"], box["id"], broken["id"])]
+    assert order == [shot["id"], box["id"], broken["id"]]
+    api.patch(f"/jobs/{broken['id']}", json={"priority": 100})   # next in line, then it fails
+    _as_worker(store, "w-page", broken["id"])
+    store.finish(broken["id"], "w-page", "failed", error="internal error: disk full")
+
+    # priority: the selected queued job takes a new one; the queue order follows
+    b.wait(_row(box["id"], "tr.querySelector('td.priority').textContent === '40'"), what="the job rows")
+    b.eval(_row(box["id"], "(tr.click(), true)"))
+    b.wait("!document.getElementById('priority-btn').disabled", what="the priority control")
+    b.eval("document.getElementById('sel-priority').value = '150', true")
+    _click(b, "priority-btn")
+    b.wait("document.getElementById('message').textContent.includes('0 to 100')", what="the range message")
+    assert api.get(f"/jobs/{box['id']}").json()["priority"] == 40
+    b.eval("document.getElementById('sel-priority').value = '90', true")
+    _click(b, "priority-btn")
+    b.wait(_row(box["id"], "tr.querySelector('td.priority').textContent === '90'"), what="the new priority")
+    assert api.get(f"/jobs/{box['id']}").json()["priority"] == 90
+    order = [i for i in store.queue_order() if i in (shot["id"], box["id"])]
+    assert order == [box["id"], shot["id"]]
+
+    # requeue: only failed and canceled jobs; the row shows the new run and its history
+    assert b.eval("document.getElementById('requeue-btn').disabled")
+    b.eval(_row(broken["id"], "(tr.click(), true)"))
+    b.wait("!document.getElementById('requeue-btn').disabled", what="the requeue button")
+    assert b.eval("document.getElementById('priority-btn').disabled")
+    _click(b, "requeue-btn")
+    b.wait(_row(broken["id"], "tr.dataset.state === 'queued'"), what="the requeued row")
+    assert b.wait(_row(broken["id"], "tr.querySelector('td.attempts').textContent")) == "1 (requeued 1×)"
+    j = api.get(f"/jobs/{broken['id']}").json()
+    assert (j["state"], j["requeues"], j["attempts"], j["error"]) == ("queued", 1, 1, None)
+
+    # filters: by state, by stage text; the rows follow without a reload
+    b.eval("(() => { const s = document.getElementById('filter-state'); s.value = 'queued';"
+           " s.dispatchEvent(new Event('change')); return true; })()")
+    b.wait("[...document.querySelectorAll('#jobs-body tr')].every(tr => tr.dataset.state === 'queued')"
+           " && document.querySelectorAll('#jobs-body tr').length >= 3", what="only queued rows")
+    b.eval("(() => { const s = document.getElementById('filter-stage'); s.value = 'SHOTS/';"
+           " s.dispatchEvent(new Event('input')); return true; })()")
+    b.wait(f"(() => {{ const rows = [...document.querySelectorAll('#jobs-body tr')];"
+           f" return rows.length > 0 && rows.every(tr => tr.querySelector('td.stage').textContent.startsWith('shots/'))"
+           f" && rows.some(tr => tr.dataset.id === '{shot['id']}'); }})()", what="only shots/ rows")
+    b.eval("(() => { const s = document.getElementById('filter-stage'); s.value = \"' OR 1=1 --\";"
+           " s.dispatchEvent(new Event('input')); return true; })()")
+    b.wait("document.querySelectorAll('#jobs-body tr').length === 0 && "
+           "document.getElementById('jobs-empty').textContent === 'No job matches the filters.'", what="no rows")
+    b.eval("(() => { for (const [id, ev] of [['filter-state', 'change'], ['filter-stage', 'input']]) {"
+           " const s = document.getElementById(id); s.value = ''; s.dispatchEvent(new Event(ev)); } return true; })()")
+    b.wait(_row(box["id"], "true"), what="all rows again")
+
+    # delete: asks first; "Keep" keeps the job, "Delete" removes it
+    b.eval(_row(box["id"], "(tr.click(), true)"))
+    b.wait("!document.getElementById('delete-btn').disabled", what="the delete button")
+    _click(b, "delete-btn")
+    assert b.wait("document.getElementById('delete-dialog').open && "
+                  "document.getElementById('delete-what').textContent").startswith(box["id"])
+    _click(b, "delete-keep")
+    b.wait("!document.getElementById('delete-dialog').open", what="the dialog to close")
+    assert api.get(f"/jobs/{box['id']}").status_code == 200
+    _click(b, "delete-btn")
+    b.wait("document.getElementById('delete-dialog').open", what="the dialog")
+    _click(b, "delete-confirm")
+    b.wait(f"document.getElementById('message').textContent === 'Deleted job {box['id']}'", what="the deletion")
+    b.wait(_row(box["id"], "false") + " === null", what="the row to go")
+    assert api.get(f"/jobs/{box['id']}").status_code == 404
+    assert b.eval("document.getElementById('sel-id').textContent") == ""
+    assert _only_refusals(b) == []   # the 401s before the token was entered, nothing else
+    for j in (shot, broken):
+        api.post(f"/jobs/{j['id']}/cancel")
+
+
+def test_page_rows_show_thumbnail_elapsed_memory(server, client, browser):
+    """A rendered job's row shows its thumbnail (fetched as a blob), elapsed time, peak memory
+    and attempts."""
+    job = client.post("/jobs", json={"stage": "shots/a.usda", "settings": {"resolution": [24, 12], "spp": 2}}).json()
+    done = wait_job(client, job["id"], timeout=240)
+    assert done["state"] == "succeeded", done
+    b = browser
+    b.goto(server.url + "/")
+    size = b.wait(_row(job["id"], "(() => { const img = tr.querySelector('td.thumb img');"
+                               " return img && !img.hidden && img.complete && img.naturalWidth"
+                               " ? [img.naturalWidth, img.naturalHeight, img.src.slice(0, 5)] : null; })()"),
+                  what="the row's thumbnail")
+    assert size == [24, 12, "blob:"]
+    cells = b.eval(_row(job["id"], "[...tr.querySelectorAll('td')].map(td => td.textContent)"))
+    elapsed = b.eval(_row(job["id"], "tr.querySelector('td.elapsed').textContent"))
+    memory = b.eval(_row(job["id"], "tr.querySelector('td.memory').textContent"))
+    parts = elapsed.split()
+    if len(parts) == 2:                                    # "12.3 s"
+        assert parts[1] == "s" and abs(float(parts[0]) - done["elapsed_seconds"]) <= 0.05 + 1e-9, cells
+    else:                                                  # "1 min 05 s" (a loaded machine)
+        assert parts[1::2] == ["min", "s"], cells
+        assert int(parts[0]) * 60 + int(parts[2]) == int(done["elapsed_seconds"]), cells
+    value, unit = memory.split()
+    scale = {"MiB": 2**20, "GiB": 2**30}[unit]
+    assert abs(float(value) - done["peak_memory"] / scale) <= (0.05 if "." in value else 0.5) + 1e-9, cells
+    assert b.eval(_row(job["id"], "tr.querySelector('td.attempts').textContent")) == f"1/{done['max_attempts']}"
+    assert b.js_errors() == []
