@@ -11,6 +11,7 @@ produces (thumbnail, peak memory, elapsed time).
 
 from __future__ import annotations
 
+import json
 import os
 import threading
 
@@ -430,3 +431,35 @@ def test_page_rows_show_thumbnail_elapsed_memory(server, client, browser):
     assert abs(float(value) - done["peak_memory"] / scale) <= (0.05 if "." in value else 0.5) + 1e-9, cells
     assert b.eval(_row(job["id"], "tr.querySelector('td.attempts').textContent")) == f"1/{done['max_attempts']}"
     assert b.js_errors() == []
+
+
+def test_cli_priority_requeue_and_search(idle_server, api, capsys, monkeypatch):
+    """``illum jobs ID --priority P``, ``--requeue`` and ``illum jobs --stage TEXT``."""
+    from renderer.cli import main
+
+    monkeypatch.setenv("ILLUM_TOKEN", TOKEN)
+
+    def illum(*args):
+        capsys.readouterr()
+        code = main(["jobs", "--server", idle_server.url, *args])
+        return code, *capsys.readouterr()
+
+    job = _submit(api, stage="shots/a.usda", priority=10)
+    code, out, _ = illum(job["id"], "--priority", "77")
+    assert code == 0 and json.loads(out)["priority"] == 77
+    code, out, err = illum(job["id"], "--priority", "777")
+    assert code == 2 and "priority" in err and api.get(f"/jobs/{job['id']}").json()["priority"] == 77
+    api.post(f"/jobs/{job['id']}/cancel")
+    code, out, _ = illum(job["id"], "--requeue", "--priority", "60")
+    j = json.loads(out)
+    assert code == 0 and (j["state"], j["priority"], j["requeues"]) == ("queued", 60, 1)
+    code, out, _ = illum("--stage", "shots/", "--state", "queued", "--limit", "1000")
+    lines = out.splitlines()
+    assert code == 0 and lines[0].split()[:9] == ["ID", "STATE", "PROGRESS", "SPP", "PRIO", "TRIES", "ELAPSED",
+                                                 "PEAK", "MEM"]
+    row = next(r for r in lines[1:] if r.startswith(job["id"]))
+    assert "0/3 +1rq" in row and "shots/a.usda" in row
+    assert all("shots/" in r and " queued " in r for r in lines[1:])
+    code, _, err = illum("--requeue")
+    assert code == 2 and "need a job id" in err
+    api.post(f"/jobs/{job['id']}/cancel")
