@@ -5,12 +5,12 @@ also be started by hand on the same host to add capacity). Rendering happens her
 the server process.
 
 Per job:
-* a heartbeat thread refreshes the job's heartbeat every ``--heartbeat-interval`` seconds; a
-  rowcount of 0 (canceled, deleted or reassigned by the reaper) sets the stop flag, which the
+* a heartbeat thread refreshes the job's heartbeat every ``--heartbeat-interval`` seconds, with
+  the process's peak memory during the job (PeakMemory); a rowcount of 0 (canceled, deleted or reassigned by the reaper) sets the stop flag, which the
   renderer's ``cancel`` callback returns between passes;
 * progress (percent, spp, samples/s, ETA) goes to the store about twice a second;
 * every ``--snapshot-interval`` seconds (and right after the first pass) the film is written as
-  ``preview.exr`` + ``preview.png`` and checkpointed (``Film.save_state``), so a worker killed
+  ``preview.exr`` + ``preview.png`` (+ ``thumb.png`` for the job list) and checkpointed (``Film.save_state``), so a worker killed
   with ``kill -9`` resumes from there when the reaper requeues the job;
 * an IllumError fails the job with its one-line message (a user error: retrying cannot help),
   and so does a MemoryError (the same job would run out again under the same limit);
