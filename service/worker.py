@@ -204,7 +204,8 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
         for name in (FINAL_EXR, FINAL_PNG, STATS_JSON):
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(os.path.join(jobdir, name))
-    again = f" (attempt {job.attempts} in all, requeued {job.row.get('requeues')} times)" if job.row.get("requeues") else ""
+    requeues = int(job.row.get("requeues") or 0)
+    again = f" (attempt {job.attempts} in all; {requeues} requeue{'s' if requeues > 1 else ''})" if requeues else ""
     jlog(f"attempt {job.run_attempt} of {job.max_attempts}{again} on worker {ctx.worker_id} (pid {os.getpid()}, "
          f"backend {ctx.backend}): {job.kind} {job.stage_name}")
     stop = threading.Event()
