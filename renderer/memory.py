@@ -81,6 +81,15 @@ def available_memory() -> int | None:
     return min(room) if room else None
 
 
+def resident_memory() -> tuple[int, int] | None:
+    """(resident set size, its high-water mark) of this process in bytes, from
+    /proc/self/status (Linux); None where that cannot be read."""
+    f = _proc_fields("/proc/self/status", ("VmRSS:", "VmHWM:"))
+    if "VmRSS:" not in f:
+        return None
+    return f["VmRSS:"], f.get("VmHWM:", f["VmRSS:"])
+
+
 def _proc_fields(path: str, names: tuple[str, ...]) -> dict:
     """{name: bytes} of ``name  N kB`` lines of a /proc file (missing file: {})."""
     out = {}

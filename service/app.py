@@ -15,7 +15,6 @@ import hmac
 import os
 import tempfile
 import time
-from collections import Counter
 from typing import Literal, Optional
 
 from fastapi import Depends, FastAPI, Header, HTTPException, Path, Query, Request, Response
@@ -30,12 +29,13 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from . import API_VERSION
 from .assets import AssetChecker, CheckQueue
 from .config import ServiceConfig
-from .models import JobCreate, request_hash, validate_settings
+from .metrics import Metrics
+from .models import JobCreate, JobPatch, JobRequeue, check_stage_search, request_hash, validate_settings
 from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
                     resolve_upload, upload_name)
-from .store import STATES, IdempotencyConflict, Job, JobStore
+from .store import IdempotencyConflict, Job, JobStore
 from .supervisor import Supervisor, append_job_log
-from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON
+from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON, THUMB_PNG, THUMB_SIZE
 
 __all__ = ["create_app"]
 
@@ -64,10 +64,10 @@ class _Limits:
     """Pure ASGI middleware: caps request bodies (by Content-Length up front, and by counting
     streamed bytes for chunked bodies) and counts responses for /metrics."""
 
-    def __init__(self, app, config: ServiceConfig, counters: Counter):
+    def __init__(self, app, config: ServiceConfig, metrics: Metrics):
         self.app = app
         self.config = config
-        self.counters = counters
+        self.metrics = metrics
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
@@ -108,7 +108,7 @@ class _Limits:
             await self.app(scope, limited_receive, counting_send)
         finally:
             method = scope.get("method", "")
-            self.counters[(method if method in _METHODS else "other", status_box[0])] += 1
+            self.metrics.count_request(method if method in _METHODS else "other", status_box[0])
 
 
 def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
@@ -129,8 +129,8 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         append_job_log(d, f"[api] refused by the asset check: {message}")
 
     checks = CheckQueue(store, assets, on_refused=refused)
-    counters: Counter = Counter()
     started = time.time()
+    metrics = Metrics(store, config.backend, started)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -161,12 +161,13 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     app.state.config = config
     app.state.store = store
     app.state.supervisor = supervisor
-    app.add_middleware(_Limits, config=config, counters=counters)
+    app.add_middleware(_Limits, config=config, metrics=metrics)
 
     # ---------------------------------------------------------------- errors
     @app.exception_handler(InputError)
     async def _input_error(request: Request, exc: InputError):
-        loc = ["body", *exc.field.split(".")] if exc.field else ["body"]
+        parts = exc.field.split(".") if exc.field else []
+        loc = parts if parts[:1] in (["query"], ["path"]) else ["body", *parts]
         return JSONResponse({"detail": [{"loc": loc, "msg": exc.message, "type": "value_error"}],
                              "message": str(exc)}, status_code=exc.status)
 
@@ -214,14 +215,26 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(404, f"no job {job_id}")
         return job
 
+    def api_log(job: Job, message: str) -> None:
+        # The log tells the whole story, also for a job no worker has taken yet.
+        d = config.job_dir(job.id)
+        with contextlib.suppress(OSError):
+            os.makedirs(d, exist_ok=True)
+        append_job_log(d, f"[api] {message}")
+
     def job_json(job: Job) -> dict:
         out = job.public()
         d = config.job_dir(job.id)
         has = {fmt: any(os.path.exists(os.path.join(d, n)) for n in names)
                for fmt, names in (("png", (FINAL_PNG, PREVIEW_PNG)), ("exr", (FINAL_EXR, PREVIEW_EXR)))}
+        started_at = job.row.get("started_at")
+        out["elapsed_seconds"] = (None if started_at is None
+                                  else max(0.0, (job.row.get("finished_at") or time.time()) - started_at))
+        thumb = os.path.exists(os.path.join(d, THUMB_PNG))
         out["links"] = {"self": f"/jobs/{job.id}", "log": f"/jobs/{job.id}/log",
                         "image_png": f"/jobs/{job.id}/image?format=png" if has["png"] else None,
-                        "image_exr": f"/jobs/{job.id}/image?format=exr" if has["exr"] else None}
+                        "image_exr": f"/jobs/{job.id}/image?format=exr" if has["exr"] else None,
+                        "thumbnail": f"/jobs/{job.id}/thumbnail" if thumb else None}
         return out
 
     # ---------------------------------------------------------------- pages
@@ -282,35 +295,9 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
 
     @app.get("/metrics", summary="Prometheus metrics (text exposition format 0.0.4)",
              response_class=PlainTextResponse, dependencies=auth)
-    def metrics():
-        c = store.counts()
-        workers = store.workers()
-        lines = []
-
-        def metric(name, kind, help_, samples):
-            lines.append(f"# HELP {name} {help_}")
-            lines.append(f"# TYPE {name} {kind}")
-            for labels, value in samples:
-                lab = ",".join(f'{k}="{v}"' for k, v in labels.items())
-                lines.append(f"{name}{{{lab}}} {value}" if lab else f"{name} {value}")
-
-        metric("illum_jobs", "gauge", "Jobs by state (deleted jobs excluded).",
-               [({"state": s}, c["states"][s]) for s in STATES])
-        metric("illum_jobs_created_total", "counter", "Jobs ever created.", [({}, c["created_total"])])
-        metric("illum_job_attempts_total", "counter", "Attempts started over all stored jobs.",
-               [({}, c["attempts_total"])])
-        metric("illum_samples_per_second", "gauge", "Camera samples per second over running jobs.",
-               [({}, f"{c['samples_per_second']:.6g}")])
-        metric("illum_samples_succeeded_total", "counter", "Samples per pixel delivered by succeeded jobs.",
-               [({}, c["spp_succeeded_total"])])
-        metric("illum_workers", "gauge", "Registered workers.", [({"backend": config.backend}, len(workers))])
-        metric("illum_workers_busy", "gauge", "Workers holding a job.",
-               [({}, sum(1 for w in workers if w["job_id"]))])
-        metric("illum_http_requests_total", "counter", "HTTP responses by method and status.",
-               [({"method": m, "code": s}, n) for (m, s), n in sorted(counters.items())])
-        metric("illum_uptime_seconds", "gauge", "Seconds since the server started.",
-               [({}, f"{time.time() - started:.3f}")])
-        return PlainTextResponse("\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8")
+    def metrics_page():
+        body, content_type = metrics.exposition()
+        return Response(body, media_type=content_type)
 
     @app.get("/stages", dependencies=auth,
              summary="Stages (or, for kind=preconvolve, environment maps) under the stage root")
@@ -398,10 +385,13 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             response.headers["Idempotent-Replayed"] = "true"
         return job_json(job)
 
-    @app.get("/jobs", dependencies=auth, summary="List jobs, newest first")
+    @app.get("/jobs", dependencies=auth, summary="List jobs, newest first",
+             description="Filter by one or more `state`s and by `stage`: text the stage name contains (plain "
+                         "text, case-blind for ASCII letters).")
     def list_jobs(state: Optional[list[Literal["queued", "running", "succeeded", "failed", "canceled"]]] = Query(None),
+                  stage: Optional[str] = Query(None, description="text the stage name contains"),
                   limit: int = Query(200, ge=1, le=1000), offset: int = Query(0, ge=0, le=2**62)):
-        jobs, total = store.list_jobs(states=state, limit=limit, offset=offset)
+        jobs, total = store.list_jobs(states=state, limit=limit, offset=offset, stage=check_stage_search(stage))
         return {"jobs": [job_json(j) for j in jobs], "count": len(jobs), "total": total}
 
     @app.get("/jobs/{job_id}", dependencies=auth,
@@ -434,6 +424,20 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             headers["Content-Length"] = str(size)
             return StreamingResponse(_iter_file(fh), media_type=MEDIA[format], headers=headers)
         raise HTTPException(404, f"job {job.id} has no image yet (state {job.state})")
+
+    @app.get("/jobs/{job_id}/thumbnail", dependencies=auth,
+             summary=f"A small sRGB PNG of the job's latest image (at most {THUMB_SIZE} px on its longer side)",
+             responses={200: {"content": {"image/png": {}}}, 404: {"description": "no image yet"}})
+    def job_thumbnail(job_id: str = Path(..., pattern=JOB_ID),
+                      t: Optional[str] = Query(None, description="ignored; lets pages defeat caches")):
+        job = job_or_404(job_id)
+        try:
+            with open(os.path.join(config.job_dir(job.id), THUMB_PNG), "rb") as fh:  # replaced by rename
+                data = fh.read()
+        except FileNotFoundError:
+            raise HTTPException(404, f"job {job.id} has no image yet (state {job.state})") from None
+        return Response(data, media_type="image/png", headers={
+            "Cache-Control": "no-store", "X-Illum-Spp": str(job.row.get("spp_done") or 0), "X-Illum-State": job.state})
 
     @app.get("/jobs/{job_id}/log", dependencies=auth, summary="The job's log (attempts, progress, errors)",
              response_class=PlainTextResponse)
@@ -469,11 +473,42 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(404, f"no job {job_id}")
         if job.state in ("succeeded", "failed"):
             raise HTTPException(409, f"job {job_id} already {job.state}")
-        # The log tells the whole story, also for a job canceled before any worker took it.
-        d = config.job_dir(job.id)
-        with contextlib.suppress(OSError):
-            os.makedirs(d, exist_ok=True)
-        append_job_log(d, f"[api] canceled by request (attempts so far: {job.attempts})")
+        api_log(job, f"canceled by request (attempts so far: {job.attempts})")
+        return job_json(job)
+
+    @app.patch("/jobs/{job_id}", dependencies=auth, summary="Change a queued or running job's priority",
+               description="The queue takes the new priority into account at once: workers claim the highest "
+                           "priority first, the oldest first among equals.",
+               responses={409: {"description": "the job already finished (requeue it instead)"}})
+    def patch_job(body: JobPatch, job_id: str = Path(..., pattern=JOB_ID)):
+        job, changed = store.set_priority(job_id, body.priority)
+        if job is None:
+            raise HTTPException(404, f"no job {job_id}")
+        if not changed:
+            raise HTTPException(409, f"job {job_id} already {job.state}: only queued or running jobs take a new "
+                                     "priority (requeue it with one)")
+        api_log(job, f"priority set to {body.priority}")
+        return job_json(job)
+
+    @app.post("/jobs/{job_id}/requeue", dependencies=auth, summary="Run a failed or canceled job again",
+              description=("The job goes back to `queued` with a fresh allowance of `max_attempts` attempts, "
+                           "resuming from its last checkpoint if one is left. `attempts` keeps counting, the log "
+                           "keeps the history, `requeues` counts the requeues. Repeating the request while the "
+                           "job is queued or running changes nothing (200)."),
+              responses={409: {"description": "the job succeeded"}})
+    def requeue_job(job_id: str = Path(..., pattern=JOB_ID), body: Optional[JobRequeue] = None):
+        priority = body.priority if body is not None else None
+        job, requeued = store.requeue(job_id, priority)
+        if job is None:
+            raise HTTPException(404, f"no job {job_id}")
+        if job.state == "succeeded":
+            raise HTTPException(409, f"job {job_id} already succeeded; submit it again to render it again")
+        if requeued:
+            if job.kind == "render":
+                checks.notify()
+            api_log(job, f"requeued by request (requeue {job.row['requeues']}, {job.attempts} attempts "
+                              f"so far; a fresh {job.max_attempts} attempts"
+                              + (f", priority {job.priority}" if priority is not None else "") + ")")
         return job_json(job)
 
     @app.delete("/jobs/{job_id}", status_code=204, dependencies=auth,

@@ -80,11 +80,15 @@ def register_cli(subparsers) -> None:
     j.add_argument("--server", default=None, help="service URL (default $ILLUM_SERVER or http://127.0.0.1:8765)")
     j.add_argument("--state", action="append", choices=("queued", "running", "succeeded", "failed", "canceled"),
                    help="only jobs in this state (repeatable)")
+    j.add_argument("--stage", default=None, metavar="TEXT", help="only jobs whose stage name contains TEXT")
     j.add_argument("--limit", type=int, default=50)
     j.add_argument("--json", action="store_true", help="print JSON")
     j.add_argument("--cancel", action="store_true", help="cancel JOB")
     j.add_argument("--delete", action="store_true", help="delete JOB and its files")
     j.add_argument("--log", action="store_true", help="print JOB's log")
+    j.add_argument("--requeue", action="store_true", help="run a failed or canceled JOB again (with --priority: at it)")
+    j.add_argument("--priority", type=int, default=None, metavar="P",
+                   help="set a queued or running JOB's priority (0-100, higher runs first)")
     j.set_defaults(func=cmd_jobs)
 
 
@@ -305,22 +309,31 @@ def cmd_jobs(a) -> int:
                 elif a.log:
                     sys.stdout.write(client.log(a.job))
                     return 0
+                elif a.requeue:
+                    out = client.requeue(a.job, a.priority)
+                elif a.priority is not None:
+                    out = client.set_priority(a.job, a.priority)
                 else:
                     out = client.get_job(a.job)
                 print(json.dumps(out, indent=2, sort_keys=True))
                 return 0
-            if a.cancel or a.delete or a.log:
-                _raise_user(ServiceError(0, "--cancel, --delete and --log need a job id"))
-            listing = client.list_jobs(a.state, limit=a.limit)
+            if a.cancel or a.delete or a.log or a.requeue or a.priority is not None:
+                _raise_user(ServiceError(0, "--cancel, --delete, --log, --requeue and --priority need a job id"))
+            listing = client.list_jobs(a.state, limit=a.limit, stage=a.stage)
         except ServiceError as e:
             _raise_user(e)
     if a.json:
         print(json.dumps(listing, indent=2, sort_keys=True))
         return 0
-    rows = [("ID", "STATE", "PROGRESS", "SPP", "PRIO", "TRIES", "AGE", "STAGE", "ERROR")]
+    from renderer.memory import format_size
+
+    rows = [("ID", "STATE", "PROGRESS", "SPP", "PRIO", "TRIES", "ELAPSED", "PEAK MEM", "AGE", "STAGE", "ERROR")]
     for j in listing["jobs"]:
+        tries = f"{j['attempts']}/{j['max_attempts']}" + (f" +{j['requeues']}rq" if j.get("requeues") else "")
+        elapsed = j.get("elapsed_seconds")
         rows.append((j["id"], j["state"], f"{j.get('progress') or 0:.0f}%", str(j.get("spp_done") or 0),
-                     str(j["priority"]), f"{j['attempts']}/{j['max_attempts']}", _age(j.get("created_at")),
+                     str(j["priority"]), tries, "-" if elapsed is None else f"{elapsed:.1f}s",
+                     format_size(j["peak_memory"]) if j.get("peak_memory") else "-", _age(j.get("created_at")),
                      j["stage"], (j.get("error") or "")[:60]))
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     for r in rows:

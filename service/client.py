@@ -88,9 +88,18 @@ class ServiceClient:
     def get_job(self, job_id: str) -> dict:
         return self._request("GET", f"/jobs/{job_id}").json()
 
-    def list_jobs(self, states: Iterable[str] | None = None, limit: int = 200) -> dict:
+    def list_jobs(self, states: Iterable[str] | None = None, limit: int = 200, stage: str | None = None) -> dict:
         params: list = [("limit", limit)] + [("state", s) for s in (states or [])]
+        if stage:
+            params.append(("stage", stage))
         return self._request("GET", "/jobs", params=params).json()
+
+    def set_priority(self, job_id: str, priority: int) -> dict:
+        return self._request("PATCH", f"/jobs/{job_id}", json={"priority": priority}).json()
+
+    def requeue(self, job_id: str, priority: int | None = None) -> dict:
+        body = {} if priority is None else {"priority": priority}
+        return self._request("POST", f"/jobs/{job_id}/requeue", json=body).json()
 
     def cancel(self, job_id: str) -> dict:
         return self._request("POST", f"/jobs/{job_id}/cancel").json()

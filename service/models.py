@@ -20,7 +20,7 @@ from renderer import options
 from .config import Limits
 from .paths import InputError
 
-__all__ = ["JobCreate", "RenderSettings", "PreconvolveSettings", "validate_settings", "render_options",
+__all__ = ["JobCreate", "JobPatch", "JobRequeue", "STAGE_SEARCH_MAX", "check_stage_search", "RenderSettings", "PreconvolveSettings", "validate_settings", "render_options",
            "request_hash", "DEFAULT_SPP"]
 
 DEFAULT_SPP = 64
@@ -119,6 +119,38 @@ class JobCreate(BaseModel):
     idempotency_key: Optional[str] = Field(None, min_length=1, max_length=255,
                                            description="same key and body -> the same job, never a duplicate")
     max_attempts: Optional[StrictInt] = Field(None, ge=1, le=16)
+
+
+class JobPatch(BaseModel):
+    """Body of ``PATCH /jobs/{id}``: what may change on a queued or running job."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"priority": 80}]})
+
+    priority: StrictInt = Field(..., ge=0, le=100, description="0-100, higher runs first")
+
+
+class JobRequeue(BaseModel):
+    """Optional body of ``POST /jobs/{id}/requeue``."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{"priority": 90}]})
+
+    priority: Optional[StrictInt] = Field(None, ge=0, le=100, description="a new priority for the new run")
+
+
+STAGE_SEARCH_MAX = 256  # characters of a stage search (GET /jobs?stage=)
+
+
+def check_stage_search(text: Optional[str]) -> Optional[str]:
+    """The ``stage`` search of ``GET /jobs``: plain text of at most STAGE_SEARCH_MAX characters
+    without control characters (it is matched literally, never as a pattern or SQL). Returns
+    the text with surrounding blanks removed (None when empty); raises InputError (422)."""
+    if text is None:
+        return None
+    if len(text) > STAGE_SEARCH_MAX:
+        raise InputError(422, "query.stage", f"{len(text)} characters exceed the limit of {STAGE_SEARCH_MAX}")
+    if any(ord(c) < 32 or 127 <= ord(c) < 160 or 0xD800 <= ord(c) < 0xE000 for c in text):
+        raise InputError(422, "query.stage", "must not contain control characters")
+    return text.strip() or None
 
 
 def _validation_error(prefix: str, err: ValidationError) -> InputError:

@@ -12,6 +12,8 @@ State machine::
 
     queued (asset_check 'pending') ──check refused──► failed   (never claimed, never retried)
 
+    failed | canceled ──requeue──► queued   (attempts kept; a fresh allowance of max_attempts)
+
 * A render job is created with its asset check ``pending``: the server's checker threads run the
   check off the request path (service/assets.py) and either fail the job with the checker's
   message (``check_done``) or mark it ``done``; ``claim`` takes only checked jobs. Pending
@@ -23,6 +25,15 @@ State machine::
   0 means the job was canceled, deleted or handed to another worker: the worker must stop.
 * Every write a worker makes is guarded the same way, so a worker that lost its job can never
   overwrite what the reaper or a user decided.
+* ``requeue`` puts a failed or canceled job back in the queue in one conditional UPDATE, so it
+  is idempotent (a second requeue finds the job queued and changes nothing) and never races a
+  worker: ``claim`` skips a job that a worker row still holds (a canceled job whose worker has
+  not let go yet), so the old worker's guarded writes fail and a new worker starts only once the
+  old one released it, resuming from the checkpoint. ``attempts`` keeps counting over requeues;
+  ``attempt_base`` (the attempts spent before the last requeue) gives each run its own
+  ``max_attempts``.
+* Finished jobs add to persistent histograms (render seconds, peak memory) in the same
+  transaction that ends them, so ``/metrics`` counts survive restarts and deletions.
 * Deleting a job hides it at once (``deleted_at``); the row and its directory are removed by
   ``collect_deleted`` once no worker holds it, so a worker never writes into a removed dir.
 """
@@ -44,7 +55,7 @@ __all__ = ["JobStore", "Job", "STATES", "TERMINAL_STATES", "KINDS"]
 STATES = ("queued", "running", "succeeded", "failed", "canceled")
 TERMINAL_STATES = ("succeeded", "failed", "canceled")
 KINDS = ("render", "preconvolve")
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -77,7 +88,10 @@ CREATE TABLE IF NOT EXISTS jobs (
     result              TEXT,               -- JSON summary written on success
     cancel_requested_at REAL,
     deleted_at          REAL,
-    asset_check         TEXT NOT NULL DEFAULT 'done' CHECK (asset_check IN ('pending', 'done'))
+    asset_check         TEXT NOT NULL DEFAULT 'done' CHECK (asset_check IN ('pending', 'done')),
+    peak_memory         INTEGER,            -- bytes: the largest worker RSS seen over the job's attempts
+    requeues            INTEGER NOT NULL DEFAULT 0,   -- times a user put the job back in the queue
+    attempt_base        INTEGER NOT NULL DEFAULT 0    -- attempts spent before the last requeue
 );
 CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, priority DESC, seq);
 CREATE TABLE IF NOT EXISTS workers (
@@ -90,17 +104,44 @@ CREATE TABLE IF NOT EXISTS workers (
     heartbeat_at  REAL NOT NULL,
     stop_deadline REAL              -- set on cancel: the supervisor kills the process after it
 );
+-- Histograms of finished jobs for /metrics: one row per (metric, job kind, bucket upper bound),
+-- counting the observations that fell in that bucket alone (not cumulative), with their sum.
+CREATE TABLE IF NOT EXISTS histograms (
+    name  TEXT NOT NULL,
+    kind  TEXT NOT NULL,
+    le    REAL NOT NULL,
+    count INTEGER NOT NULL DEFAULT 0,
+    sum   REAL NOT NULL DEFAULT 0,
+    PRIMARY KEY (name, kind, le)
+);
 """
+
+# Columns added after version 1, with their definitions: a database from an older version gets
+# them by ALTER TABLE at open (its rows take the defaults, which describe them correctly).
+_ADDED_COLUMNS = (
+    # v2: jobs of a v1 database were all checked at submission
+    ("asset_check", "TEXT NOT NULL DEFAULT 'done' CHECK (asset_check IN ('pending', 'done'))"),
+    # v3: nothing measured, never requeued
+    ("peak_memory", "INTEGER"),
+    ("requeues", "INTEGER NOT NULL DEFAULT 0"),
+    ("attempt_base", "INTEGER NOT NULL DEFAULT 0"),
+)
+
+# Bucket upper bounds of the histograms (the last bucket, +Inf, is implied).
+RENDER_SECONDS_BUCKETS = (1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1800.0, 3600.0, 7200.0,
+                          14400.0, 28800.0, 86400.0)
+MEMORY_BUCKETS = tuple(float(2 ** k) for k in range(26, 39))   # 64 MiB .. 256 GiB
+HISTOGRAMS = {"render_seconds": RENDER_SECONDS_BUCKETS, "peak_memory_bytes": MEMORY_BUCKETS}
 
 # Columns the API exposes (internal bookkeeping such as request_hash stays private).
 _PUBLIC = ("id", "kind", "state", "priority", "stage_name", "settings", "idempotency_key", "created_at",
            "updated_at", "started_at", "finished_at", "worker", "heartbeat_at", "attempts", "max_attempts",
            "progress", "spp_done", "spp_target", "samples_per_second", "eta_seconds", "render_seconds",
-           "error", "result", "cancel_requested_at", "asset_check")
+           "error", "result", "cancel_requested_at", "asset_check", "peak_memory", "requeues")
 
 # Columns a worker may set while it owns a job (names are interpolated into SQL: keep this closed).
 _PROGRESS_FIELDS = frozenset({"progress", "spp_done", "spp_target", "samples_per_second", "eta_seconds",
-                              "render_seconds"})
+                              "render_seconds", "peak_memory"})
 
 
 @dataclass(frozen=True)
@@ -118,6 +159,12 @@ class Job:
     max_attempts: int
     worker: Optional[str]
     row: dict
+
+    @property
+    def run_attempt(self) -> int:
+        """The attempt number within this run (since the job was created or last requeued),
+        which ``max_attempts`` bounds; ``attempts`` counts them all."""
+        return self.attempts - int(self.row.get("attempt_base") or 0)
 
     @staticmethod
     def from_row(row: sqlite3.Row) -> "Job":
@@ -163,13 +210,21 @@ class JobStore:
                 raise RuntimeError(f"{self.path}: SQLite refused WAL mode (got {mode!r}); "
                                    "is the data directory on a network filesystem?")
             db.executescript(_SCHEMA)
-            # Version 1 databases lack the asset_check column: their jobs were all checked at
-            # submission, which the column's default says.
             columns = {r[1] for r in db.execute("PRAGMA table_info(jobs)")}
-            if "asset_check" not in columns:
-                db.execute("ALTER TABLE jobs ADD COLUMN asset_check TEXT NOT NULL DEFAULT 'done' "
-                           "CHECK (asset_check IN ('pending', 'done'))")
-                db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),))
+            added = [(name, decl) for name, decl in _ADDED_COLUMNS if name not in columns]
+            if added:
+                db.execute("BEGIN IMMEDIATE")
+                try:
+                    # another process may have migrated meanwhile: look again under the write lock
+                    columns = {r[1] for r in db.execute("PRAGMA table_info(jobs)")}
+                    for name, decl in added:
+                        if name not in columns:
+                            db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {decl}")
+                    db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),))
+                except BaseException:
+                    db.execute("ROLLBACK")
+                    raise
+                db.execute("COMMIT")
             db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
 
     # ------------------------------------------------------------------ connections
@@ -236,18 +291,30 @@ class JobStore:
                              (job_id,)).fetchone()
         return Job.from_row(row) if row is not None else None
 
-    def list_jobs(self, states: list[str] | None = None, limit: int = 200, offset: int = 0) -> tuple[list[Job], int]:
-        """Newest first. Returns (jobs, total matching)."""
+    def list_jobs(self, states: list[str] | None = None, limit: int = 200, offset: int = 0,
+                  stage: str | None = None) -> tuple[list[Job], int]:
+        """Newest first. ``stage``: only jobs whose stage name contains this text (case-blind
+        for ASCII letters; matched as plain text, never as a pattern). Returns (jobs, total
+        matching)."""
         where = "deleted_at IS NULL"
         args: list[Any] = []
         if states:
             where += f" AND state IN ({','.join('?' * len(states))})"
             args += list(states)
+        if stage:
+            where += " AND instr(lower(stage_name), lower(?)) > 0"
+            args.append(stage)
         with self.connect() as db:
             total = db.execute(f"SELECT COUNT(*) FROM jobs WHERE {where}", args).fetchone()[0]
             rows = db.execute(f"SELECT * FROM jobs WHERE {where} ORDER BY seq DESC LIMIT ? OFFSET ?",
                               args + [int(limit), int(offset)]).fetchall()
         return [Job.from_row(r) for r in rows], int(total)
+
+    def queue_order(self) -> list[str]:
+        """Ids of the claimable jobs in the order workers will take them."""
+        with self.connect() as db:
+            rows = db.execute(f"SELECT id FROM jobs WHERE {_CLAIMABLE} ORDER BY priority DESC, seq").fetchall()
+        return [r[0] for r in rows]
 
     def counts(self) -> dict:
         """Jobs per state (visible ones), plus totals for metrics."""
@@ -276,8 +343,49 @@ class JobStore:
                 db.execute("""UPDATE jobs SET state='canceled', cancel_requested_at=?, finished_at=?, updated_at=?,
                               eta_seconds=NULL, samples_per_second=NULL WHERE id=?""", (now, now, now, job_id))
                 db.execute("UPDATE workers SET stop_deadline=? WHERE job_id=?", (now + grace, job_id))
+                if row["state"] == "running":  # a run ended
+                    _observe_end(db, job_id)
             row = db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
         return Job.from_row(row)
+
+    def set_priority(self, job_id: str, priority: int) -> tuple[Job | None, bool]:
+        """Change the priority of a queued or running job (a running one keeps it if it is
+        requeued). Returns (job after the call or None if unknown, changed); a finished job is
+        returned unchanged with changed False."""
+        if not 0 <= int(priority) <= 100:
+            raise ValueError(f"priority must be in [0, 100], got {priority}")
+        now = time.time()
+        with self.transaction() as db:
+            cur = db.execute("""UPDATE jobs SET priority=?, updated_at=? WHERE id=? AND deleted_at IS NULL
+                                AND state IN ('queued', 'running')""", (int(priority), now, job_id))
+            row = db.execute("SELECT * FROM jobs WHERE id=? AND deleted_at IS NULL", (job_id,)).fetchone()
+        return (Job.from_row(row) if row is not None else None), cur.rowcount == 1
+
+    def requeue(self, job_id: str, priority: int | None = None) -> tuple[Job | None, bool]:
+        """Put a failed or canceled job back in the queue: a new run with max_attempts fresh
+        attempts, resuming from its checkpoint if one is left. ``attempts``, the log and the
+        checkpoint are kept; the error, progress rate and times of the last run are cleared.
+        Render jobs have their stage's assets checked again. Returns (job or None if unknown,
+        requeued); a job already queued or running (a repeated request) or succeeded is
+        returned unchanged with requeued False.
+
+        Safe against the job's old worker: if it still holds the job (a cancel it has not
+        noticed yet) its guarded writes fail from now on, and ``claim`` leaves the job alone
+        until that worker has let go."""
+        if priority is not None and not 0 <= int(priority) <= 100:
+            raise ValueError(f"priority must be in [0, 100], got {priority}")
+        now = time.time()
+        with self.transaction() as db:
+            cur = db.execute(
+                """UPDATE jobs SET state='queued', worker=NULL, heartbeat_at=NULL, started_at=NULL,
+                       finished_at=NULL, cancel_requested_at=NULL, error=NULL, eta_seconds=NULL,
+                       samples_per_second=NULL, requeues=requeues+1, attempt_base=attempts,
+                       priority=COALESCE(?, priority), updated_at=?,
+                       asset_check=CASE WHEN kind='render' THEN 'pending' ELSE 'done' END
+                   WHERE id=? AND deleted_at IS NULL AND state IN ('failed', 'canceled')""",
+                (None if priority is None else int(priority), now, job_id))
+            row = db.execute("SELECT * FROM jobs WHERE id=? AND deleted_at IS NULL", (job_id,)).fetchone()
+        return (Job.from_row(row) if row is not None else None), cur.rowcount == 1
 
     def delete(self, job_id: str, grace: float) -> bool:
         """Hide a job at once (canceling it if active); ``collect_deleted`` removes it later.
@@ -333,16 +441,14 @@ class JobStore:
         now = time.time()
         with self.connect() as db:
             # A read first: idle workers poll often, and a read takes no write lock.
-            if db.execute("SELECT 1 FROM jobs WHERE state='queued' AND asset_check='done' AND deleted_at IS NULL "
-                          "LIMIT 1").fetchone() is None:
+            if db.execute(f"SELECT 1 FROM jobs WHERE {_CLAIMABLE} LIMIT 1").fetchone() is None:
                 return None
         with self.transaction() as db:
             row = db.execute(
                 """UPDATE jobs SET state='running', worker=?, heartbeat_at=?, updated_at=?,
                        started_at=COALESCE(started_at, ?), attempts=attempts+1, eta_seconds=NULL,
                        samples_per_second=NULL
-                   WHERE id=(SELECT id FROM jobs WHERE state='queued' AND asset_check='done'
-                             AND deleted_at IS NULL ORDER BY priority DESC, seq LIMIT 1)
+                   WHERE id=(SELECT id FROM jobs WHERE """ + _CLAIMABLE + """ ORDER BY priority DESC, seq LIMIT 1)
                    RETURNING *""", (worker_id, now, now, now)).fetchone()
             if row is None:
                 return None
@@ -372,12 +478,14 @@ class JobStore:
                                  (error, now, now, job_id))
             return cur.rowcount == 1
 
-    def heartbeat(self, job_id: str, worker_id: str) -> bool:
-        """True while the worker still owns the running job; False means stop now."""
+    def heartbeat(self, job_id: str, worker_id: str, peak_memory: int | None = None) -> bool:
+        """True while the worker still owns the running job; False means stop now.
+        peak_memory: the worker's peak RSS (bytes) during this attempt, if known."""
         now = time.time()
         with self.connect() as db:
-            cur = db.execute("""UPDATE jobs SET heartbeat_at=? WHERE id=? AND worker=? AND state='running'
-                                AND deleted_at IS NULL""", (now, job_id, worker_id))
+            cur = db.execute("""UPDATE jobs SET heartbeat_at=?, peak_memory=MAX(COALESCE(peak_memory, 0), COALESCE(?, 0))
+                                WHERE id=? AND worker=? AND state='running' AND deleted_at IS NULL""",
+                             (now, peak_memory, job_id, worker_id))
             db.execute("UPDATE workers SET heartbeat_at=? WHERE id=?", (now, worker_id))
             return cur.rowcount == 1
 
@@ -388,7 +496,7 @@ class JobStore:
         if bad:
             raise ValueError(f"not progress fields: {sorted(bad)}")
         now = time.time()
-        sets = ", ".join(f"{k}=?" for k in fields)
+        sets = ", ".join(_assign(k) for k in fields)
         with self.connect() as db:
             cur = db.execute(f"""UPDATE jobs SET {sets}, heartbeat_at=?, updated_at=? WHERE id=? AND worker=?
                                  AND state='running'""", (*fields.values(), now, now, job_id, worker_id))
@@ -413,7 +521,7 @@ class JobStore:
             "eta_seconds": None,
             **fields,
         }
-        assign = [f"{k}=?" for k in sets]
+        assign = [_assign(k) for k in sets]
         args = list(sets.values())
         # A success clears the error text of earlier attempts; otherwise keep the last reason.
         assign.append("error=?" if state == "succeeded" else "error=COALESCE(?, error)")
@@ -429,6 +537,8 @@ class JobStore:
             cur = db.execute(f"UPDATE jobs SET {', '.join(assign)} WHERE id=? AND worker=? AND state='running'",
                              (*args, job_id, worker_id))
             db.execute("UPDATE workers SET job_id=NULL, stop_deadline=NULL WHERE id=?", (worker_id,))
+            if cur.rowcount == 1 and not requeue:
+                _observe_end(db, job_id)
             return cur.rowcount == 1
 
     def release(self, worker_id: str) -> None:
@@ -464,14 +574,15 @@ class JobStore:
         cutoff = now - stale_after
         changed = []
         with self.transaction() as db:
-            rows = db.execute("""SELECT id, attempts, max_attempts, error, heartbeat_at FROM jobs
-                                 WHERE state='running' AND heartbeat_at < ?""", (cutoff,)).fetchall()
+            rows = db.execute("""SELECT id, attempts - attempt_base AS run_attempt, max_attempts, error, heartbeat_at
+                                 FROM jobs WHERE state='running' AND heartbeat_at < ?""", (cutoff,)).fetchall()
             for r in rows:
-                if r["attempts"] >= r["max_attempts"]:
+                if r["run_attempt"] >= r["max_attempts"]:
                     why = r["error"] or f"worker lost: no heartbeat for {stale_after:g} s"
-                    err = f"{why} (attempt {r['attempts']} of {r['max_attempts']}; giving up)"
+                    err = f"{why} (attempt {r['run_attempt']} of {r['max_attempts']}; giving up)"
                     db.execute("""UPDATE jobs SET state='failed', error=?, finished_at=?, updated_at=?,
                                   eta_seconds=NULL, samples_per_second=NULL WHERE id=?""", (err, now, now, r["id"]))
+                    _observe_end(db, r["id"])
                     changed.append((r["id"], "failed"))
                 else:
                     db.execute("""UPDATE jobs SET state='queued', worker=NULL, updated_at=?, eta_seconds=NULL,
@@ -496,3 +607,68 @@ class JobStore:
         """``PRAGMA integrity_check`` result ('ok' when the file is sound)."""
         with self.connect() as db:
             return db.execute("PRAGMA integrity_check").fetchone()[0]
+
+    def histograms(self) -> dict:
+        """{(name, kind): (cumulative [(upper bound, count)], sum)} over the current bucket
+        bounds (HISTOGRAMS), the last bound being +Inf."""
+        with self.connect() as db:
+            rows = db.execute("SELECT name, kind, le, count, sum FROM histograms").fetchall()
+        out: dict = {}
+        for r in rows:
+            bounds = HISTOGRAMS.get(r["name"])
+            if bounds is None:
+                continue
+            counts, total = out.setdefault((r["name"], r["kind"]), ([0] * (len(bounds) + 1), [0.0]))
+            # a row whose bound is not a current one (the bounds changed) joins the next larger bucket
+            counts[_bucket(bounds, r["le"])] += int(r["count"])
+            total[0] += float(r["sum"])
+        result = {}
+        for key, (counts, total) in out.items():
+            bounds = HISTOGRAMS[key[0]]
+            cum, run = [], 0
+            for le, n in zip((*bounds, float("inf")), counts):
+                run += n
+                cum.append((le, run))
+            result[key] = (cum, total[0])
+        return result
+
+
+# A job a worker may take: queued, checked, visible, and not still held by a worker that has not
+# let go of it (a canceled job requeued before its old worker stopped).
+_CLAIMABLE = ("state='queued' AND asset_check='done' AND deleted_at IS NULL "
+              "AND id NOT IN (SELECT job_id FROM workers WHERE job_id IS NOT NULL)")
+
+
+def _assign(column: str) -> str:
+    """SET clause of one progress column: a peak only grows (the largest over attempts)."""
+    if column == "peak_memory":
+        return "peak_memory=MAX(COALESCE(peak_memory, 0), COALESCE(?, 0))"
+    return f"{column}=?"
+
+
+def _bucket(bounds: tuple, value: float) -> int:
+    """Index of the bucket holding ``value``: the first bound >= value, else the +Inf one."""
+    import bisect
+
+    return bisect.bisect_left(bounds, value)
+
+
+def _observe(db: sqlite3.Connection, name: str, kind: str, value: float) -> None:
+    bounds = HISTOGRAMS[name]
+    i = _bucket(bounds, value)
+    le = bounds[i] if i < len(bounds) else float("inf")
+    db.execute("""INSERT INTO histograms (name, kind, le, count, sum) VALUES (?, ?, ?, 1, ?)
+                  ON CONFLICT(name, kind, le) DO UPDATE SET count=count+1, sum=sum+excluded.sum""",
+               (name, kind, le, float(value)))
+
+
+def _observe_end(db: sqlite3.Connection, job_id: str) -> None:
+    """A run of the job ended (in the caller's transaction): add its render time (successes)
+    and its peak memory (when measured) to the histograms."""
+    row = db.execute("SELECT kind, state, render_seconds, peak_memory FROM jobs WHERE id=?", (job_id,)).fetchone()
+    if row is None:
+        return
+    if row["state"] == "succeeded":
+        _observe(db, "render_seconds", row["kind"], float(row["render_seconds"] or 0.0))
+    if row["peak_memory"]:
+        _observe(db, "peak_memory_bytes", row["kind"], float(row["peak_memory"]))

@@ -5,12 +5,12 @@ also be started by hand on the same host to add capacity). Rendering happens her
 the server process.
 
 Per job:
-* a heartbeat thread refreshes the job's heartbeat every ``--heartbeat-interval`` seconds; a
-  rowcount of 0 (canceled, deleted or reassigned by the reaper) sets the stop flag, which the
+* a heartbeat thread refreshes the job's heartbeat every ``--heartbeat-interval`` seconds, with
+  the process's peak memory during the job (PeakMemory); a rowcount of 0 (canceled, deleted or reassigned by the reaper) sets the stop flag, which the
   renderer's ``cancel`` callback returns between passes;
 * progress (percent, spp, samples/s, ETA) goes to the store about twice a second;
 * every ``--snapshot-interval`` seconds (and right after the first pass) the film is written as
-  ``preview.exr`` + ``preview.png`` and checkpointed (``Film.save_state``), so a worker killed
+  ``preview.exr`` + ``preview.png`` (+ ``thumb.png`` for the job list) and checkpointed (``Film.save_state``), so a worker killed
   with ``kill -9`` resumes from there when the reaper requeues the job;
 * an IllumError fails the job with its one-line message (a user error: retrying cannot help),
   and so does a MemoryError (the same job would run out again under the same limit);
@@ -26,6 +26,7 @@ it, and no job pays the compile. With the Ray backend the pool's actors do the s
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -38,6 +39,8 @@ import traceback
 from dataclasses import dataclass, field
 from typing import Optional
 
+import numpy as np
+
 from .models import render_options
 from .procs import die_with_parent, guard_process_group, limit_resources
 from .store import Job, JobStore
@@ -49,6 +52,8 @@ log = logging.getLogger("illum.worker")
 # File names inside a job directory (the API serves them; see service/app.py).
 PREVIEW_EXR, PREVIEW_PNG = "preview.exr", "preview.png"
 FINAL_EXR, FINAL_PNG, STATS_JSON = "final.exr", "final.png", "stats.json"
+THUMB_PNG = "thumb.png"     # a small sRGB PNG of the latest image, for the job list
+THUMB_SIZE = 64             # pixels on the longer side
 CHECKPOINT, CHECKPOINT_META = "checkpoint.npz", "checkpoint.json"
 JOB_LOG = "job.log"
 PROGRESS_DB_INTERVAL = 0.5  # seconds between progress writes to the store
@@ -107,9 +112,10 @@ class JobLog:
 
 
 class _Heartbeat(threading.Thread):
-    """Refreshes the job's heartbeat; sets ``stop`` when the store says the job is no longer
-    ours (canceled, deleted, reassigned). Also exits the process if the server died (the parent
-    pid changed), so orphans never keep rendering unsupervised."""
+    """Refreshes the job's heartbeat, with the worker's peak memory during the job; sets
+    ``stop`` when the store says the job is no longer ours (canceled, deleted, reassigned).
+    Also exits the process if the server died (the parent pid changed), so orphans never keep
+    rendering unsupervised."""
 
     def __init__(self, ctx: WorkerContext, job_id: str, stop: threading.Event):
         super().__init__(name=f"heartbeat-{job_id}", daemon=True)
@@ -118,12 +124,17 @@ class _Heartbeat(threading.Thread):
         self.stop = stop
         self.lost = False
         self._done = threading.Event()
+        self.memory = PeakMemory()
+
+    def peak(self) -> int | None:
+        """The largest resident set size (bytes) of this process since the job started."""
+        return self.memory.peak()
 
     def run(self) -> None:
         while not self._done.wait(self.ctx.heartbeat_interval):
             _exit_if_orphaned(self.ctx)
             try:
-                ok = self.ctx.store.heartbeat(self.job_id, self.ctx.worker_id)
+                ok = self.ctx.store.heartbeat(self.job_id, self.ctx.worker_id, peak_memory=self.peak())
             except sqlite3.Error as e:  # busy beyond the timeout: try again next beat
                 log.warning("heartbeat failed: %s", e)
                 continue
@@ -135,6 +146,36 @@ class _Heartbeat(threading.Thread):
     def close(self) -> None:
         self._done.set()
         self.join()
+
+
+class PeakMemory:
+    """Peak resident memory of this process over one job (Linux; None elsewhere).
+
+    The kernel's high-water mark (VmHWM) is reset when the job starts (``5`` written to
+    /proc/self/clear_refs), so an earlier, larger job in the same worker does not count; where
+    the reset is refused, the mark is sampled against the RSS at start instead, and the larger
+    of the current RSS and the samples is kept."""
+
+    def __init__(self):
+        self._max = 0
+        self._reset = False
+        try:
+            with open("/proc/self/clear_refs", "w") as fh:
+                fh.write("5")
+            self._reset = True
+        except OSError:
+            pass
+        self.peak()
+
+    def peak(self) -> int | None:
+        from renderer.memory import resident_memory
+
+        m = resident_memory()
+        if m is None:
+            return None
+        rss, hwm = m
+        self._max = max(self._max, rss, hwm if self._reset else 0)
+        return self._max
 
 
 def _exit_if_orphaned(ctx: WorkerContext) -> None:
@@ -157,7 +198,15 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
     jobdir = ctx.job_dir(job.id)
     os.makedirs(jobdir, exist_ok=True)
     jlog = JobLog(os.path.join(jobdir, JOB_LOG), ctx.worker_id)
-    jlog(f"attempt {job.attempts} of {job.max_attempts} on worker {ctx.worker_id} (pid {os.getpid()}, "
+    if job.run_attempt == 1:
+        # A new run (a new job, or one a user requeued): whatever a discarded run left as its
+        # result is stale (a job running has no result yet); the checkpoint is kept to resume.
+        for name in (FINAL_EXR, FINAL_PNG, STATS_JSON):
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(os.path.join(jobdir, name))
+    requeues = int(job.row.get("requeues") or 0)
+    again = f" (attempt {job.attempts} in all; {requeues} requeue{'s' if requeues > 1 else ''})" if requeues else ""
+    jlog(f"attempt {job.run_attempt} of {job.max_attempts}{again} on worker {ctx.worker_id} (pid {os.getpid()}, "
          f"backend {ctx.backend}): {job.kind} {job.stage_name}")
     stop = threading.Event()
     ctx.current_stop = stop
@@ -179,7 +228,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
         except IllumError as e:
             msg = _clean(str(e), job)
             jlog(f"error: {msg}")
-            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg, peak_memory=hb.peak())
             return "failed"
         except MemoryError as e:
             # The hard address-space limit (or the machine) ran out: the same job would run out
@@ -190,22 +239,23 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
                 if ctx.max_memory else ""
             msg = _clean(f"out of memory{': ' + str(e) if str(e) else ''}{cap}", job)
             jlog(f"error: {msg}\n{traceback.format_exc()}")
-            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg)
+            ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg, peak_memory=hb.peak())
             return "failed"
         except Exception as e:  # an internal error: may be transient (disk, memory), so retry
             msg = _clean(f"internal error: {type(e).__name__}: {e}", job)
             jlog(msg + "\n" + traceback.format_exc())
             if stop.is_set():
                 return _stopped(ctx, job, hb, jlog)
-            if job.attempts < job.max_attempts:
-                ctx.store.finish(job.id, ctx.worker_id, "queued", error=msg)
-                jlog(f"requeued (attempt {job.attempts} of {job.max_attempts})")
+            if job.run_attempt < job.max_attempts:
+                ctx.store.finish(job.id, ctx.worker_id, "queued", error=msg, peak_memory=hb.peak())
+                jlog(f"requeued (attempt {job.run_attempt} of {job.max_attempts})")
                 return "requeued"
-            ctx.store.finish(job.id, ctx.worker_id, "failed",
-                             error=f"{msg} (attempt {job.attempts} of {job.max_attempts}; giving up)")
+            ctx.store.finish(job.id, ctx.worker_id, "failed", peak_memory=hb.peak(),
+                             error=f"{msg} (attempt {job.run_attempt} of {job.max_attempts}; giving up)")
             return "failed"
         if not ctx.store.finish(job.id, ctx.worker_id, "succeeded", result=result, progress=100.0,
-                                spp_done=int(result.get("spp", 0)), render_seconds=float(result.get("render_seconds", 0))):
+                                spp_done=int(result.get("spp", 0)), render_seconds=float(result.get("render_seconds", 0)),
+                                peak_memory=hb.peak()):
             jlog("finished, but the job was no longer ours (canceled or reassigned); result discarded")
             return "canceled"
         jlog(f"succeeded: {json.dumps(result, sort_keys=True)}")
@@ -218,7 +268,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
 
 def _stopped(ctx: WorkerContext, job: Job, hb: _Heartbeat, jlog: JobLog) -> str:
     if ctx.shutdown.is_set() and not hb.lost:
-        ctx.store.finish(job.id, ctx.worker_id, "queued", refund_attempt=True)
+        ctx.store.finish(job.id, ctx.worker_id, "queued", refund_attempt=True, peak_memory=hb.peak())
         jlog("worker shutting down: checkpointed and requeued")
         return "shutdown"
     ctx.store.release(ctx.worker_id)
@@ -363,8 +413,33 @@ class _Tracker:
             return  # canceled: do not write into a directory that may be going away
         write_exr(os.path.join(self.jobdir, PREVIEW_EXR), film, {"illum:spp": int(done), "illum:jobId": self.job.id})
         write_png(os.path.join(self.jobdir, PREVIEW_PNG), film)
+        write_thumbnail(os.path.join(self.jobdir, THUMB_PNG), film.image())
         self.ckpt.save(film, {"spp": int(done), "render_seconds": self.used + self.elapsed(now),
                               "attempt": self.job.attempts, **self.state_extra})
+
+
+def thumbnail(image: np.ndarray, size: int = THUMB_SIZE) -> np.ndarray:
+    """Box-filtered reduction of a scene-linear image (h, w, C) so that its longer side is at
+    most ``size`` pixels (never enlarged): each output pixel is the mean of the input pixels it
+    covers, averaged in linear light before any display encoding."""
+    h, w = image.shape[:2]
+    scale = max(h, w) / size
+    if scale <= 1.0:
+        return np.asarray(image, dtype=np.float32)
+    oh, ow = max(1, round(h / scale)), max(1, round(w / scale))
+    rows = (np.arange(oh) * h) // oh       # first input row of each output row
+    cols = (np.arange(ow) * w) // ow
+    sums = np.add.reduceat(np.add.reduceat(np.asarray(image, dtype=np.float64), rows, axis=0), cols, axis=1)
+    counts = np.diff(np.append(rows, h))[:, None] * np.diff(np.append(cols, w))[None, :]
+    return (sums / counts[:, :, None]).astype(np.float32)
+
+
+def write_thumbnail(path: str, image: np.ndarray) -> None:
+    """THUMB_PNG: the image reduced by ``thumbnail``, display-encoded as the previews are (sRGB),
+    written under a temporary name and renamed."""
+    from renderer.film import write_png
+
+    write_png(path, thumbnail(image))
 
 
 def _check_stage_resolution(ctx: WorkerContext, job: Job, opts) -> None:
@@ -460,6 +535,7 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
                            "resumed_from_spp": start_spp}
     write_outputs(result, exr=os.path.join(jobdir, FINAL_EXR), png=os.path.join(jobdir, FINAL_PNG),
                   stats_json=os.path.join(jobdir, STATS_JSON))
+    write_thumbnail(os.path.join(jobdir, THUMB_PNG), result.film.image())
     ckpt.remove()
     for w in result.warnings:
         jlog(f"warning: {_clean(w, job)}")
@@ -506,6 +582,7 @@ def _run_preconvolve(ctx: WorkerContext, job: Job, jlog: JobLog) -> dict:
     seconds = time.monotonic() - t0
     img, _ = read_exr(out)
     write_png(os.path.join(jobdir, FINAL_PNG), img[:, :, :3])
+    write_thumbnail(os.path.join(jobdir, THUMB_PNG), img[:, :, :3])
     jlog(f"preconvolved {job.stage_name} to {img.shape[1]}x{img.shape[0]} ({s['method']}) in {seconds:.2f} s")
     return {"resolution": [int(img.shape[1]), int(img.shape[0])], "render_seconds": seconds,
             "method": s["method"], "files": [FINAL_EXR, FINAL_PNG]}

@@ -9,6 +9,9 @@ let lastPreviewKey = null;   // spp/state of the preview on screen, to fetch onl
 let previewUrl = null;       // object URL of the image on screen
 let previewBusy = false;
 let jobsCache = new Map();
+const thumbs = new Map();    // job id -> {key, url}: the row thumbnails fetched so far
+let thumbsBusy = false;
+let pollSeq = 0;             // answers to older list requests (filters changed since) are dropped
 
 function token() { return localStorage.getItem("illumToken") || ""; }
 
@@ -77,6 +80,54 @@ function fmtEta(s) {
   return (s / 3600).toFixed(1) + " h";
 }
 
+function fmtDuration(s) {
+  if (s === null || s === undefined) return "–";
+  if (s < 60) return s.toFixed(1) + " s";
+  if (s < 3600) return Math.floor(s / 60) + " min " + String(Math.floor(s % 60)).padStart(2, "0") + " s";
+  return Math.floor(s / 3600) + " h " + String(Math.floor((s % 3600) / 60)).padStart(2, "0") + " min";
+}
+
+function fmtBytes(n) {
+  if (!n) return "–";
+  const units = ["B", "KiB", "MiB", "GiB", "TiB"];
+  let i = 0;
+  while (n >= 1024 && i < units.length - 1) { n /= 1024; i += 1; }
+  return (i ? n.toFixed(n < 10 ? 1 : 0) : String(n)) + " " + units[i];
+}
+
+function fmtAttempts(j) {
+  const run = j.attempts;
+  return j.requeues ? run + " (requeued " + j.requeues + "×)" : run + "/" + j.max_attempts;
+}
+
+function thumbKey(j) { return j.state + ":" + j.spp_done + ":" + (j.links && j.links.thumbnail ? 1 : 0); }
+
+// Fetches the thumbnails whose job changed (new samples, new state), one at a time, with the
+// token; rows show them as blob: URLs.
+async function refreshThumbs(jobs) {
+  if (thumbsBusy) return;
+  thumbsBusy = true;
+  try {
+    for (const j of jobs) {
+      if (!(j.links && j.links.thumbnail)) continue;
+      const key = thumbKey(j);
+      const have = thumbs.get(j.id);
+      if (have && have.key === key) continue;
+      const r = await authFetch(j.links.thumbnail + "?t=" + Date.now());
+      if (!r.ok) continue;
+      const url = URL.createObjectURL(await r.blob());
+      if (have) URL.revokeObjectURL(have.url);
+      thumbs.set(j.id, { key, url });
+      const img = document.querySelector('#jobs-body tr[data-id="' + j.id + '"] td.thumb img');
+      if (img) { img.src = url; img.hidden = false; }
+    }
+  } catch (e) {
+    /* the next poll retries */
+  } finally {
+    thumbsBusy = false;
+  }
+}
+
 function cell(tr, text, cls) {
   const td = document.createElement("td");
   if (cls) td.className = cls;
@@ -95,6 +146,12 @@ function renderJobs(jobs) {
     tr.dataset.id = j.id;
     tr.dataset.state = j.state;
     if (j.id === selected) tr.classList.add("selected");
+    const th = cell(tr, "", "thumb");
+    const img = document.createElement("img");
+    img.alt = "";
+    const t = thumbs.get(j.id);
+    if (t) img.src = t.url; else img.hidden = true;
+    th.appendChild(img);
     cell(tr, j.id.slice(0, 8));
     cell(tr, j.stage, "stage").title = j.stage;
     const st = cell(tr, "");
@@ -102,6 +159,7 @@ function renderJobs(jobs) {
     badge.className = "state " + j.state;
     badge.textContent = j.state;
     st.appendChild(badge);
+    cell(tr, String(j.priority), "priority");
     const pc = cell(tr, "");
     const bar = document.createElement("div");
     bar.className = "bar";
@@ -112,11 +170,17 @@ function renderJobs(jobs) {
     pc.appendChild(bar);
     cell(tr, String(j.spp_done || 0));
     cell(tr, j.samples_per_second ? (j.samples_per_second / 1000).toFixed(1) : "–");
+    cell(tr, fmtDuration(j.elapsed_seconds), "elapsed");
     cell(tr, j.state === "running" ? fmtEta(j.eta_seconds) : "–");
-    cell(tr, j.attempts + "/" + j.max_attempts);
+    cell(tr, fmtBytes(j.peak_memory), "memory").title = j.peak_memory ? j.peak_memory + " bytes" : "not measured yet";
+    cell(tr, fmtAttempts(j), "attempts");
     tr.addEventListener("click", () => select(j.id));
     body.appendChild(tr);
   }
+  for (const id of [...thumbs.keys()]) {   // jobs gone from the list (deleted, filtered out)
+    if (!jobsCache.has(id)) { URL.revokeObjectURL(thumbs.get(id).url); thumbs.delete(id); }
+  }
+  refreshThumbs(jobs);
 }
 
 function select(id) {
@@ -135,7 +199,16 @@ function showSelected() {
   $("sel-progress").textContent = j ? (j.progress || 0).toFixed(1) + "%" +
     (j.state === "running" && j.eta_seconds != null ? ", ETA " + fmtEta(j.eta_seconds) : "") : "–";
   $("sel-error").textContent = j && j.error ? j.error : "–";
-  $("cancel-btn").disabled = !j || !(j.state === "queued" || j.state === "running");
+  const active = !!j && (j.state === "queued" || j.state === "running");
+  $("cancel-btn").disabled = !active;
+  $("priority-btn").disabled = !active;
+  $("sel-priority").disabled = !active;
+  if (j && document.activeElement !== $("sel-priority") && $("sel-priority").dataset.job !== j.id + ":" + j.priority) {
+    $("sel-priority").value = String(j.priority);    // not while the user is typing a new one
+    $("sel-priority").dataset.job = j.id + ":" + j.priority;
+  }
+  $("requeue-btn").disabled = !j || !(j.state === "failed" || j.state === "canceled");
+  $("delete-btn").disabled = !j;
   $("log-link").hidden = !j;
   $("exr-link").hidden = !(j && j.links && j.links.image_exr);
   if (j) {
@@ -184,13 +257,28 @@ async function refreshLog() {
   } catch (e) { /* retry next time */ }
 }
 
+function listQuery() {
+  const q = new URLSearchParams({ limit: "100" });
+  if ($("filter-state").value) q.append("state", $("filter-state").value);
+  const stage = $("filter-stage").value.trim();
+  if (stage) q.append("stage", stage);
+  return "/jobs?" + q.toString();
+}
+
 async function poll() {
+  const seq = ++pollSeq;
   try {
-    const data = await api("GET", "/jobs?limit=100");
+    const data = await api("GET", listQuery());
+    if (seq !== pollSeq) return;   // the filters changed while this was on its way
     renderJobs(data.jobs);
+    $("jobs-count").textContent = data.count < data.total ? data.count + " of " + data.total : String(data.total);
+    $("jobs-empty").textContent = ($("filter-state").value || $("filter-stage").value.trim())
+      ? "No job matches the filters." : "No jobs yet.";
     showSelected();
   } catch (e) {
-    if (e.status !== 401) $("health").textContent = "server unreachable: " + e.message;
+    if (seq !== pollSeq) return;
+    if (e.status === 422) say(e.message, true);   // a filter the server refuses (too long, control characters)
+    else if (e.status !== 401) $("health").textContent = "server unreachable: " + e.message;
   }
 }
 
@@ -261,6 +349,63 @@ $("cancel-btn").addEventListener("click", async () => {
     say(e.message, true);
   }
 });
+
+$("priority-btn").addEventListener("click", async () => {
+  if (!selected) return;
+  const v = $("sel-priority").value.trim();
+  const p = Number(v);
+  if (v === "" || !Number.isInteger(p) || p < 0 || p > 100) { say("priority: a whole number from 0 to 100", true); return; }
+  try {
+    const job = await api("PATCH", "/jobs/" + selected, { priority: p });
+    $("sel-priority").dataset.job = "";
+    say("Job " + job.id + " now has priority " + job.priority, false);
+    await poll();
+  } catch (e) {
+    say(e.message, true);
+  }
+});
+
+$("requeue-btn").addEventListener("click", async () => {
+  if (!selected) return;
+  try {
+    const job = await api("POST", "/jobs/" + selected + "/requeue");
+    say("Requeued job " + job.id + " (" + job.state + ")", false);
+    lastPreviewKey = null;
+    await poll();
+  } catch (e) {
+    say(e.message, true);
+  }
+});
+
+// Delete asks first, in a dialog of the page, naming the job.
+$("delete-btn").addEventListener("click", () => {
+  if (!selected) return;
+  const j = jobsCache.get(selected);
+  $("delete-what").textContent = selected + (j ? " (" + j.stage + ", " + j.state + ")" : "");
+  $("delete-dialog").dataset.id = selected;
+  $("delete-dialog").showModal();
+});
+$("delete-keep").addEventListener("click", () => $("delete-dialog").close());
+$("delete-confirm").addEventListener("click", async () => {
+  const id = $("delete-dialog").dataset.id;
+  $("delete-dialog").close();
+  if (!id) return;
+  try {
+    await api("DELETE", "/jobs/" + id);
+    say("Deleted job " + id, false);
+    if (selected === id) {
+      selected = null;
+      history.replaceState(null, "", location.pathname);
+    }
+    await poll();
+  } catch (e) {
+    say(e.message, true);
+  }
+});
+
+let filterTimer = null;
+$("filter-state").addEventListener("change", () => poll());
+$("filter-stage").addEventListener("input", () => { clearTimeout(filterTimer); filterTimer = setTimeout(poll, 250); });
 
 $("exr-link").addEventListener("click", (ev) => {
   ev.preventDefault();

@@ -90,6 +90,63 @@ def test_attempts_exhausted_fails_with_the_reason(one_worker):
         wait_for(lambda: c.get("/health").json()["workers"]["alive"] == 1, 20, what="a replacement worker")
 
 
+def _cancel_and_requeue_mid_render(s, c, job_id: str) -> int:
+    """Cancel the running job once it has a checkpoint and requeue it at once, before its worker
+    can have noticed: returns the checkpoint's spp at the cancel."""
+    wait_for(lambda: _checkpoint_spp(s, job_id) >= 10, 60, what="a checkpoint")
+    assert c.post(f"/jobs/{job_id}/cancel").json()["state"] == "canceled"
+    ckpt = _checkpoint_spp(s, job_id)
+    r = c.post(f"/jobs/{job_id}/requeue")
+    assert r.status_code == 200 and r.json()["state"] == "queued" and r.json()["requeues"] == 1
+    return ckpt
+
+
+def _check_resumed(c, job: dict, tmp_path, *, attempts: int, resumes: int) -> str:
+    spp = job["settings"]["spp"]
+    done = wait_job(c, job["id"], timeout=240)
+    assert done["state"] == "succeeded", done
+    assert (done["attempts"], done["requeues"], done["spp_done"]) == (attempts, 1, spp)
+    log = c.get(f"/jobs/{job['id']}/log").text
+    assert log.count("requeued by request") == 1 and log.count("resuming from checkpoint") == resumes, log
+    img, attrs = read_exr_bytes(c.get(f"/jobs/{job['id']}/image", params={"format": "exr"}).content, tmp_path)
+    assert attrs["illum:spp"] == spp and img.shape == (48, 48, 3) and img.mean() > 0.01
+    return log
+
+
+def test_requeue_a_canceled_render_resumes_it(one_worker, tmp_path):
+    """Cancel a rendering job and requeue it before its worker let go: the worker stops, and the
+    new run (attempt 1 of its own 3, attempt 2 in all) resumes from the checkpoint."""
+    s = one_worker
+    with s.client() as c:
+        # long enough to cancel after a checkpoint (~2.5 s on an idle machine), short to finish
+        job = c.post("/jobs", json={"stage": "cornell_box.usda", "settings": {"resolution": [48, 48], "spp": 600}}).json()
+        ckpt = _cancel_and_requeue_mid_render(s, c, job["id"])
+        log = _check_resumed(c, job, tmp_path, attempts=2, resumes=1)
+        assert "attempt 1 of 3 (attempt 2 in all; 1 requeue)" in log
+        resumed = int(log.split("resuming from checkpoint: ")[1].split(" spp")[0])
+        assert resumed >= ckpt >= 10
+        assert c.get(f"/jobs/{job['id']}").json()["result"]["resumed_from_spp"] == resumed
+
+
+@pytest.mark.slow
+def test_requeued_render_survives_kill9(one_worker, tmp_path):
+    """The requeued run's worker is killed with SIGKILL: the reaper hands the job to the
+    replacement worker, which resumes it again; nothing is lost and the store stays sound."""
+    from service.store import JobStore
+
+    s = one_worker
+    with s.client() as c:
+        job = c.post("/jobs", json={"stage": "cornell_box.usda", "settings": SLOW_TINY}).json()
+        ckpt = _cancel_and_requeue_mid_render(s, c, job["id"])
+        wait_for(lambda: c.get(f"/jobs/{job['id']}").json()["attempts"] == 2 and _checkpoint_spp(s, job["id"]) > ckpt,
+                 90, what="the new run's first checkpoint")
+        _, pid = wait_for(lambda: _worker_of(s, job["id"]), 10, what="the worker")
+        os.kill(pid, signal.SIGKILL)
+        log = _check_resumed(c, job, tmp_path, attempts=3, resumes=2)
+        assert "attempt 2 of 3 (attempt 3 in all; 1 requeue)" in log
+    assert JobStore(os.path.join(s.data, "jobs.db")).integrity() == "ok"
+
+
 def test_cancel_beats_a_long_pass(one_worker):
     """One pass at 2048x2048 takes far longer than the cancel deadline (4 M samples at well under
     a million per second): the supervisor kills the busy worker so the cancel still takes effect
