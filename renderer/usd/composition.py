@@ -104,7 +104,10 @@ def check_composition(ctx: ReadContext) -> None:
     """Apply the missing-asset policy to every composition error of the stage: under
     ``ctx.strict`` the first is a StageError naming the layer, prim and field that author the
     arc; otherwise each is a warning saying the same (the arc is skipped, as USD does)."""
-    errors = ctx.stage.GetCompositionErrors()
+    # A reference to a .mtlx document cannot compose (usd-core has no MaterialX file format);
+    # renderer/usd/mtlx.py reads the document itself, under the same missing-asset policy.
+    errors = [e for e in ctx.stage.GetCompositionErrors()
+              if not any(q.split(":SDF_FORMAT_ARGS")[0].lower().endswith(".mtlx") for q in _QUOTED.findall(str(e)))]
     for k, error in enumerate(errors):
         if not ctx.strict and k >= _MAX_WARNINGS:
             ctx.warn("composition-more", f"{len(errors) - _MAX_WARNINGS} more composition errors")
