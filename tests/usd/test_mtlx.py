@@ -1,0 +1,296 @@
+"""MaterialX materials (renderer/usd/mtlx.py): inline UsdShade networks of MaterialX nodes and .mtlx
+documents referenced from USD, read into the same MaterialDesc and rendered by the one BSDF.
+
+Fixtures: tests/usd/data/mtlx/materials.usda (UsdPreviewSurface materials and their inline
+MaterialX twins, references to library.mtlx), library.mtlx, albedo.png and normal.png. Each
+render puts a quad under a constant dome, seen by a camera that it fills.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
+
+from renderer.errors import StageError
+from renderer.film import read_exr
+from renderer.render import RenderOptions, render
+from renderer.textures import TextureCache
+from renderer.usd import load_stage
+from tests.stats import SIGNIFICANCE, z_test
+
+DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "mtlx")
+MATERIALS = os.path.join(DATA, "materials.usda")
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _scene(tmp_path, material: str, name: str = "scene.usda", extra=None) -> str:
+    """A stage sublayering the fixture materials: camera, a 2x2 quad with st at z = 0 bound to
+    ``material`` (a path; it need not exist, e.g. inside a referenced .mtlx document), a dome."""
+    path = str(tmp_path / name)
+    stage = Usd.Stage.CreateNew(path)
+    stage.GetRootLayer().subLayerPaths.append(MATERIALS)
+    UsdGeom.SetStageUpAxis(stage, "Y")
+    cam = UsdGeom.Camera.Define(stage, "/Cam")
+    cam.AddTranslateOp().Set(Gf.Vec3d(0, 0, 3))
+    quad = UsdGeom.Mesh.Define(stage, "/Quad")
+    quad.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+    quad.CreateFaceVertexCountsAttr([4])
+    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    quad.CreateSubdivisionSchemeAttr("none")
+    st = UsdGeom.PrimvarsAPI(quad).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray([(0, 0), (1, 0), (1, 1), (0, 1)]))
+    _bind(quad, material)
+    UsdLux.DomeLight.Define(stage, "/Sky").CreateIntensityAttr(1.0)
+    if extra is not None:
+        extra(stage)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _bind(gprim, material: str) -> None:
+    """material:binding to a path (which need not exist on the stage)."""
+    UsdShade.MaterialBindingAPI.Apply(gprim.GetPrim())
+    gprim.GetPrim().CreateRelationship("material:binding").SetTargets([Sdf.Path(material)])
+
+
+def _material(desc, path: str):
+    found = [m for m in desc.materials if m.path == path]
+    assert len(found) == 1, [m.path for m in desc.materials]
+    return found[0]
+
+
+def _same_but_name(a, b) -> bool:
+    """Equal descriptions apart from the material's path and source."""
+    fields = {f: getattr(a, f) for f in a.__dataclass_fields__ if f not in ("path", "source")}
+    return all(fields[f] == getattr(b, f) for f in fields)
+
+
+OPTS = dict(threads=1, max_depth=2, resolution=(16, 16))
+
+
+# ---- exact mappings -------------------------------------------------------------------
+def test_nd_usd_preview_surface_network_renders_identically_to_usd_preview_surface(tmp_path):
+    a = load_stage(_scene(tmp_path, "/Materials/Preview", "a.usda"))
+    b = load_stage(_scene(tmp_path, "/Materials/NDPreview", "b.usda"))
+    pa, pb = _material(a, "/Materials/Preview"), _material(b, "/Materials/NDPreview")
+    # image (srgb_texture) * 0.5 folds into the texture's scale, exactly as UsdUVTexture's.
+    assert pb.diffuse_color.texture.scale == (0.5, 0.5, 0.5, 1.0)
+    assert pb.diffuse_color.texture.source_color_space == "sRGB"
+    assert _same_but_name(pa, pb)
+    assert (pa.source, pb.source) == ("UsdPreviewSurface", "mtlx:ND_UsdPreviewSurface_surfaceshader")
+    assert a.warnings == b.warnings == []
+    ia = render(str(tmp_path / "a.usda"), RenderOptions(spp=4, seed=5, **OPTS)).film.image()
+    ib = render(str(tmp_path / "b.usda"), RenderOptions(spp=4, seed=5, **OPTS)).film.image()
+    assert ia.max() > 0.0 and np.array_equal(ia, ib)
+
+
+def test_mtlx_document_reads_as_its_inline_twin(tmp_path):
+    """A .mtlx document referenced onto a Material prim (usd-core cannot compose it) gives the
+    description of the same network written inline; tiledimage's uvtiling becomes the st
+    transform through the library's own tiledimage graph."""
+    doc = load_stage(_scene(tmp_path, "/Tiled", "a.usda"))
+    inline = load_stage(_scene(tmp_path, "/TiledInline", "b.usda"))
+    d, i = _material(doc, "/Tiled"), _material(inline, "/TiledInline")
+    assert d.diffuse_color.texture.st_transform == (2.0, 0.0, 0.0, 2.0, 0.0, 0.0)
+    assert _same_but_name(d, i)
+    assert d.source == "mtlx:ND_standard_surface_surfaceshader (library.mtlx)"
+    # The arc usd-core cannot compose is no composition warning: illum reads the document.
+    assert doc.warnings == inline.warnings == []
+
+
+def test_binding_into_a_referenced_document_reads_normal_map_and_remap(tmp_path):
+    """``def "MaterialX" (references = @library.mtlx@</MaterialX>)`` bound at
+    /MaterialX/Materials/Bumpy: normalmap(image) is the UsdPreviewSurface normal map (2 n - 1,
+    scale 2 and bias -1) and remap(image.r, 0..1 -> 0.2..0.6) folds into roughness."""
+    desc = load_stage(_scene(tmp_path, "/MaterialX/Materials/Bumpy"))
+    assert desc.warnings == []
+    m = _material(desc, "/MaterialX/Materials/Bumpy")
+    n = m.normal.texture
+    assert (n.output, n.scale, n.bias, n.source_color_space) == ("rgb", (2.0, 2.0, 2.0, 1.0),
+                                                                 (-1.0, -1.0, -1.0, 0.0), "raw")
+    r = m.roughness.texture
+    assert (r.output, r.scale[0], r.bias[0]) == ("r", pytest.approx(0.4), pytest.approx(0.2))
+    # The folded texture reads what the MaterialX network computes, texel by texel.
+    st = np.random.default_rng(2).random((300, 2)) * 3.0 - 1.0
+    raw = TextureCache().lookup(type(r)(file=r.file, source_color_space="raw", wrap_s="repeat", wrap_t="repeat",
+                                        output="r"), st)
+    assert np.allclose(TextureCache().lookup(r, st)[:, 0], 0.2 + 0.4 * raw[:, 0], atol=1e-6)
+
+
+# ---- the documented approximation: standard_surface onto the UsdPreviewSurface BSDF --------
+def _difference_p(tmp_path, mat_a: str, mat_b: str, spp: int = 16) -> float:
+    """z-test p-value that two materials render the same: per-pixel differences of two
+    independent renders (seeds 1 and 2) of the evenly lit quad have mean 0."""
+    a = render(_scene(tmp_path, mat_a, "a.usda"), RenderOptions(spp=spp, seed=1, **OPTS)).film.image()
+    b = render(_scene(tmp_path, mat_b, "b.usda"), RenderOptions(spp=spp, seed=2, **OPTS)).film.image()
+    return z_test((a - b).ravel(), 0.0)
+
+
+def test_standard_surface_renders_as_preview_surface_with_base_times_base_color(tmp_path):
+    assert _difference_p(tmp_path, "/Materials/Standard", "/Materials/StandardAsPreview") > SIGNIFICANCE
+
+
+def test_the_z_test_tells_base_color_alone_from_base_times_base_color(tmp_path):
+    """Control: without the base weight (diffuseColor = base_color) the renders differ."""
+    def alone(stage):
+        mat = UsdShade.Material.Define(stage, "/Alone")
+        pbr = UsdShade.Shader.Define(stage, "/Alone/PBR")
+        pbr.CreateIdAttr("UsdPreviewSurface")
+        pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set((0.8, 0.3, 0.1))
+        pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.4)
+        mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+
+    a = render(_scene(tmp_path, "/Materials/Standard", "a.usda"), RenderOptions(spp=16, seed=1, **OPTS))
+    b = render(_scene(tmp_path, "/Alone", "b.usda", extra=alone), RenderOptions(spp=16, seed=2, **OPTS))
+    assert z_test((a.film.image() - b.film.image()).ravel(), 0.0) < SIGNIFICANCE
+
+
+def _inline_surface(stage, node_id: str, **inputs):
+    """/Inline: a Material whose mtlx surface is ``node_id`` with inputs name=(type, value)."""
+    mat = UsdShade.Material.Define(stage, "/Inline")
+    sh = UsdShade.Shader.Define(stage, "/Inline/Surface")
+    sh.CreateIdAttr(node_id)
+    for name, (vtype, value) in inputs.items():
+        sh.CreateInput(name, vtype).Set(value)
+    mat.CreateSurfaceOutput("mtlx").ConnectToSource(sh.ConnectableAPI(), "surface")
+
+
+def test_standard_surface_mapping_formulas(tmp_path):
+    """docs/materials.md: metalness -> metallic, specular weight and colour (dielectric) ->
+    specular workflow with F0 = specular * specular_color * ((ior - 1) / (ior + 1))^2, emission
+    * emission_color, opacity's mean, coat tinting the base by lerp(1, coat_color, coat); the
+    inputs with no counterpart are named in one warning."""
+    f = Sdf.ValueTypeNames
+    path = _scene(tmp_path, "/Inline", extra=lambda s: _inline_surface(
+        s, "ND_standard_surface_surfaceshader", base_color=(f.Color3f, (0.5, 0.5, 0.5)),
+        specular=(f.Float, 0.5), specular_color=(f.Color3f, (1.0, 0.5, 0.25)), specular_IOR=(f.Float, 2.0),
+        emission=(f.Float, 2.0), emission_color=(f.Color3f, (0.5, 0.25, 1.0)),
+        opacity=(f.Color3f, (0.9, 0.6, 0.3)), coat=(f.Float, 0.5), coat_color=(f.Color3f, (1.0, 0.5, 0.0)),
+        transmission=(f.Float, 0.3)))
+    desc = load_stage(path)
+    m = _material(desc, "/Inline")
+    f0 = ((2.0 - 1.0) / (2.0 + 1.0)) ** 2
+    assert m.use_specular_workflow and m.ior == 2.0
+    assert m.specular_color.value == pytest.approx((0.5 * f0, 0.25 * f0, 0.125 * f0))
+    assert m.emissive_color.value == pytest.approx((1.0, 0.5, 2.0))
+    assert m.opacity.value == pytest.approx(0.6)
+    assert m.diffuse_color.value == pytest.approx((0.5, 0.375, 0.25))
+    lost = [w for w in desc.warnings if "no counterpart" in w]
+    assert len(lost) == 1 and "transmission" in lost[0] and "coat" in lost[0] and "/Inline" in lost[0]
+
+
+def test_open_pbr_metal(tmp_path):
+    f = Sdf.ValueTypeNames
+    path = _scene(tmp_path, "/Inline", extra=lambda s: _inline_surface(
+        s, "ND_open_pbr_surface_surfaceshader", base_color=(f.Color3f, (0.9, 0.6, 0.2)),
+        base_metalness=(f.Float, 1.0), specular_roughness=(f.Float, 0.25), emission_luminance=(f.Float, 3.0),
+        geometry_opacity=(f.Float, 0.5)))
+    m = _material(load_stage(path), "/Inline")
+    assert (m.metallic.value, m.roughness.value, m.use_specular_workflow) == (1.0, 0.25, False)
+    assert m.diffuse_color.value == pytest.approx((0.9, 0.6, 0.2))
+    assert m.emissive_color.value == pytest.approx((3.0, 3.0, 3.0))
+    assert m.opacity.value == 0.5
+
+
+# ---- folding math nodes into the texture lookup --------------------------------------------
+def _graph(stage, nodes, surface_input: str, source: str):
+    """/Inline: standard_surface whose ``surface_input`` is fed by node ``source`` of ``nodes``
+    {name: (node id, {input: ('value', type, v) | ('node', type, other name)})}."""
+    mat = UsdShade.Material.Define(stage, "/Inline")
+    shaders = {}
+    for name, (node_id, _inputs) in nodes.items():
+        sh = UsdShade.Shader.Define(stage, f"/Inline/{name}")
+        sh.CreateIdAttr(node_id)
+        sh.CreateOutput("out", Sdf.ValueTypeNames.Color3f)
+        shaders[name] = sh
+    for name, (_node_id, inputs) in nodes.items():
+        for inp, (kind, vtype, v) in inputs.items():
+            i = shaders[name].CreateInput(inp, vtype)
+            if kind == "value":
+                i.Set(v)
+            else:
+                i.ConnectToSource(shaders[v].ConnectableAPI(), "out")
+    surface = UsdShade.Shader.Define(stage, "/Inline/Surface")
+    surface.CreateIdAttr("ND_standard_surface_surfaceshader")
+    surface.CreateInput(surface_input, Sdf.ValueTypeNames.Color3f).ConnectToSource(
+        shaders[source].ConnectableAPI(), "out")
+    mat.CreateSurfaceOutput("mtlx").ConnectToSource(surface.ConnectableAPI(), "surface")
+
+
+def test_math_nodes_fold_into_the_texture_lookup(tmp_path):
+    """mix(fg = image * (1, 0.5, 2), bg = (0.1, 0.2, 0.3), mix = 0.25) + 0.05, then invert
+    (1 - x): looked up through the folded TextureDesc, it equals the MaterialX formula applied
+    to the raw texels (spec inputs: mix's fg/bg/mix, multiply/add in1/in2, invert amount/in)."""
+    f = Sdf.ValueTypeNames
+    albedo = Sdf.AssetPath(os.path.join(DATA, "albedo.png"))
+    nodes = {
+        "Img": ("ND_image_color3", {"file": ("value", f.Asset, albedo)}),
+        "Mul": ("ND_multiply_color3", {"in1": ("node", f.Color3f, "Img"), "in2": ("value", f.Color3f, (1, 0.5, 2))}),
+        "Mix": ("ND_mix_color3", {"fg": ("node", f.Color3f, "Mul"), "bg": ("value", f.Color3f, (0.1, 0.2, 0.3)),
+                                  "mix": ("value", f.Float, 0.25)}),
+        "Add": ("ND_add_color3FA", {"in1": ("node", f.Color3f, "Mix"), "in2": ("value", f.Float, 0.05)}),
+        "Inv": ("ND_invert_color3", {"in": ("node", f.Color3f, "Add")}),
+    }
+    desc = load_stage(_scene(tmp_path, "/Inline", extra=lambda s: _graph(s, nodes, "base_color", "Inv")))
+    assert desc.warnings == []
+    tex = _material(desc, "/Inline").diffuse_color.texture
+    st = np.random.default_rng(4).random((400, 2)) * 2.0
+    raw = TextureCache().lookup(type(tex)(file=tex.file, source_color_space="raw", wrap_s="repeat",
+                                          wrap_t="repeat"), st)[:, :3]
+    expected = 1.0 - ((0.25 * raw * np.array([1, 0.5, 2]) + 0.75 * np.array([0.1, 0.2, 0.3])) + 0.05)
+    assert np.allclose(TextureCache().lookup(tex, st)[:, :3], expected, atol=1e-6)
+
+
+def test_unsupported_node_warns_once_naming_node_and_material_in_stats(tmp_path):
+    """Noise feeds base_color directly and specular_roughness through extract, and the material
+    is bound to two prims: one warning, naming the node and the material, listed in --stats;
+    a material with both render contexts is read from MaterialX, and --stats says so."""
+    def second(stage):
+        other = UsdGeom.Sphere.Define(stage, "/Ball")
+        _bind(other, "/Materials/Noisy")
+        both = UsdGeom.Sphere.Define(stage, "/Both")
+        both.AddTranslateOp().Set(Gf.Vec3d(0, 0, -5))
+        _bind(both, "/Materials/Both")
+
+    stage = _scene(tmp_path, "/Materials/Noisy", extra=second)
+    out, stats = tmp_path / "o.exr", tmp_path / "s.json"
+    r = subprocess.run([sys.executable, "-m", "renderer.cli", "render", stage, "-o", str(out), "--res", "8", "8",
+                        "--spp", "1", "--stats", str(stats)], capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr
+    s = json.loads(stats.read_text())
+    noisy = [w for w in s["warnings"] if "Noise" in w]
+    assert len(noisy) == 1, s["warnings"]
+    assert "/Materials/Noisy/Noise " in noisy[0] and noisy[0].startswith("/Materials/Noisy:")
+    assert "more like it" not in noisy[0]
+    assert sum("/Materials/Noisy/Noise " in line for line in r.stderr.splitlines()) == 1
+    sources = {m["path"]: m["source"] for m in s["materials"]}
+    assert sources["/Materials/Noisy"] == "mtlx:ND_standard_surface_surfaceshader"
+    assert sources["/Materials/Both"] == "mtlx:ND_open_pbr_surface_surfaceshader"
+    img, _attrs = read_exr(str(out))
+    assert np.all(np.isfinite(img))
+
+
+def test_both_contexts_prefer_materialx(tmp_path):
+    m = _material(load_stage(_scene(tmp_path, "/Materials/Both")), "/Materials/Both")
+    assert m.diffuse_color.value == pytest.approx((0.0, 0.8, 0.0))
+
+
+# ---- missing documents: the missing-asset policy ---------------------------------------------
+def _missing_doc(stage):
+    UsdShade.Material.Define(stage, "/Gone").GetPrim().GetReferences().AddReference(
+        "./nowhere.mtlx", "/MaterialX/Materials/Gone")
+
+
+def test_missing_mtlx_document_warns_and_strict_fails(tmp_path):
+    path = _scene(tmp_path, "/Gone", extra=_missing_doc)
+    desc = load_stage(path)
+    assert [w for w in desc.warnings if "nowhere.mtlx" in w and "MaterialX document not found" in w]
+    assert _material(desc, "").source == "default"
+    with pytest.raises(StageError, match="nowhere.mtlx"):
+        load_stage(path, strict=True)
