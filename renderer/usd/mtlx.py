@@ -47,7 +47,13 @@ _WIDTH = {"float": 1, "integer": 1, "boolean": 1, "color3": 3, "color4": 4, "vec
           "vector4": 4}
 # MaterialX address modes -> TextureDesc wrap modes ('constant' gives black, not the image's
 # default, outside [0, 1]: docs/materials.md).
-_ADDRESS = {"constant": "black", "clamp": "clamp", "periodic": "repeat", "mirror": "mirror"}
+_ADDRESS = {"constant": "black", "clamp": "clamp", "periodic": "repeat", "mirror": "mirror",
+            # UsdUVTexture's wrap modes, when one sits in a MaterialX network
+            "black": "black", "repeat": "repeat", "useMetadata": "useMetadata"}
+# UsdShade shader ids of USD's own nodes -> the MaterialX library's definitions of them, for
+# networks that mix the two (their unauthored inputs keep USD's Sdr defaults).
+_USD_IDS = {"UsdUVTexture": "ND_UsdUVTexture", "UsdTransform2d": "ND_UsdTransform2d",
+            "UsdPrimvarReader_float2": "ND_UsdPrimvarReader_vector2"}
 # Colour spaces of image files: MaterialX names (and USD's colorSpace metadata) -> TextureDesc's.
 _SRGB = {"srgb_texture", "srgb", "srgb_rec709", "g22_rec709"}
 _RAW = {"", "lin_rec709", "lin_srgb", "raw", "srgb_linear", "rec709_linear", "scene_linear"}
@@ -68,6 +74,13 @@ def _library():
     lib = mx.createDocument()
     mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
     return lib
+
+
+def _sdr_defaults(identifier: str) -> dict:
+    """Sdr's defaults of one of USD's own shader nodes (renderer/usd/materials.py's)."""
+    from .materials import _sdr_defaults as sdr
+
+    return sdr(identifier)
 
 
 def _nodedef(name: str):
@@ -218,8 +231,9 @@ class _UsdNode:
         self.shader = shader
         self.time = time
         self.label = str(shader.GetPath())
-        self.nodedef = _nodedef(shader.GetIdAttr().Get() if shader else "")
-        self.node_id = str(shader.GetIdAttr().Get()) if shader else ""
+        self.node_id = str(shader.GetIdAttr().Get() or "") if shader else ""
+        self.nodedef = _nodedef(_USD_IDS.get(self.node_id, self.node_id))
+        self.usd_defaults = _sdr_defaults(self.node_id) if self.node_id in _USD_IDS else {}
 
     def _attr(self, name: str):
         inp = self.shader.GetInput(name)
@@ -232,7 +246,8 @@ class _UsdNode:
         """None (unauthored), ('value', v) or ('node', adapter, output name)."""
         attr = self._attr(name)
         if attr is None:
-            return None
+            default = self.usd_defaults.get(name)
+            return None if default is None else ("value", default)
         if UsdShade.Output.IsOutput(attr):
             return "node", _UsdNode(UsdShade.Shader(attr.GetPrim()), self.time), UsdShade.Output(attr).GetBaseName()
         value = attr.Get(self.time)
@@ -244,6 +259,9 @@ class _UsdNode:
         if attr is None or UsdShade.Output.IsOutput(attr):
             return None
         space = attr.GetColorSpace() if attr.HasColorSpace() else ""
+        if not space and self.node_id == "UsdUVTexture":  # its own input, 'auto' by default
+            source = self.source("sourceColorSpace")
+            space = str(source[1]) if source is not None and source[0] == "value" else "auto"
         return attr.GetPrim(), attr.GetName(), attr.Get(self.time), str(space)
 
 
@@ -298,7 +316,9 @@ class _DocNode:
         authored = inp.getResolvedValueString()  # with the document's fileprefix applied
         path = authored if os.path.isabs(authored) else os.path.normpath(os.path.join(self.base, authored))
         resolved = path if os.path.exists(path) else ""
-        return self.where, f"mtlx:{self.label}.{name}", Sdf.AssetPath(path, resolved), inp.getActiveColorSpace()
+        doc = os.path.basename(self.element.getDocument().getSourceUri() or "") or "MaterialX document"
+        return (self.where, f"references ({doc}: {self.label}.{name})", Sdf.AssetPath(path, resolved),
+                inp.getActiveColorSpace())
 
 
 class _GraphNode:
@@ -515,6 +535,8 @@ class _Network:
                 raise _Unsupported(node.label, f"its '{frame}' input is connected (illum uses the surface's "
                                                "own shading frame)")
         x = self.value(node, "in", 3)
+        if x.is_const and not np.any(x.b):  # mx_normalmap: a zero vector is the unbent normal
+            x = _Lin.const((0.5, 0.5, 1.0))
         s = self.value(node, "scale")
         if not s.is_const:
             raise _Unsupported(node.label, "its scale is textured")
@@ -571,7 +593,9 @@ class _Network:
         if asset is None:
             return None
         key = str(space or "").lower()
-        if key in _SRGB:
+        if key == "auto":
+            mode = "auto"
+        elif key in _SRGB:
             mode = "sRGB"
         elif key in _RAW:
             mode = "raw"

@@ -294,3 +294,32 @@ def test_missing_mtlx_document_warns_and_strict_fails(tmp_path):
     assert _material(desc, "").source == "default"
     with pytest.raises(StageError, match="nowhere.mtlx"):
         load_stage(path, strict=True)
+
+
+def test_usd_nodes_inside_a_materialx_network_read_as_in_a_preview_network(tmp_path):
+    """UsdUVTexture <- UsdTransform2d <- UsdPrimvarReader_float2 feeding a standard_surface
+    (through MaterialX's own definitions of those nodes, USD's defaults for their unauthored
+    inputs) look up what they look up under a UsdPreviewSurface; rendered with the same seed
+    the two agree to float rounding (the st transforms differ in the last bits: MaterialX's
+    graph composes scale, -rotation and translation node by node)."""
+    def uv2(stage):
+        quad = UsdGeom.Mesh(stage.GetPrimAtPath("/Quad"))
+        UsdGeom.PrimvarsAPI(quad).CreatePrimvar("uv2", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                UsdGeom.Tokens.vertex).Set(
+            Vt.Vec2fArray([(0.1, 0.2), (0.9, 0.1), (1.3, 0.8), (0.0, 1.1)]))
+
+    a = load_stage(_scene(tmp_path, "/Mixed", "a.usda", extra=uv2))
+    b = load_stage(_scene(tmp_path, "/MixedPreview", "b.usda", extra=uv2))
+    assert a.warnings == b.warnings == []
+    ma, mb = _material(a, "/Mixed"), _material(b, "/MixedPreview")
+    st = np.random.default_rng(7).random((500, 2)) * 3.0 - 1.0
+    for field, channels in (("diffuse_color", slice(0, 3)), ("roughness", slice(3, 4))):
+        ta, tb = getattr(ma, field).texture, getattr(mb, field).texture
+        assert ta.st_primvar == tb.st_primvar == "uv2"
+        assert ta.st_transform == pytest.approx(tb.st_transform, abs=1e-12)
+        assert (ta.wrap_s, ta.wrap_t, ta.source_color_space) == ("mirror", "useMetadata", "auto")
+        assert np.allclose(TextureCache().lookup(ta, st)[:, channels], TextureCache().lookup(tb, st)[:, channels],
+                           atol=1e-6)
+    ia = render(str(tmp_path / "a.usda"), RenderOptions(spp=4, seed=5, **OPTS)).film.image()
+    ib = render(str(tmp_path / "b.usda"), RenderOptions(spp=4, seed=5, **OPTS)).film.image()
+    assert ia.max() > 0.0 and np.allclose(ia, ib, rtol=1e-6, atol=0.0)
