@@ -37,7 +37,7 @@ from functools import lru_cache
 import numpy as np
 from pxr import Sdf, Usd, UsdShade
 
-from renderer.description import MaterialDesc, MaterialInput, TextureDesc
+from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc, TextureDesc
 
 from .common import ReadContext
 
@@ -53,7 +53,10 @@ _ADDRESS = {"constant": "black", "clamp": "clamp", "periodic": "repeat", "mirror
 # UsdShade shader ids of USD's own nodes -> the MaterialX library's definitions of them, for
 # networks that mix the two (their unauthored inputs keep USD's Sdr defaults).
 _USD_IDS = {"UsdUVTexture": "ND_UsdUVTexture", "UsdTransform2d": "ND_UsdTransform2d",
-            "UsdPrimvarReader_float2": "ND_UsdPrimvarReader_vector2"}
+            "UsdPrimvarReader_float": "ND_UsdPrimvarReader_float",
+            "UsdPrimvarReader_float2": "ND_UsdPrimvarReader_vector2",
+            "UsdPrimvarReader_float3": "ND_UsdPrimvarReader_vector3",
+            "UsdPrimvarReader_float4": "ND_UsdPrimvarReader_vector4"}
 # Colour spaces of image files: MaterialX names (and USD's colorSpace metadata) -> TextureDesc's.
 _SRGB = {"srgb_texture", "srgb", "srgb_rec709", "g22_rec709"}
 _RAW = {"", "lin_rec709", "lin_srgb", "raw", "srgb_linear", "rec709_linear", "scene_linear"}
@@ -104,6 +107,16 @@ class _Image:
     st_primvar: str
     st_transform: tuple
     default: tuple
+
+
+@dataclass(frozen=True)
+class _Primvar:
+    """A primvar read per hit (geompropvalue, UsdPrimvarReader): its components and default."""
+
+    name: str
+    width: int
+    fallback: tuple
+    node: str  # the reading node's label, for warnings
 
 
 @dataclass(frozen=True)
@@ -522,12 +535,16 @@ class _Network:
         return _Lin(np.eye(2)[:n], np.zeros(n), _St("st" if index == 0 else f"st{index}"))
 
     def _node_geompropvalue(self, node, out, n):
-        if n != 2:
-            raise _Unsupported(node.label, "illum reads geometric properties only as texture coordinates "
-                                           "(vector2)")
         name = self.text(node, "geomprop")
         name = name[len("primvars:"):] if name.startswith("primvars:") else name
-        return _Lin(np.eye(2), np.zeros(2), _St(name or "st"))
+        if n == 2:  # texture coordinates
+            return _Lin(np.eye(2), np.zeros(2), _St(name or "st"))
+        default = self.value(node, "default", n)
+        if not default.is_const:
+            raise _Unsupported(node.label, "its default is not constant")
+        if not name:  # reads no primvar: always its default
+            return _Lin.const(default.b)
+        return _Lin(np.eye(n), np.zeros(n), _Primvar(name, n, tuple(float(x) for x in default.b), node.label))
 
     def _node_normalmap(self, node, out, n):
         for frame in ("normal", "tangent", "bitangent"):
@@ -615,6 +632,8 @@ class _Network:
         value = tuple(float(x) for x in value)
         if lin.is_const:
             return MaterialInput(value[0] if k == 1 else value)
+        if isinstance(lin.source, _Primvar):
+            return self._primvar_input(lin, k, node, name)
         if not isinstance(lin.source, _Image):
             raise _Unsupported(node.label, f"texture coordinates feed its input '{name}'")
         cols = [np.flatnonzero(row) for row in lin.A]
@@ -641,6 +660,19 @@ class _Network:
                           fallback=tuple(float(x) for x in fb4), output=output, st_primvar=img.st_primvar,
                           st_transform=img.st_transform, data=img.data)
         return MaterialInput(value[0] if k == 1 else value, tex)
+
+    def _primvar_input(self, lin: _Lin, k: int, node, name: str) -> MaterialInput:
+        """A primvar read per hit (PrimvarReaderDesc): no arithmetic may follow it, and its
+        components reach the input as renderer/materials.py maps them (the first k, or one
+        broadcast)."""
+        pv = lin.source
+        wanted = np.eye(pv.width)[[0] * k] if pv.width == 1 else np.eye(pv.width)[:k]
+        if np.any(lin.b) or lin.A.shape != wanted.shape or not np.array_equal(lin.A, wanted) or (
+                pv.width == 2 and k == 3):
+            raise _Unsupported(pv.node, f"arithmetic follows its primvar '{pv.name}' on the way to "
+                                        f"{node.label}.inputs:{name}, and illum reads primvars per hit as they are")
+        value = tuple(pv.fallback[:1] * 3 if pv.width == 1 else pv.fallback[:k]) if k == 3 else pv.fallback[0]
+        return MaterialInput(value, primvar=PrimvarReaderDesc(pv.name, pv.width, pv.fallback))
 
     def _finite(self, v, node, name) -> np.ndarray:
         v = np.asarray(v, dtype=np.float64)

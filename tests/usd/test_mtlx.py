@@ -323,3 +323,48 @@ def test_usd_nodes_inside_a_materialx_network_read_as_in_a_preview_network(tmp_p
     ia = render(str(tmp_path / "a.usda"), RenderOptions(spp=4, seed=5, **OPTS)).film.image()
     ib = render(str(tmp_path / "b.usda"), RenderOptions(spp=4, seed=5, **OPTS)).film.image()
     assert ia.max() > 0.0 and np.allclose(ia, ib, rtol=1e-6, atol=0.0)
+
+
+def test_geompropvalue_reads_the_primvar_per_hit_as_a_primvar_reader_does(tmp_path):
+    """geompropvalue(displayColor) into standard_surface base_color is the
+    UsdPrimvarReader_float3 the UsdPreviewSurface path reads per hit; a multiply after it
+    cannot be evaluated per hit and warns (naming the node) instead."""
+    f = Sdf.ValueTypeNames
+
+    def build(stage):
+        for name, scale in (("/Inline", None), ("/Scaled", 0.5)):
+            mat = UsdShade.Material.Define(stage, name)
+            read = UsdShade.Shader.Define(stage, f"{name}/Read")
+            read.CreateIdAttr("ND_geompropvalue_color3")
+            read.CreateInput("geomprop", f.String).Set("displayColor")
+            src = read.CreateOutput("out", f.Color3f)
+            if scale is not None:
+                mul = UsdShade.Shader.Define(stage, f"{name}/Mul")
+                mul.CreateIdAttr("ND_multiply_color3FA")
+                mul.CreateInput("in1", f.Color3f).ConnectToSource(src)
+                mul.CreateInput("in2", f.Float).Set(scale)
+                src = mul.CreateOutput("out", f.Color3f)
+            sh = UsdShade.Shader.Define(stage, f"{name}/Surface")
+            sh.CreateIdAttr("ND_standard_surface_surfaceshader")
+            sh.CreateInput("base_color", f.Color3f).ConnectToSource(src)
+            mat.CreateSurfaceOutput("mtlx").ConnectToSource(sh.ConnectableAPI(), "surface")
+        mat = UsdShade.Material.Define(stage, "/Reader")
+        pbr = UsdShade.Shader.Define(stage, "/Reader/PBR")
+        pbr.CreateIdAttr("UsdPreviewSurface")
+        read = UsdShade.Shader.Define(stage, "/Reader/Read")
+        read.CreateIdAttr("UsdPrimvarReader_float3")
+        read.CreateInput("varname", f.Token).Set("displayColor")
+        pbr.CreateInput("diffuseColor", f.Color3f).ConnectToSource(read.CreateOutput("result", f.Float3))
+        mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+        for i, target in enumerate(("/Reader", "/Scaled")):
+            ball = UsdGeom.Sphere.Define(stage, f"/Ball{i}")
+            ball.AddTranslateOp().Set(Gf.Vec3d(0, 0, -5 - i))
+            _bind(ball, target)
+
+    desc = load_stage(_scene(tmp_path, "/Inline", extra=build))
+    inline, reader = _material(desc, "/Inline"), _material(desc, "/Reader")
+    assert inline.diffuse_color.primvar is not None
+    assert inline.diffuse_color == reader.diffuse_color
+    warned = [w for w in desc.warnings if "/Scaled/Read" in w]
+    assert len(warned) == 1 and warned[0].startswith("/Scaled:")
+    assert _material(desc, "/Scaled").diffuse_color.value == pytest.approx((0.8, 0.8, 0.8))
