@@ -21,7 +21,10 @@ What is read and what is not (each unsupported feature gives one warning per sta
 * Materials: UsdPreviewSurface (universal render context) with UsdUVTexture, UsdTransform2d
   and UsdPrimvarReader_* (numeric readers on any UsdPreviewSurface input are read per hit;
   ``materials``); materialBind GeomSubsets split a mesh by material; displacement, clearcoat
-  and occlusion inputs are ignored; UDIM paths use the fallback.
+  and occlusion inputs are ignored; UDIM paths use the fallback. MaterialX (``mtlx``): inline
+  networks of ND_* shaders (preferred over a UsdPreviewSurface on the same Material) and
+  referenced .mtlx documents, folded onto the same description (docs/materials.md); a node
+  that cannot fold gives one warning naming it and the material.
 * displayColor fallback: ``primvars:displayColor`` per hit on meshes (constant, uniform, vertex,
   faceVarying; a constant one may be inherited from an ancestor, UsdGeom primvar inheritance).
 * Assets (textures, light textures, IES profiles) resolve through Ar, so files inside ``.usdz``

@@ -861,7 +861,8 @@ def _describe(ctx: ReadContext, material_path: str, node, source_note: str) -> t
         ctx.warn(f"mtlx-surface-{node.node_id}",
                  f"{node.label}: MaterialX surface '{node.node_id}' of {material_path} is not supported "
                  "(illum maps ND_UsdPreviewSurface_surfaceshader, ND_standard_surface_surfaceshader and "
-                 "ND_open_pbr_surface_surfaceshader); using displayColor/grey")
+                 "ND_open_pbr_surface_surfaceshader); using the material's UsdPreviewSurface if it has one, "
+                 "else displayColor/grey")
         return None, None
     net = _Network(ctx, material_path)
     surface = _Surface(net, node)
