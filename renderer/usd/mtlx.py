@@ -61,6 +61,7 @@ _USD_IDS = {"UsdUVTexture": "ND_UsdUVTexture", "UsdTransform2d": "ND_UsdTransfor
 _SRGB = {"srgb_texture", "srgb", "srgb_rec709", "g22_rec709"}
 _RAW = {"", "lin_rec709", "lin_srgb", "raw", "srgb_linear", "rec709_linear", "scene_linear"}
 _SURFACES = {"UsdPreviewSurface", "standard_surface", "open_pbr_surface"}
+_MAX_DEPTH = 100  # nodes on one path through a network: deeper is taken for a cycle
 
 
 def is_mtlx_id(shader_id) -> bool:
@@ -380,6 +381,7 @@ class _Network:
         self.material = material
         self.st_names: list[str] = []
         self._warned: set[str] = set()
+        self._depth = 0
 
     # ---- inputs ------------------------------------------------------------------------
     def _input_def(self, node, name: str):
@@ -415,13 +417,25 @@ class _Network:
                                                f"'{d.getDefaultGeomPropString()}'")
             return _Lin.const(_as_array(d.getValue()) if d.getValue() is not None else np.zeros(n)).width(n)
         if src[0] == "value":
-            return _Lin.const(_as_array(src[1])).width(n)
+            try:
+                return _Lin.const(_as_array(src[1])).width(n)
+            except (TypeError, ValueError):
+                raise _Unsupported(node.label, f"its input '{name}' holds {src[1]!r}, not a number") from None
         if src[0] == "input":
             return self.value(src[1], src[2], n)
         return self.output(src[1], src[2]).width(n)
 
     # ---- outputs -----------------------------------------------------------------------
     def output(self, node, out: str) -> _Lin:
+        self._depth += 1
+        try:
+            if self._depth > _MAX_DEPTH:
+                raise _Unsupported(node.label, f"the network is deeper than {_MAX_DEPTH} nodes (a cycle?)")
+            return self._output(node, out)
+        finally:
+            self._depth -= 1
+
+    def _output(self, node, out: str) -> _Lin:
         nd = node.nodedef
         if nd is None:
             raise _Unsupported(node.label, f"'{node.node_id}' is not a MaterialX node definition illum knows")
@@ -756,8 +770,6 @@ class _Surface:
             return MaterialInput(flat)
         v = self.lin(name, 3, default=flat)
         if v.kind != "normal" and not (v.is_const and np.allclose(v.b, flat)):
-            if v.is_const and tuple(v.b) == flat:
-                return MaterialInput(flat)
             self.net.unsupported(_Unsupported(self.node.label, f"'{name}' is not fed by a normalmap node"),
                                  self.node, name)
             return MaterialInput(flat)
