@@ -22,6 +22,7 @@ from renderer.film import read_exr
 from renderer.render import RenderOptions, render
 from renderer.textures import TextureCache
 from renderer.usd import load_stage
+from tests.stage_builders import textured_quad
 from tests.stats import SIGNIFICANCE, z_test
 
 DATA = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "mtlx")
@@ -38,14 +39,7 @@ def _scene(tmp_path, material: str, name: str = "scene.usda", extra=None) -> str
     UsdGeom.SetStageUpAxis(stage, "Y")
     cam = UsdGeom.Camera.Define(stage, "/Cam")
     cam.AddTranslateOp().Set(Gf.Vec3d(0, 0, 3))
-    quad = UsdGeom.Mesh.Define(stage, "/Quad")
-    quad.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
-    quad.CreateFaceVertexCountsAttr([4])
-    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    quad.CreateSubdivisionSchemeAttr("none")
-    st = UsdGeom.PrimvarsAPI(quad).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set(Vt.Vec2fArray([(0, 0), (1, 0), (1, 1), (0, 1)]))
-    _bind(quad, material)
+    _bind(textured_quad(stage, "/Quad"), material)
     UsdLux.DomeLight.Define(stage, "/Sky").CreateIntensityAttr(1.0)
     if extra is not None:
         extra(stage)
