@@ -41,7 +41,7 @@ from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc,
 
 from .common import ReadContext
 
-__all__ = ["is_mtlx_id", "read_usd_network", "read_mtlx_material", "mtlx_reference"]
+__all__ = ["document_files", "is_mtlx_id", "mtlx_reference", "read_mtlx_material", "read_usd_network"]
 
 _WIDTH = {"float": 1, "integer": 1, "boolean": 1, "color3": 3, "color4": 4, "vector2": 2, "vector3": 3,
           "vector4": 4}
@@ -904,6 +904,25 @@ def mtlx_reference(prim: Usd.Prim) -> tuple[str, str, str] | None:
                     absolute = spec.layer.ComputeAbsolutePath(asset)
                     return asset, absolute if os.path.isfile(absolute) else "", str(ref.primPath or "")
     return None
+
+
+def document_files(path: str) -> list[tuple[str, str, str]]:
+    """(element path, authored value, absolute path) of every document the .mtlx document at
+    ``path`` XIncludes and every filename input in it, resolved as the reader resolves them (the
+    document's fileprefix, then its directory): what reading it can open
+    (renderer/usd/confine.py)."""
+    doc = _read_document(path, os.path.getmtime(path))
+    base = os.path.dirname(path)
+    # XIncluded documents (read with it), then the files its filename inputs name.
+    out = [("xi:include", uri, os.path.normpath(os.path.join(base, uri)))
+           for uri in sorted(doc.getReferencedSourceUris())
+           if os.path.normpath(os.path.join(base, uri)) != os.path.normpath(path)]
+    for element in doc.traverseTree():
+        if element.getCategory() == "input" and element.getType() == "filename" and element.getValueString():
+            value = element.getResolvedValueString()
+            out.append((element.getNamePath(), value, value if os.path.isabs(value)
+                        else os.path.normpath(os.path.join(base, value))))
+    return out
 
 
 @lru_cache(maxsize=32)
