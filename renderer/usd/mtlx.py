@@ -60,7 +60,7 @@ _USD_IDS = {"UsdUVTexture": "ND_UsdUVTexture", "UsdTransform2d": "ND_UsdTransfor
 # Colour spaces of image files: MaterialX names (and USD's colorSpace metadata) -> TextureDesc's.
 _SRGB = {"srgb_texture", "srgb", "srgb_rec709", "g22_rec709"}
 _RAW = {"", "lin_rec709", "lin_srgb", "raw", "srgb_linear", "rec709_linear", "scene_linear"}
-_SURFACES = {"UsdPreviewSurface", "standard_surface", "open_pbr_surface"}
+_SURFACES = {"UsdPreviewSurface", "standard_surface", "open_pbr_surface", "gltf_pbr"}
 _MAX_DEPTH = 100  # nodes on one path through a network: deeper is taken for a cycle
 
 
@@ -815,10 +815,10 @@ class _Surface:
                  opacity, normal, lost) -> dict:
         """standard_surface and open_pbr_surface (same structure, different input names)."""
         ior_v = float(self.const(ior)[0])
-        diffuse = self.product(base, color)
+        diffuse = self.product(base, color) if base else self.lin(color, 3)
         # The coat tints everything under it: base * lerp(1, coat_color, coat).
         coat = self.lin(coat_w, 1)
-        if not (coat.is_const and coat.b[0] == 0.0):
+        if coat_c and not (coat.is_const and coat.b[0] == 0.0):
             tint = self.lin(coat_c, 3)
             if coat.is_const and tint.is_const:
                 diffuse = _sum(self.node.label, [(1.0 + coat.b[0] * (tint.b - 1.0), diffuse)])
@@ -855,6 +855,20 @@ class _Surface:
                              ("diffuse_roughness", "specular_anisotropy", "transmission", "subsurface", "sheen",
                               "thin_film_thickness", "coat_affect_color", "coat_affect_roughness", "coat_normal"))
 
+    def gltf_pbr(self) -> dict:
+        """glTF 2.0 PBR (ND_gltf_pbr_surfaceshader): metallic-roughness is UsdPreviewSurface's
+        metallic workflow; alpha_mode 0 (opaque) / 1 (mask at alpha_cutoff) / 2 (blend)."""
+        f = self._layered("", "base_color", "metallic", "specular", "specular_color", "roughness", "ior",
+                          "clearcoat", "", "emissive_strength", "emissive", "alpha", "normal",
+                          ("occlusion", "transmission", "iridescence", "sheen_color", "thickness",
+                           "anisotropy_strength", "dispersion", "clearcoat_normal"))
+        mode = int(self.const("alpha_mode")[0])
+        if mode == 0:
+            f["opacity"] = MaterialInput(1.0)
+        elif mode == 1:
+            f["opacity_threshold"] = float(self.const("alpha_cutoff")[0])
+        return f
+
     def open_pbr_surface(self) -> dict:
         return self._layered("base_weight", "base_color", "base_metalness", "specular_weight", "specular_color",
                              "specular_roughness", "specular_ior", "coat_weight", "coat_color", "emission_luminance",
@@ -872,8 +886,8 @@ def _describe(ctx: ReadContext, material_path: str, node, source_note: str) -> t
     if cat not in _SURFACES:
         ctx.warn(f"mtlx-surface-{node.node_id}",
                  f"{node.label}: MaterialX surface '{node.node_id}' of {material_path} is not supported "
-                 "(illum maps ND_UsdPreviewSurface_surfaceshader, ND_standard_surface_surfaceshader and "
-                 "ND_open_pbr_surface_surfaceshader); using the material's UsdPreviewSurface if it has one, "
+                 "(illum maps ND_UsdPreviewSurface_surfaceshader, ND_standard_surface_surfaceshader, "
+                 "ND_open_pbr_surface_surfaceshader and ND_gltf_pbr_surfaceshader); using the material's UsdPreviewSurface if it has one, "
                  "else displayColor/grey")
         return None, None
     net = _Network(ctx, material_path)

@@ -362,3 +362,23 @@ def test_geompropvalue_reads_the_primvar_per_hit_as_a_primvar_reader_does(tmp_pa
     warned = [w for w in desc.warnings if "/Scaled/Read" in w]
     assert len(warned) == 1 and warned[0].startswith("/Scaled:")
     assert _material(desc, "/Scaled").diffuse_color.value == pytest.approx((0.8, 0.8, 0.8))
+
+
+def test_unmapped_materialx_surface_falls_back_to_the_preview_surface(tmp_path):
+    desc = load_stage(_scene(tmp_path, "/Unmapped"))
+    m = _material(desc, "/Unmapped")
+    assert m.source == "UsdPreviewSurface" and m.diffuse_color.value == pytest.approx((0.8, 0.0, 0.0))
+    assert len([w for w in desc.warnings if "ND_disney_principled" in w and "/Unmapped" in w]) == 1
+
+
+def test_gltf_pbr_mask_mode(tmp_path):
+    f = Sdf.ValueTypeNames
+    path = _scene(tmp_path, "/Inline", extra=lambda s: _inline_surface(
+        s, "ND_gltf_pbr_surfaceshader", base_color=(f.Color3f, (0.2, 0.4, 0.6)), metallic=(f.Float, 0.5),
+        roughness=(f.Float, 0.3), alpha=(f.Float, 0.2), alpha_mode=(f.Int, 1), alpha_cutoff=(f.Float, 0.4),
+        emissive=(f.Color3f, (1.0, 0.5, 0.0)), emissive_strength=(f.Float, 2.0)))
+    m = _material(load_stage(path), "/Inline")
+    assert m.diffuse_color.value == pytest.approx((0.2, 0.4, 0.6))
+    assert (m.metallic.value, m.roughness.value) == pytest.approx((0.5, 0.3))
+    assert (m.opacity.value, m.opacity_threshold) == pytest.approx((0.2, 0.4))
+    assert m.emissive_color.value == pytest.approx((2.0, 1.0, 0.0))
