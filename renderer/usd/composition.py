@@ -107,7 +107,8 @@ def check_composition(ctx: ReadContext) -> None:
     # A reference to a .mtlx document cannot compose (usd-core has no MaterialX file format);
     # renderer/usd/mtlx.py reads the document itself, under the same missing-asset policy.
     errors = [e for e in ctx.stage.GetCompositionErrors()
-              if not any(q.split(":SDF_FORMAT_ARGS")[0].lower().endswith(".mtlx") for q in _QUOTED.findall(str(e)))]
+              if not any(q.split(":SDF_FORMAT_ARGS")[0].rstrip("]").lower().endswith(".mtlx")
+                         for q in _QUOTED.findall(str(e)))]
     for k, error in enumerate(errors):
         if not ctx.strict and k >= _MAX_WARNINGS:
             ctx.warn("composition-more", f"{len(errors) - _MAX_WARNINGS} more composition errors")

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from pxr import Sdf, Usd, UsdShade
+from pxr import Ar, Sdf, Usd, UsdShade
 
 from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc, TextureDesc
 
@@ -281,20 +281,20 @@ class _UsdNode:
 
 class _DocNode:
     """A node of a .mtlx document (top level or inside a nodegraph). ``where`` is the USD prim
-    the document is referenced from (for messages and the missing-asset policy), ``base`` the
-    document's directory (file paths are relative to it)."""
+    the document is referenced from (for messages and the missing-asset policy), ``doc`` the
+    document's resolved path (file paths are relative to its directory)."""
 
-    def __init__(self, element, where: Usd.Prim, base: str):
+    def __init__(self, element, where: Usd.Prim, doc: str):
         self.element = element
         self.where = where
-        self.base = base
+        self.doc = doc
         self.label = f"{element.getNamePath()}"
         nd = element.getNodeDef()
         self.nodedef = nd if nd is not None else _nodedef("")
         self.node_id = nd.getName() if nd is not None else element.getCategory()
 
     def _wrap(self, element):
-        return _DocNode(element, self.where, self.base)
+        return _DocNode(element, self.where, self.doc)
 
     def source(self, name: str):
         inp = self.element.getInput(name)
@@ -328,9 +328,9 @@ class _DocNode:
         if inp is None or not inp.getResolvedValueString():
             return None
         authored = inp.getResolvedValueString()  # with the document's fileprefix applied
-        path = authored if os.path.isabs(authored) else os.path.normpath(os.path.join(self.base, authored))
-        resolved = path if os.path.exists(path) else ""
-        doc = os.path.basename(self.element.getDocument().getSourceUri() or "") or "MaterialX document"
+        path = _join(self.doc, authored)
+        resolved = str(Ar.GetResolver().Resolve(path))
+        doc = os.path.basename(self.doc.rstrip("]")) or "MaterialX document"
         return (self.where, f"references ({doc}: {self.label}.{name})", Sdf.AssetPath(path, resolved),
                 inp.getActiveColorSpace())
 
@@ -915,9 +915,26 @@ def mtlx_reference(prim: Usd.Prim) -> tuple[str, str, str] | None:
             for ref in getattr(proxy, kind):
                 asset = ref.assetPath
                 if asset.lower().endswith(".mtlx"):
-                    absolute = spec.layer.ComputeAbsolutePath(asset)
-                    return asset, absolute if os.path.isfile(absolute) else "", str(ref.primPath or "")
+                    # Through Ar, so a document inside a .usdz package resolves too.
+                    resolved = str(Ar.GetResolver().Resolve(spec.layer.ComputeAbsolutePath(asset)))
+                    return asset, resolved, str(ref.primPath or "")
     return None
+
+
+def _join(doc: str, value: str) -> str:
+    """File ``value`` named in document ``doc`` (a path, or package-relative
+    ``pkg.usdz[dir/look.mtlx]``): relative to the document's directory."""
+    if os.path.isabs(value):
+        return value
+    if Ar.IsPackageRelativePath(doc):
+        outer, inner = Ar.SplitPackageRelativePathOuter(doc)
+        return Ar.JoinPackageRelativePath(outer, os.path.normpath(os.path.join(os.path.dirname(inner), value)))
+    return os.path.normpath(os.path.join(os.path.dirname(doc), value))
+
+
+def _modified(path: str) -> float:
+    """mtime of the file behind ``path`` (a package's, for a path inside one)."""
+    return os.path.getmtime(Ar.SplitPackageRelativePathOuter(path)[0] if Ar.IsPackageRelativePath(path) else path)
 
 
 def document_files(path: str) -> list[tuple[str, str, str]]:
@@ -925,17 +942,14 @@ def document_files(path: str) -> list[tuple[str, str, str]]:
     ``path`` XIncludes and every filename input in it, resolved as the reader resolves them (the
     document's fileprefix, then its directory): what reading it can open
     (renderer/usd/confine.py)."""
-    doc = _read_document(path, os.path.getmtime(path))
-    base = os.path.dirname(path)
+    doc = _read_document(path, _modified(path))
     # XIncluded documents (read with it), then the files its filename inputs name.
-    out = [("xi:include", uri, os.path.normpath(os.path.join(base, uri)))
-           for uri in sorted(doc.getReferencedSourceUris())
-           if os.path.normpath(os.path.join(base, uri)) != os.path.normpath(path)]
+    out = [("xi:include", uri, _join(path, uri)) for uri in sorted(doc.getReferencedSourceUris())
+           if uri and uri != doc.getSourceUri()]
     for element in doc.traverseTree():
         if element.getCategory() == "input" and element.getType() == "filename" and element.getValueString():
             value = element.getResolvedValueString()
-            out.append((element.getNamePath(), value, value if os.path.isabs(value)
-                        else os.path.normpath(os.path.join(base, value))))
+            out.append((element.getNamePath(), value, _join(path, value)))
     return out
 
 
@@ -945,7 +959,13 @@ def _read_document(path: str, mtime: float):
 
     doc = mx.createDocument()
     doc.setDataLibrary(_library())
-    mx.readFromXmlFile(doc, path)
+    if Ar.IsPackageRelativePath(path):  # inside a .usdz: its bytes through Ar
+        asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(path))
+        if asset is None:
+            raise OSError(f"cannot open '{path}'")
+        mx.readFromXmlString(doc, bytes(asset.GetBuffer()).decode("utf-8"))
+    else:
+        mx.readFromXmlFile(doc, path)
     return doc
 
 
@@ -963,9 +983,8 @@ def read_mtlx_material(ctx: ReadContext, prim: Usd.Prim, material_path: str, inn
         ctx.asset_unusable(prim, attr, authored, "MaterialX document not found", "its materials use displayColor/grey")
         return None, None
     try:
-        doc = _read_document(resolved, os.path.getmtime(resolved))
+        doc = _read_document(resolved, _modified(resolved))
     except Exception as e:  # noqa: BLE001 -- MaterialX's parse and file errors have no common base
-
         raise ctx.error(f"cannot read MaterialX document '{resolved}': {e}", prim, attr) from None
     name = inner.rstrip("/").split("/")[-1]
     node = doc.getNode(name)
@@ -975,7 +994,6 @@ def read_mtlx_material(ctx: ReadContext, prim: Usd.Prim, material_path: str, inn
                  f"{prim.GetPath()}: MaterialX document '{resolved}' has no material '{name}' "
                  f"(it has: {', '.join(found) or 'none'}); using displayColor/grey")
         return None, None
-    base = os.path.dirname(resolved)
     surface_input = node.getInput("surfaceshader")
     shader = surface_input.getConnectedNode() if surface_input is not None else None
     if shader is None:
@@ -983,4 +1001,5 @@ def read_mtlx_material(ctx: ReadContext, prim: Usd.Prim, material_path: str, inn
                  f"{material_path}: MaterialX material '{name}' in '{resolved}' has no surface shader; "
                  "using displayColor/grey")
         return None, None
-    return _describe(ctx, material_path, _DocNode(shader, prim, base), f" ({os.path.basename(resolved)})")
+    return _describe(ctx, material_path, _DocNode(shader, prim, resolved),
+                     f" ({os.path.basename(resolved.rstrip(']'))})")

@@ -382,3 +382,29 @@ def test_gltf_pbr_mask_mode(tmp_path):
     assert (m.metallic.value, m.roughness.value) == pytest.approx((0.5, 0.3))
     assert (m.opacity.value, m.opacity_threshold) == pytest.approx((0.2, 0.4))
     assert m.emissive_color.value == pytest.approx((2.0, 1.0, 0.0))
+
+
+def test_mtlx_document_inside_a_usdz_package(tmp_path):
+    """A .usdz holding the stage, a .mtlx document and its textures: the document and its
+    images are read from the package through Ar, as the unpacked files are."""
+    scene = tmp_path / "scene.usda"
+    stage = Usd.Stage.CreateNew(str(scene))
+    stage.DefinePrim("/MaterialX").GetReferences().AddReference("looks/library.mtlx", "/MaterialX")
+    UsdGeom.Camera.Define(stage, "/Cam").AddTranslateOp().Set(Gf.Vec3d(0, 0, 3))
+    UsdLux.DomeLight.Define(stage, "/Sky")
+    _bind(textured_quad(stage, "/Quad"), "/MaterialX/Materials/Tiled")
+    stage.GetRootLayer().Save()
+    package = str(tmp_path / "pkg.usdz")
+    writer = Sdf.ZipFileWriter.CreateNew(package)
+    writer.AddFile(str(scene), "scene.usda")
+    for name in ("library.mtlx", "albedo.png", "normal.png"):
+        writer.AddFile(os.path.join(DATA, name), f"looks/{name}")
+    writer.Save()
+    packed = load_stage(package)
+    assert packed.warnings == []
+    tex = _material(packed, "/MaterialX/Materials/Tiled").diffuse_color.texture
+    assert tex.file == f"{package}[looks/albedo.png]" and tex.data is not None
+    plain = _material(load_stage(_scene(tmp_path, "/Tiled", "plain.usda")), "/Tiled").diffuse_color.texture
+    st = np.random.default_rng(3).random((200, 2))
+    assert tex.st_transform == plain.st_transform
+    assert np.array_equal(TextureCache().lookup(tex, st), TextureCache().lookup(plain, st))
