@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
@@ -108,6 +108,7 @@ class _Image:
     st_primvar: str
     st_transform: tuple
     default: tuple
+    node: str = field(default="", compare=False)  # the image node's label, for warnings
 
 
 @dataclass(frozen=True)
@@ -603,7 +604,7 @@ class _Network:
         if n == 3:
             default4[3] = 1.0
         image = _Image(path, data, space, wraps[0], wraps[1], uv.source.primvar if not uv.is_const else "st",
-                       st_transform, tuple(float(x) for x in default4))
+                       st_transform, tuple(float(x) for x in default4), node.label)
         return _Lin(np.eye(4)[:n], np.zeros(n), image)
 
     def _asset(self, node, name: str):
@@ -652,7 +653,8 @@ class _Network:
             raise _Unsupported(node.label, f"texture coordinates feed its input '{name}'")
         cols = [np.flatnonzero(row) for row in lin.A]
         if any(c.size > 1 for c in cols):
-            raise _Unsupported(node.label, f"its input '{name}' mixes channels of one texture")
+            raise _Unsupported(lin.source.node, f"channels of its texture are mixed on the way to "
+                                                f"{node.label}.inputs:{name}")
         chans = [int(c[0]) if c.size else -1 for c in cols]
         scale4, bias4, fb4 = np.array([1.0, 1.0, 1.0, 1.0]), np.zeros(4), np.array(lin.source.default, dtype=float)
         used = {c for c in chans if c >= 0}
@@ -666,7 +668,7 @@ class _Network:
             for i in range(3):
                 scale4[i], bias4[i], fb4[i] = lin.A[i, i], lin.b[i], value[i]
         else:
-            raise _Unsupported(node.label, f"its input '{name}' rearranges a texture's channels")
+            raise _Unsupported(lin.source.node, f"its channels are rearranged on the way to {node.label}.inputs:{name}")
         img = lin.source
         self.st_names.append(img.st_primvar)
         tex = TextureDesc(file=img.file, source_color_space=img.space, wrap_s=img.wrap_s, wrap_t=img.wrap_t,
@@ -708,11 +710,6 @@ class _Network:
 # --------------------------------------------------------------------------------------
 # Surface shaders -> MaterialDesc fields
 # --------------------------------------------------------------------------------------
-def _f0(ior: float) -> float:
-    """Normal-incidence Fresnel reflectance of a dielectric, ((ior - 1) / (ior + 1))^2."""
-    return ((ior - 1.0) / (ior + 1.0)) ** 2
-
-
 class _Surface:
     """Maps one surface shader node onto MaterialDesc fields (docs/materials.md)."""
 
@@ -730,8 +727,12 @@ class _Surface:
         except _Unsupported as e:
             self.net.unsupported(e, self.node, name)
             d = self.node.nodedef.getActiveInput(name)
-            fallback = default if default is not None else (_as_array(d.getValue()) if d is not None and d.getValue() is not None
-                                                            else np.zeros(n or 1))
+            if default is not None:
+                fallback = default
+            elif d is not None and d.getValue() is not None:
+                fallback = _as_array(d.getValue())
+            else:
+                fallback = np.zeros(n or 1)
             return _Lin.const(fallback).width(n or len(np.atleast_1d(fallback)))
 
     def const(self, name: str, n: int = 1) -> np.ndarray:
@@ -841,7 +842,10 @@ class _Surface:
             m = self.lin(metal, 1)
             if m.is_const and m.b[0] == 0.0:
                 f["use_specular_workflow"] = True
-                f["specular_color"] = MaterialInput(tuple(float(x) for x in w.b[0] * c.b * _f0(ior_v)))
+                from renderer.bsdfs.preview_surface import dielectric_f0  # numba-free, but heavy to import
+
+                f0 = w.b[0] * c.b * float(dielectric_f0(ior_v))
+                f["specular_color"] = MaterialInput(tuple(float(x) for x in f0))
             else:
                 lost = (*lost, spec_w, spec_c)
         elif not (w.is_const and c.is_const):
@@ -887,8 +891,8 @@ def _describe(ctx: ReadContext, material_path: str, node, source_note: str) -> t
         ctx.warn(f"mtlx-surface-{node.node_id}",
                  f"{node.label}: MaterialX surface '{node.node_id}' of {material_path} is not supported "
                  "(illum maps ND_UsdPreviewSurface_surfaceshader, ND_standard_surface_surfaceshader, "
-                 "ND_open_pbr_surface_surfaceshader and ND_gltf_pbr_surfaceshader); using the material's UsdPreviewSurface if it has one, "
-                 "else displayColor/grey")
+                 "ND_open_pbr_surface_surfaceshader and ND_gltf_pbr_surfaceshader); using the material's "
+                 "UsdPreviewSurface if it has one, else displayColor/grey")
         return None, None
     net = _Network(ctx, material_path)
     surface = _Surface(net, node)
