@@ -408,3 +408,27 @@ def test_mtlx_document_inside_a_usdz_package(tmp_path):
     st = np.random.default_rng(3).random((200, 2))
     assert tex.st_transform == plain.st_transform
     assert np.array_equal(TextureCache().lookup(tex, st), TextureCache().lookup(plain, st))
+
+
+@pytest.mark.parametrize("case", ["two textures", "rearranged channels", "nonlinear"])
+def test_networks_that_cannot_fold_warn_naming_the_node(tmp_path, case):
+    f = Sdf.ValueTypeNames
+    albedo, normal = (Sdf.AssetPath(os.path.join(DATA, n)) for n in ("albedo.png", "normal.png"))
+    img = lambda path: ("ND_image_color3", {"file": ("value", f.Asset, path)})  # noqa: E731
+    nodes, culprit = {
+        "two textures": ({"A": img(albedo), "B": img(normal),
+                          "Out": ("ND_mix_color3", {"fg": ("node", f.Color3f, "A"), "bg": ("node", f.Color3f, "B"),
+                                                    "mix": ("value", f.Float, 0.5)})}, "Out"),
+        "rearranged channels": ({"A": img(albedo), **{
+            ch: ("ND_extract_color3", {"in": ("node", f.Color3f, "A"), "index": ("value", f.Int, k)})
+            for ch, k in (("R", 2), ("G", 1), ("B", 0))},
+            "Out": ("ND_combine3_color3", {f"in{i + 1}": ("node", f.Float, ch) for i, ch in enumerate("RGB")})}, "A"),
+        "nonlinear": ({"A": img(albedo),
+                       "Out": ("ND_power_color3FA", {"in1": ("node", f.Color3f, "A"), "in2": ("value", f.Float, 2.2)})},
+                      "Out"),
+    }[case]
+    desc = load_stage(_scene(tmp_path, "/Inline", extra=lambda s: _graph(s, nodes, "base_color", "Out")))
+    warned = [w for w in desc.warnings if "MaterialX node" in w]
+    assert len(warned) == 1 and warned[0].startswith(f"/Inline: MaterialX node /Inline/{culprit} is not supported")
+    m = _material(desc, "/Inline")
+    assert m.diffuse_color.texture is None and m.diffuse_color.value == pytest.approx((0.8, 0.8, 0.8))
