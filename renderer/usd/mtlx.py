@@ -976,15 +976,14 @@ def _read_document(path: str, mtime: float):
 def read_mtlx_material(ctx: ReadContext, prim: Usd.Prim, material_path: str, inner: str):
     """(MaterialDesc or None, st name or None) of the material at usdMtlx path ``inner``
     (``/MaterialX/Materials/<name>``, or just a material name) of the .mtlx document that
-    ``prim`` references; None after a warning (or, under --strict, an error for a missing
-    document) when it cannot be read."""
+    ``prim`` references; None (after a warning) when it has no such material. A missing
+    document is reported by renderer/usd/composition.py (an error under --strict)."""
     ref = mtlx_reference(prim)
     if ref is None:
         return None, None
     authored, resolved, _target = ref
     attr = "references"
-    if not resolved:
-        ctx.asset_unusable(prim, attr, authored, "MaterialX document not found", "its materials use displayColor/grey")
+    if not resolved:  # a missing document is a composition error (renderer/usd/composition.py)
         return None, None
     try:
         doc = _read_document(resolved, _modified(resolved))

@@ -284,7 +284,7 @@ def _missing_doc(stage):
 def test_missing_mtlx_document_warns_and_strict_fails(tmp_path):
     path = _scene(tmp_path, "/Gone", extra=_missing_doc)
     desc = load_stage(path)
-    assert [w for w in desc.warnings if "nowhere.mtlx" in w and "MaterialX document not found" in w]
+    assert len([w for w in desc.warnings if "nowhere.mtlx" in w]) == 1
     assert _material(desc, "").source == "default"
     with pytest.raises(StageError, match="nowhere.mtlx"):
         load_stage(path, strict=True)
