@@ -1,5 +1,9 @@
 """UsdShade -> MaterialDesc: binding resolution, UsdPreviewSurface inputs, UsdUVTexture chains.
 
+A Material's ``mtlx`` render context (inline MaterialX networks) is preferred over its
+universal UsdPreviewSurface, and a Material (or a binding target) inside a referenced .mtlx
+document is read from the document: both in renderer/usd/mtlx.py (docs/materials.md).
+
 Inputs are resolved with ``UsdShadeInput.GetValueProducingAttributes``, which follows
 connections through NodeGraph outputs and Material/NodeGraph interface inputs to either a
 shader output (a texture) or an attribute holding a value. Unauthored inputs take their

@@ -248,7 +248,11 @@ class _UsdNode:
         self.label = str(shader.GetPath())
         self.node_id = str(shader.GetIdAttr().Get() or "") if shader else ""
         self.nodedef = _nodedef(_USD_IDS.get(self.node_id, self.node_id))
-        self.usd_defaults = _sdr_defaults(self.node_id) if self.node_id in _USD_IDS else {}
+        # USD's defaults, except where MaterialX's is a geometric property (UsdUVTexture.st is
+        # the 'st' primvar when unconnected, as illum's UsdPreviewSurface path reads it).
+        defs = {d.getName(): d for d in self.nodedef.getActiveInputs()} if self.nodedef is not None else {}
+        self.usd_defaults = {k: v for k, v in _sdr_defaults(self.node_id).items()
+                             if k in defs and defs[k].getDefaultGeomProp() is None} if self.node_id in _USD_IDS else {}
 
     def _attr(self, name: str):
         inp = self.shader.GetInput(name)
