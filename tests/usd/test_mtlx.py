@@ -84,13 +84,14 @@ def test_nd_usd_preview_surface_network_renders_identically_to_usd_preview_surfa
     assert ia.max() > 0.0 and np.array_equal(ia, ib)
 
 
-def test_mtlx_document_reads_as_its_inline_twin(tmp_path):
-    """A .mtlx document referenced onto a Material prim (usd-core cannot compose it) gives the
-    description of the same network written inline; tiledimage's uvtiling becomes the st
-    transform through the library's own tiledimage graph."""
-    doc = load_stage(_scene(tmp_path, "/Tiled", "a.usda"))
+@pytest.mark.parametrize("holder", ["/Tiled", "/TiledPlain"])
+def test_mtlx_document_reads_as_its_inline_twin(tmp_path, holder):
+    """A .mtlx document referenced onto a Material prim, or onto a typeless prim bound directly
+    (usd-core cannot compose either), gives the description of the same network written inline;
+    tiledimage's uvtiling becomes the st transform through the library's own tiledimage graph."""
+    doc = load_stage(_scene(tmp_path, holder, "a.usda"))
     inline = load_stage(_scene(tmp_path, "/TiledInline", "b.usda"))
-    d, i = _material(doc, "/Tiled"), _material(inline, "/TiledInline")
+    d, i = _material(doc, holder), _material(inline, "/TiledInline")
     assert d.diffuse_color.texture.st_transform == (2.0, 0.0, 0.0, 2.0, 0.0, 0.0)
     assert _same_but_name(d, i)
     assert d.source == "mtlx:ND_standard_surface_surfaceshader (library.mtlx)"
