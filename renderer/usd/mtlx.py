@@ -746,7 +746,8 @@ class _Surface:
             return self.lin_default(name, n)
         return v.b
 
-    def lin_default(self, name, n):
+    def lin_default(self, name, n) -> np.ndarray:
+        """Input ``name``'s default from the node definition, as n components."""
         d = self.node.nodedef.getActiveInput(name)
         return _Lin.const(_as_array(d.getValue())).width(n).b
 
@@ -760,12 +761,21 @@ class _Surface:
                 self.net.unsupported(e, self.node, name)
         return out
 
-    def input(self, lin: _Lin, k: int, name: str, default) -> MaterialInput:
+    def input(self, lin: _Lin, k: int, name: str, default=None) -> MaterialInput:
+        """``lin`` as surface input ``name``'s MaterialInput; where it cannot be one, a warning
+        and ``default`` (the definition's default if None)."""
         try:
             return self.net.material_input(lin, k, self.node, name)
         except _Unsupported as e:
             self.net.unsupported(e, self.node, name)
+            if default is None:
+                v = self.lin_default(name, k)
+                default = float(v[0]) if k == 1 else tuple(float(x) for x in v)
             return MaterialInput(default)
+
+    def direct(self, name: str, k: int) -> MaterialInput:
+        """Surface input ``name`` mapped one to one (k components)."""
+        return self.input(self.lin(name, k), k, name)
 
     def normal(self, name: str) -> MaterialInput:
         """A surface's normal input: unconnected -> the interpolated normal; a normalmap node ->
@@ -801,13 +811,13 @@ class _Surface:
     def preview(self) -> dict:
         """ND_UsdPreviewSurface_surfaceshader: the same inputs as UsdPreviewSurface, exactly."""
         f = {
-            "diffuse_color": self.input(self.lin("diffuseColor", 3), 3, "diffuseColor", (0.18,) * 3),
-            "emissive_color": self.input(self.lin("emissiveColor", 3), 3, "emissiveColor", (0.0,) * 3),
-            "specular_color": self.input(self.lin("specularColor", 3), 3, "specularColor", (0.0,) * 3),
-            "metallic": self.input(self.lin("metallic", 1), 1, "metallic", 0.0),
-            "roughness": self.input(self.lin("roughness", 1), 1, "roughness", 0.5),
-            "opacity": self.input(self.lin("opacity", 1), 1, "opacity", 1.0),
-            "normal": self.input(self.lin("normal", 3, default=(0.0, 0.0, 1.0)), 3, "normal", (0.0, 0.0, 1.0)),
+            "diffuse_color": self.direct("diffuseColor", 3),
+            "emissive_color": self.direct("emissiveColor", 3),
+            "specular_color": self.direct("specularColor", 3),
+            "metallic": self.direct("metallic", 1),
+            "roughness": self.direct("roughness", 1),
+            "opacity": self.direct("opacity", 1),
+            "normal": self.direct("normal", 3),
             "use_specular_workflow": bool(int(self.const("useSpecularWorkflow")[0])),
             "ior": float(self.const("ior")[0]),
             "opacity_threshold": float(self.const("opacityThreshold")[0]),
@@ -818,7 +828,8 @@ class _Surface:
 
     def _layered(self, base, color, metal, spec_w, spec_c, rough, ior, coat_w, coat_c, emission, emission_c,
                  opacity, normal, lost) -> dict:
-        """standard_surface and open_pbr_surface (same structure, different input names)."""
+        """standard_surface, open_pbr_surface and gltf_pbr (the same core under different input
+        names; ``base`` and ``coat_c`` '' where a model has no such input)."""
         ior_v = float(self.const(ior)[0])
         diffuse = self.product(base, color) if base else self.lin(color, 3)
         # The coat tints everything under it: base * lerp(1, coat_color, coat).
@@ -829,16 +840,16 @@ class _Surface:
                 diffuse = _sum(self.node.label, [(1.0 + coat.b[0] * (tint.b - 1.0), diffuse)])
             else:
                 self.net.unsupported(_Unsupported(self.node.label, "a textured coat tint"), self.node, coat_w)
-        f = {"diffuse_color": self.input(diffuse, 3, color, (0.8,) * 3),
-             "metallic": self.input(self.lin(metal, 1), 1, metal, 0.0),
-             "roughness": self.input(self.lin(rough, 1), 1, rough, 0.3),
+        f = {"diffuse_color": self.input(diffuse, 3, color),
+             "metallic": self.direct(metal, 1),
+             "roughness": self.direct(rough, 1),
              "ior": ior_v,
              "emissive_color": self.input(self.product(emission, emission_c), 3, emission, (0.0,) * 3),
              "normal": self.normal(normal)}
         op = self.lin(opacity, None)
         f["opacity"] = self.input(_sum(self.node.label, [(1.0 / op.n, op.rows([i]))
                                                          for i in range(op.n)]) if op.n > 1 and op.is_const
-                                  else op.rows([0]), 1, opacity, 1.0)
+                                  else op.rows([0]), 1, opacity)
         # Specular weight and colour: a dielectric's F0 = weight * colour * F0(ior), through the
         # specular workflow (F90 = 1); on metals (or when textured) they are lost.
         w, c = self.lin(spec_w, 1), self.lin(spec_c, 3)
