@@ -549,6 +549,30 @@ class _Network:
         R = np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])  # mx_rotate_vector2
         return _Lin(R @ x.A, R @ x.b, x.source)
 
+    def _condition(self, node, name: str) -> float:
+        v = self.value(node, name, 1)
+        if not v.is_const:
+            raise _Unsupported(node.label, f"its condition input '{name}' is textured")
+        return float(v.b[0])
+
+    def _node_switch(self, node, out, n):
+        # in<floor(which) + 1>, the index clamped to the inputs there are (mx_switch).
+        count = sum(1 for d in node.nodedef.getActiveInputs() if d.getName().startswith("in"))
+        k = min(max(int(math.floor(self._condition(node, "which"))), 0), count - 1)
+        return self.value(node, f"in{k + 1}", n)
+
+    def _node_ifgreater(self, node, out, n):
+        return self.value(node, "in1" if self._condition(node, "value1") > self._condition(node, "value2")
+                          else "in2", n)
+
+    def _node_ifgreatereq(self, node, out, n):
+        return self.value(node, "in1" if self._condition(node, "value1") >= self._condition(node, "value2")
+                          else "in2", n)
+
+    def _node_ifequal(self, node, out, n):
+        return self.value(node, "in1" if self._condition(node, "value1") == self._condition(node, "value2")
+                          else "in2", n)
+
     def _node_texcoord(self, node, out, n):
         index = int(self.value(node, "index", 1).b[0])
         return _Lin(np.eye(2)[:n], np.zeros(n), _St("st" if index == 0 else f"st{index}"))

@@ -439,3 +439,26 @@ def test_networks_that_cannot_fold_warn_naming_the_node(tmp_path, case):
     assert len(warned) == 1 and warned[0].startswith(f"/Inline: MaterialX node /Inline/{culprit} is not supported")
     m = _material(desc, "/Inline")
     assert m.diffuse_color.texture is None and m.diffuse_color.value == pytest.approx((0.8, 0.8, 0.8))
+
+
+def test_place2d_folds_into_the_st_transform(tmp_path):
+    """place2d (through MaterialX's own graph of it: subtract, divide, rotate2d, add and a
+    switch on operationorder) gives st' = R(rotate) diag(1 / scale) (st - pivot) - offset + pivot,
+    R the rotation of mx_rotate_vector2."""
+    f = Sdf.ValueTypeNames
+    nodes = {
+        "T": ("ND_texcoord_vector2", {}),
+        "P": ("ND_place2d_vector2", {"texcoord": ("node", f.Float2, "T"), "scale": ("value", f.Float2, (2, 4)),
+                                     "rotate": ("value", f.Float, 30.0), "offset": ("value", f.Float2, (0.1, 0.2)),
+                                     "pivot": ("value", f.Float2, (0.5, 0.5))}),
+        "I": ("ND_image_color3", {"file": ("value", f.Asset, Sdf.AssetPath(os.path.join(DATA, "albedo.png"))),
+                                  "texcoord": ("node", f.Float2, "P")}),
+    }
+    desc = load_stage(_scene(tmp_path, "/Inline", extra=lambda s: _graph(s, nodes, "base_color", "I")))
+    assert desc.warnings == []
+    c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))
+    A = np.array([[c, s], [-s, c]]) @ np.diag([0.5, 0.25])
+    offset = np.array([0.1, 0.2], dtype=np.float32).astype(np.float64)  # as the float2 holds it
+    t = -A @ np.array([0.5, 0.5]) - offset + np.array([0.5, 0.5])
+    xf = _material(desc, "/Inline").diffuse_color.texture.st_transform
+    assert xf == pytest.approx((*A.ravel(), *t), abs=1e-12)
