@@ -250,9 +250,12 @@ class _UsdNode:
         self.nodedef = _nodedef(_USD_IDS.get(self.node_id, self.node_id))
         # USD's defaults, except where MaterialX's is a geometric property (UsdUVTexture.st is
         # the 'st' primvar when unconnected, as illum's UsdPreviewSurface path reads it).
+        # So is an unconnected UsdTransform2d.in there (renderer/usd/materials.py _st_primvar).
         defs = {d.getName(): d for d in self.nodedef.getActiveInputs()} if self.nodedef is not None else {}
+        self.texcoord_inputs = {k for k, d in defs.items() if d.getDefaultGeomProp() is not None} | (
+            {"in"} if self.node_id == "UsdTransform2d" else set())
         self.usd_defaults = {k: v for k, v in _sdr_defaults(self.node_id).items()
-                             if k in defs and defs[k].getDefaultGeomProp() is None} if self.node_id in _USD_IDS else {}
+                             if k in defs and k not in self.texcoord_inputs} if self.node_id in _USD_IDS else {}
 
     def _attr(self, name: str):
         inp = self.shader.GetInput(name)
@@ -415,7 +418,7 @@ class _Network:
             if d is None:
                 raise _Unsupported(node.label, f"it has no input '{name}'")
             geom = d.getDefaultGeomProp()
-            if geom is not None:
+            if geom is not None or name in getattr(node, "texcoord_inputs", ()):
                 if d.getType() == "vector2":  # UV0: the default texture coordinates
                     return _Lin(np.eye(2)[:n] if n <= 2 else np.eye(2)[[0] * n], np.zeros(n), _St("st"))
                 raise _Unsupported(node.label, f"its input '{name}' defaults to the geometric property "
