@@ -462,3 +462,18 @@ def test_place2d_folds_into_the_st_transform(tmp_path):
     t = -A @ np.array([0.5, 0.5]) - offset + np.array([0.5, 0.5])
     xf = _material(desc, "/Inline").diffuse_color.texture.st_transform
     assert xf == pytest.approx((*A.ravel(), *t), abs=1e-12)
+
+
+def test_constant_networks_fold_through_nonlinear_nodes(tmp_path):
+    """clamp(power(c, 2), 0, 1) and luminance on constants: evaluated at read time."""
+    f = Sdf.ValueTypeNames
+    nodes = {
+        "Pow": ("ND_power_color3FA", {"in1": ("value", f.Color3f, (0.5, 0.25, 2.0)), "in2": ("value", f.Float, 2.0)}),
+        "Clamp": ("ND_clamp_color3FA", {"in": ("node", f.Color3f, "Pow")}),
+        "Lum": ("ND_luminance_color3", {"in": ("node", f.Color3f, "Clamp"),
+                                        "lumacoeffs": ("value", f.Color3f, (0.25, 0.5, 0.25))}),
+    }
+    desc = load_stage(_scene(tmp_path, "/Inline", extra=lambda s: _graph(s, nodes, "base_color", "Lum")))
+    assert desc.warnings == []
+    y = 0.25 * 0.25 + 0.5 * 0.0625 + 0.25 * 1.0
+    assert _material(desc, "/Inline").diffuse_color.value == pytest.approx((y, y, y))
