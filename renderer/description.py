@@ -95,6 +95,10 @@ class MaterialDesc:
     """A UsdPreviewSurface (or the displayColor / grey fallback), with Sdr defaults applied.
 
     path: the Material prim path ('' for a fallback material made from displayColor).
+    source: which network the description was read from, for ``--stats``: 'UsdPreviewSurface',
+        'mtlx:<surface node definition>' (an inline MaterialX network or a referenced .mtlx
+        document, renderer/usd/mtlx.py), 'displayColor' or 'default'. Reporting only: not part
+        of equality.
     normal: the tangent-space shading normal in [-1, 1]^3 (UsdPreviewSurface ``normal``; a
         texture's own scale/bias make the map's [0, 1] texels into that range). (0, 0, 1) leaves
         the interpolated normal as it is.
@@ -112,6 +116,7 @@ class MaterialDesc:
     opacity_threshold: float = 0.0
     opacity_mode: str = "transparent"
     normal: MaterialInput = MaterialInput((0.0, 0.0, 1.0))
+    source: str = field(default="UsdPreviewSurface", compare=False)
 
 
 def primvar_layout(materials: list[MaterialDesc]) -> dict[str, tuple[int, int]]:

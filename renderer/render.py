@@ -299,6 +299,9 @@ def render(
         "negative_samples": film.negative_samples,
         "skipped": list(scene.skipped) + list(integrator.skipped),
         "lights": light_info,
+        # Each material and the network it was read from: 'mtlx:<surface>' (MaterialX, preferred
+        # where a material has both) or 'UsdPreviewSurface' (renderer/usd/mtlx.py).
+        "materials": [{"path": m.path, "source": m.source} for m in desc.materials],
         "direct_rule": {"rule": "first vertex: each picked light takes its own N samples (alpha = v_bar "
                                 "formed per light); deeper vertices: N = 1, control variate alpha = 1",
                         **integrator.rule_counts},

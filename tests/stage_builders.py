@@ -50,6 +50,18 @@ def preview_material(stage, path, diffuse=(0.5, 0.5, 0.5), roughness=0.5, specul
     return mat
 
 
+def textured_quad(stage, path: str) -> UsdGeom.Mesh:
+    """A 2 x 2 quad centred on the origin in the XY plane, facing +Z, with st over [0, 1]^2."""
+    quad = UsdGeom.Mesh.Define(stage, path)
+    quad.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+    quad.CreateFaceVertexCountsAttr([4])
+    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    quad.CreateSubdivisionSchemeAttr("none")
+    st = UsdGeom.PrimvarsAPI(quad).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set([(0, 0), (1, 0), (1, 1), (0, 1)])
+    return quad
+
+
 def bind(prim, mat):
     api = UsdShade.MaterialBindingAPI.Apply(prim)
     api.Bind(mat)

@@ -126,6 +126,14 @@ LOBE_DIFFUSE = 0
 LOBE_SPECULAR = 1
 
 
+def dielectric_f0(ior) -> np.ndarray:
+    """Normal-incidence Fresnel reflectance ((ior - 1) / (ior + 1))^2 of a dielectric, the
+    metallic workflow's F0 at metallic 0 (ior clamped to >= 0). ior: float or (n,) array."""
+    eta = np.maximum(np.asarray(ior, dtype=np.float64), 0.0)
+    r = (eta - 1.0) / (eta + 1.0)  # eta + 1 >= 1
+    return r * r
+
+
 class PreviewSurfaceBSDF:
     """UsdPreviewSurface (diffuse + GGX specular) for n shading points.
 
@@ -221,9 +229,7 @@ class PreviewSurfaceBSDF:
         diffuse = np.clip(np.asarray(diffuse_color, dtype=np.float64), 0.0, 1.0)
         spec = np.clip(np.asarray(specular_color, dtype=np.float64), 0.0, 1.0)
         m = np.clip(np.asarray(metallic, dtype=np.float64), 0.0, 1.0)[:, None]
-        eta = np.maximum(np.asarray(ior, dtype=np.float64), 0.0)
-        r = (eta - 1.0) / (eta + 1.0)  # eta + 1 >= 1
-        f0_dielectric = (r * r)[:, None]
+        f0_dielectric = dielectric_f0(ior)[:, None]
         use_spec = np.asarray(use_specular_workflow, dtype=bool)[:, None]
         f0 = np.where(use_spec, spec, f0_dielectric * (1.0 - m) + diffuse * m)
         f90 = np.where(use_spec, 1.0, (1.0 - m) + diffuse * m)

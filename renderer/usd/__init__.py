@@ -22,7 +22,10 @@ What is read and what is not (each unsupported feature gives one warning per sta
   and UsdPrimvarReader_* (numeric readers on any UsdPreviewSurface input are read per hit;
   ``materials``); materialBind GeomSubsets split a mesh by material; displacement, clearcoat
   and occlusion inputs are ignored; a ``<UDIM>`` file path reads its tiles 1001-1100
-  (``MaterialReader._udim_tiles``).
+  (``MaterialReader._udim_tiles``). MaterialX (``mtlx``): inline
+  networks of ND_* shaders (preferred over a UsdPreviewSurface on the same Material) and
+  referenced .mtlx documents, folded onto the same description (docs/materials.md); a node
+  that cannot fold gives one warning naming it and the material.
 * displayColor fallback: ``primvars:displayColor`` per hit on meshes (constant, uniform, vertex,
   faceVarying; a constant one may be inherited from an ancestor, UsdGeom primvar inheritance).
 * Assets (textures, light textures, IES profiles) resolve through Ar, so files inside ``.usdz``

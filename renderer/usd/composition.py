@@ -100,11 +100,21 @@ def _locate(stage: Usd.Stage, error) -> tuple[str, str, str, str]:
     return "", "", "", ""
 
 
+def _readable_mtlx(quoted: str) -> bool:
+    """Whether an asset path Pcp quoted is a .mtlx document that resolves."""
+    path = quoted.split(":SDF_FORMAT_ARGS")[0]
+    return path.rstrip("]").lower().endswith(".mtlx") and bool(Ar.GetResolver().Resolve(path))
+
+
 def check_composition(ctx: ReadContext) -> None:
     """Apply the missing-asset policy to every composition error of the stage: under
     ``ctx.strict`` the first is a StageError naming the layer, prim and field that author the
     arc; otherwise each is a warning saying the same (the arc is skipped, as USD does)."""
-    errors = ctx.stage.GetCompositionErrors()
+    # A reference to a .mtlx document that exists cannot compose either (usd-core has no
+    # MaterialX file format): renderer/usd/mtlx.py reads the document itself. A missing one is
+    # a missing asset like any other.
+    errors = [e for e in ctx.stage.GetCompositionErrors()
+              if not any(_readable_mtlx(q) for q in _QUOTED.findall(str(e)))]
     for k, error in enumerate(errors):
         if not ctx.strict and k >= _MAX_WARNINGS:
             ctx.warn("composition-more", f"{len(errors) - _MAX_WARNINGS} more composition errors")

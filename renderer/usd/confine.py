@@ -18,7 +18,9 @@ reader does (``Usd.Stage.Open``, everything loaded) and lists every asset path t
   ``illum:dome:irradiance`` values that hold an absolute path, because the reader takes a
   plain string that names an existing file as that file (``ReadContext.resolve_asset``);
 * **string primvars** (``string``/``token``, arrays too), anchored to their layer: a
-  UsdPrimvarReader_string can make one a texture's file (renderer/usd/materials.py).
+  UsdPrimvarReader_string can make one a texture's file (renderer/usd/materials.py);
+* **referenced .mtlx documents** (which the reader reads itself, renderer/usd/mtlx.py) and every
+  filename input in them, resolved against the document.
 
 An asset inside the roots that is a FIFO, a device or a directory raises SpecialFileError (the
 reader refuses those too). A path is judged by where it points, never by whether the file is there, so the answer gives
@@ -40,6 +42,7 @@ from renderer.errors import SpecialFileError, StageError
 
 from .common import one_line, special_file_problem
 from .composition import locate_arc
+from .mtlx import document_files
 from .stage_reader import open_stage
 
 __all__ = ["Escape", "ConfinementReport", "find_escapes"]
@@ -188,6 +191,16 @@ class _Scan:
                 if target is not None and not self.roots.contains(target):
                     prim, field_ = locate_arc(layer, authored)
                     self.escape(layer.realPath, prim, field_, asset, target)
+                elif target is not None and asset.lower().endswith(".mtlx") and os.path.isfile(target):
+                    self.mtlx_document(layer.realPath, authored, target)
+
+    def mtlx_document(self, layer: str, authored: str, path: str) -> None:
+        """A referenced .mtlx document (read by renderer/usd/mtlx.py, not composed): it and the
+        files its filename inputs name."""
+        prim, field_ = locate_arc(Sdf.Layer.FindOrOpen(layer), authored)
+        self.judge(layer, prim, field_, authored, path)
+        for element, value, target in document_files(path):
+            self.judge(path, element, "file", value, target)
 
     def used_layers(self) -> None:
         for layer in self.stage.GetUsedLayers(includeClipLayers=True):

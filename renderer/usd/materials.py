@@ -1,5 +1,9 @@
 """UsdShade -> MaterialDesc: binding resolution, UsdPreviewSurface inputs, UsdUVTexture chains.
 
+A Material's ``mtlx`` render context (inline MaterialX networks) is preferred over its
+universal UsdPreviewSurface, and a Material (or a binding target) inside a referenced .mtlx
+document is read from the document: both in renderer/usd/mtlx.py (docs/materials.md).
+
 Inputs are resolved with ``UsdShadeInput.GetValueProducingAttributes``, which follows
 connections through NodeGraph outputs and Material/NodeGraph interface inputs to either a
 shader output (a texture) or an attribute holding a value. Unauthored inputs take their
@@ -26,6 +30,7 @@ from pxr import Ar, Sdf, Sdr, Usd, UsdGeom, UsdShade
 from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc, TextureDesc
 
 from .common import ReadContext
+from .mtlx import is_mtlx_id, mtlx_reference, read_mtlx_material, read_usd_network
 
 # UDIM tiles looked for: 1001 + u + 10 v for u, v in 0..9 (the 10 x 10 tiles Mari, Substance
 # and Houdini lay out by default).
@@ -125,7 +130,7 @@ class MaterialTable:
     def _bound_index(self, prim: Usd.Prim) -> tuple[int, str | None] | None:
         material = self._bound_material(prim)
         if material is None:
-            return None
+            return self._bound_mtlx(prim)
         path = str(material.GetPath())
         # Subsets carry no primvars: a reader evaluated per gprim reads the subset's mesh.
         gprim = prim.GetParent() if prim.IsA(UsdGeom.Subset) else prim
@@ -191,6 +196,41 @@ class MaterialTable:
             self._reader_defaults[reader_id] = _sdr_defaults(reader_id)
         return self._constant_input(reader, "fallback", self._reader_defaults[reader_id])
 
+    def _bound_mtlx(self, prim: Usd.Prim) -> tuple[int, str | None] | None:
+        """A binding to a material inside a referenced .mtlx document (``def "MaterialX"
+        (references = @x.mtlx@</MaterialX>)`` bound at ``/MaterialX/Materials/Name``): the
+        target prim does not exist, since the reference cannot compose, so the binding's
+        target path is mapped into the document (renderer/usd/mtlx.py)."""
+        target = None
+        walk = prim
+        while target is None and walk and not walk.IsPseudoRoot():
+            api = UsdShade.MaterialBindingAPI(walk)
+            for purpose in self.purposes:
+                rel = api.GetDirectBindingRel(purpose)
+                targets = rel.GetTargets() if rel else []
+                if targets:
+                    target = targets[0]
+                    break
+            walk = walk.GetParent()
+        if target is None:
+            return None
+        key = (str(target), ())
+        if key not in self._by_path:
+            desc = st_name = None
+            holder = target
+            while holder != Sdf.Path.absoluteRootPath:
+                held = self.ctx.stage.GetPrimAtPath(holder)
+                ref = mtlx_reference(held) if held else None
+                if ref is not None:
+                    inner = Sdf.Path(ref[2] or "/MaterialX")
+                    if holder != target:
+                        inner = inner.AppendPath(target.MakeRelativePath(holder))
+                    desc, st_name = read_mtlx_material(self.ctx, held, str(target), str(inner))
+                    break
+                holder = holder.GetParentPath()
+            self._by_path[key] = None if desc is None else (self._add(desc), st_name)
+        return self._by_path[key]
+
     def _bound_material(self, prim: Usd.Prim) -> UsdShade.Material | None:
         api = UsdShade.MaterialBindingAPI(prim)
         for purpose in self.purposes:
@@ -210,15 +250,29 @@ class MaterialTable:
                 if pv.GetInterpolation() != UsdGeom.Tokens.constant and prim.IsA(UsdGeom.Mesh):
                     # Per-face or per-vertex colours: read per hit, as a UsdPrimvarReader_float3
                     # of displayColor would (Hydra's fallback material does the same).
-                    return MaterialDesc(path="", diffuse_color=MaterialInput(
+                    return MaterialDesc(path="", source="displayColor", diffuse_color=MaterialInput(
                         color, primvar=PrimvarReaderDesc("displayColor", 3, color)))
-                return MaterialDesc(path="", diffuse_color=MaterialInput(color))
-        return MaterialDesc(path="")
+                return MaterialDesc(path="", source="displayColor", diffuse_color=MaterialInput(color))
+        return MaterialDesc(path="", source="default")
 
     # ---- UsdPreviewSurface -----------------------------------------------------------
     def _read_material(self, material: UsdShade.Material) -> tuple[MaterialDesc | None, str | None]:
         ctx = self.ctx
-        shader, _out, _kind = material.ComputeSurfaceSource()
+        # The mtlx render context first (MaterialX is preferred where a material has both),
+        # else the universal surface output.
+        shader, _out, _kind = material.ComputeSurfaceSource("mtlx")
+        if shader and is_mtlx_id(shader.GetIdAttr().Get()):
+            desc, st_name = read_usd_network(ctx, material, shader)
+            if desc is not None:
+                return desc, st_name
+            shader, _out, _kind = material.ComputeSurfaceSource()
+            if not shader or is_mtlx_id(shader.GetIdAttr().Get()):
+                return None, None
+        if not shader and mtlx_reference(material.GetPrim()) is not None:
+            # A .mtlx document referenced onto the Material prim (usd-core cannot compose it).
+            ref_target = mtlx_reference(material.GetPrim())[2]
+            return read_mtlx_material(ctx, material.GetPrim(), str(material.GetPath()),
+                                      ref_target or material.GetPrim().GetName())
         if not shader:
             ctx.warn("material-no-surface",
                      f"{material.GetPath()}: material has no universal surface output; using displayColor/grey")

@@ -199,3 +199,19 @@ def test_the_reader_itself_is_not_confined(tree):
 
 def _textures(material):
     return [v.texture for v in vars(material).values() if getattr(v, "texture", None) is not None]
+
+
+def test_files_named_inside_a_referenced_mtlx_document_are_judged(tree):
+    """renderer/usd/mtlx.py reads referenced .mtlx documents itself: their filename inputs lead
+    out of the root like any texture path."""
+    root, outside = tree
+    (root / "shots" / "look.mtlx").write_text(
+        '<?xml version="1.0"?>\n<materialx version="1.39">\n'
+        '  <image name="leak" type="color3"><input name="file" type="filename" value="../../outside/secret.png" />'
+        '</image>\n  <image name="fine" type="color3"><input name="file" type="filename" value="../ok.png" /></image>\n'
+        '</materialx>\n')
+    path = _stage(root, 'def "MaterialX" (\n references = @look.mtlx@</MaterialX>\n) {}')
+    report = find_escapes(path, [str(root)])
+    assert [(e.layer, e.prim, e.field, e.asset) for e in report.escapes] == [
+        (str(root / "shots" / "look.mtlx"), "leak/file", "file", "../../outside/secret.png")]
+    assert str(root / "ok.png") in report.assets and str(root / "shots" / "look.mtlx") in report.assets

@@ -16,7 +16,7 @@ from renderer.lights.texture import load_texture_rgb
 from renderer.render import RenderOptions, render
 from renderer.textures import TextureCache
 from renderer.usd import load_stage
-from tests.stage_builders import add_camera, add_settings, bind, new_stage
+from tests.stage_builders import add_camera, add_settings, bind, new_stage, textured_quad
 
 IES = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "stages", "ies", "narrow_spot.ies"))
 
@@ -42,13 +42,7 @@ def _textured_stage(src) -> str:
     stage = new_stage(path)
     add_camera(stage, pos=(0, 0, 4))
     add_settings(stage, (16, 16))
-    quad = UsdGeom.Mesh.Define(stage, "/World/Quad")
-    quad.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
-    quad.CreateFaceVertexCountsAttr([4])
-    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    quad.CreateSubdivisionSchemeAttr("none")
-    st = UsdGeom.PrimvarsAPI(quad).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set([(0, 0), (1, 0), (1, 1), (0, 1)])
+    quad = textured_quad(stage, "/World/Quad")
     mat = UsdShade.Material.Define(stage, "/World/Looks/Tex")
     pbr = UsdShade.Shader.Define(stage, "/World/Looks/Tex/PBR")
     pbr.CreateIdAttr("UsdPreviewSurface")
