@@ -4,7 +4,7 @@ Every example builds one configuration (configs.py: global scale 1e-6..1e6, poin
 generic, close, grazing, far (distance/size up to 1e12), near an edge/corner/rim, in the
 light's plane or behind it; normals random, straddling the light, tangent to it, facing,
 facing down or up) and checks it with harness.check (REL_TOL = 1e-5 plus the documented
-conditioning floors). The default profile draws > 1000 configurations per light kind; the
+conditioning floors). The default profile draws 300 configurations per light kind (400 ellipses); the
 ``slow`` tests add more (many more with ILLUM_HYPOTHESIS_PROFILE=long). The errors are
 collected in harness.RECORD and printed at the end of the run (conftest.py).
 """
@@ -26,7 +26,7 @@ n_mode = st.integers(0, len(N_MODES) - 1)
 perm = st.integers(0, N_PERMS - 1)
 s_mode = st.integers(0, len(S_MODES) - 1)
 
-DEFAULT = 1050      # per light kind, default profile
+DEFAULT = 300       # per light kind, default profile (the suite's time budget)
 LONG = 20000        # per light kind and test, long profile
 
 
