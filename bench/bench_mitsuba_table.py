@@ -91,20 +91,21 @@ EXPORT_VERSION = 2  # bump when export_scene / mitsuba_side change what Mitsuba 
 MIS = {"estimator": {"": "mis"}, "light_samples": {"": 1}}
 
 
-def stage_estimators(desc) -> str:
-    """What the ``stage`` column renders: the authored estimators, or '' when nothing is authored
-    (the stage column then equals ``mis``)."""
+def stage_estimators(desc) -> tuple[str, bool]:
+    """What the ``stage`` column renders, in words, and whether that is exactly the ``mis`` column
+    (every light on mis with 1 sample, authored or by the stage-wide default)."""
     from renderer.description import EstimatorSettings
 
     default = desc.settings.estimator or EstimatorSettings().estimator
-    parts = {}
+    parts: dict[str, int] = {}
     for lt in desc.lights:
         est = lt.estimator.estimator if lt.estimator.estimator_authored else default
-        key = f"{est}" + (f" x{lt.estimator.samples}" if lt.estimator.samples != 1 else "")
+        how = "authored" if lt.estimator.estimator_authored else "stage default"
+        key = f"{est}" + (f" x{lt.estimator.samples}" if lt.estimator.samples != 1 else "") + f" ({how})"
         parts[key] = parts.get(key, 0) + 1
-    if list(parts) == ["mis"]:
-        return ""
-    return ", ".join(f"{k} ({n} light{'s' * (n > 1)})" if len(parts) > 1 else k for k, n in parts.items())
+    same = all(k.startswith("mis (") for k in parts)
+    words = ", ".join(f"{k}: {n} light{'s' * (n > 1)}" if len(parts) > 1 else k for k, n in parts.items())
+    return words, same
 
 
 def cache_dir(a, stage: str) -> str:
@@ -150,8 +151,8 @@ def run_scene(a, label: str, stage: str, illum_ref_s: float) -> dict:
     npz = os.path.join(cdir, "scene.npz")
     if not os.path.exists(npz):
         export_scene(desc, W, H, npz, opaque_emitters=True)
-    authored = stage_estimators(desc)
-    configs = {"mis": MIS} if not authored else {"stage": {}, "mis": MIS}
+    authored, same = stage_estimators(desc)
+    configs = {"mis": MIS} if same else {"stage": {}, "mis": MIS}
     base = dict(resolution=(W, H), max_depth=a.max_depth, rr_depth=a.rr_depth, threads=a.threads,
                 pixel_filter="gaussian", pixel_filter_width=a.filter_width)
     out = {"label": label, "stage": stage, "authored": authored, "cache": cdir, "load_start": os.getloadavg()}
@@ -276,7 +277,7 @@ def write_md(a, results: list[dict], cmd: str, versions: dict) -> str:
           "(bench/bench_mitsuba_table.py docstring). Materials are mapped, not identical "
           "(bench_mitsuba.material_record): the scenes are comparable in look, the error is each renderer's own.", "",
           "Columns: `stage` = the stage's authored IllumLightAPI estimators (stage-wide default where unauthored; "
-          "'= mis' where the stage authors nothing, so both columns are one render); `mis` = every light on mis with "
+          "'= mis' where that is mis with 1 sample on every light, so both columns are one render); `mis` = every light on mis with "
           "1 light sample, as Mitsuba's path tracer. Entries are relMSE ratios illum / Mitsuba: below 1 illum "
           "converges faster; the issue's target is <= 0.5 (bold).", ""]
     if any(r.get("mitsuba_measured") not in (None, "this run") for r in results):
@@ -291,7 +292,7 @@ def write_md(a, results: list[dict], cmd: str, versions: dict) -> str:
             for b in B:
                 per = r["summary"][b]
                 cells += [_ratio(per, "stage", key), _ratio(per, "mis", key)]
-            md.append(f"| {r['label']} | {r['authored'] or 'mis (none authored)'} | " + " | ".join(cells) + " |")
+            md.append(f"| {r['label']} | {r['authored']} | " + " | ".join(cells) + " |")
         md.append("")
     md += ["## Per scene", "",
            "| scene | budget | renderer | wall s | CPU s | spp | Msamples/s | Msamples/CPU-s | relMSE | − floor | "
@@ -332,8 +333,17 @@ def main(argv=None) -> int:
     ap.add_argument("--fresh-illum-ref", action="store_true")
     ap.add_argument("--cache", default="/work/scratch/mitsuba-table")
     ap.add_argument("--out", default="bench/results/mitsuba")
+    ap.add_argument("--from-json", action="store_true", help="only rewrite table.md from --out's table.json")
     a = ap.parse_args(argv)
     a.budgets = [float(x) for x in a.budgets.split(",")]
+    if a.from_json:
+        data = json.load(open(os.path.join(a.out, "table.json")))
+        for r in data["results"]:
+            r["summary"] = {float(b): v for b, v in r["summary"].items()}
+            r["authored"] = stage_estimators(load_stage(os.path.join(ROOT, r["stage"])))[0]
+        with open(os.path.join(a.out, "table.md"), "w") as fh:
+            fh.write(write_md(a, data["results"], data["command"], data["versions"]))
+        return 0
     scenes = [s for s in SCENES if not a.scenes or s[1] in a.scenes]
     cmd = "PYTHONPATH=. .venv/bin/python bench/bench_mitsuba_table.py " + " ".join(argv if argv is not None else sys.argv[1:])
     os.makedirs(a.out, exist_ok=True)
