@@ -261,18 +261,23 @@ def write_md(a, results: list[dict], cmd: str) -> str:
     return "\n".join(md) + "\n"
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("stages", nargs="*", default=list(STAGES))
-    ap.add_argument("--mitsuba-python", required=True)
+def add_setup_args(ap: argparse.ArgumentParser, budgets: str) -> None:
+    """The equal-time setup flags shared with bench_mitsuba_table.py."""
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--max-depth", type=int, default=7, help="illum's; Mitsuba gets one more")
     ap.add_argument("--rr-depth", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--filter-width", type=float, default=1.5, help="illum's Gaussian radius (sigma = radius / 3)")
-    ap.add_argument("--budgets", default="2,8")
+    ap.add_argument("--budgets", default=budgets)
     ap.add_argument("--seeds", type=int, default=2)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("stages", nargs="*", default=list(STAGES))
+    ap.add_argument("--mitsuba-python", required=True)
+    add_setup_args(ap, budgets="2,8")
     ap.add_argument("--ref-spp-illum", default="512", help="per stage, comma-separated (one value: all stages)")
     ap.add_argument("--ref-spp-mitsuba", type=int, default=256, help="per reference render")
     ap.add_argument("--ref-repeats", type=int, default=8, help="Mitsuba reference renders averaged")

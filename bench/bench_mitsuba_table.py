@@ -70,7 +70,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_film_mitsuba import MitsubaClock, MitsubaServer, floor  # noqa: E402
+from bench_film_mitsuba import MitsubaClock, MitsubaServer, add_setup_args, floor  # noqa: E402
 from bench_mitsuba import _cpu, _versions, eligibility, export_scene, relmse  # noqa: E402
 
 from renderer.render import RenderOptions, render  # noqa: E402
@@ -318,14 +318,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scenes", nargs="*", help="stage paths (default: the seven of SCENES)")
     ap.add_argument("--mitsuba-python", default="/work/scratch/mitsuba-venv/bin/python")
-    ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
-    ap.add_argument("--res", type=int, default=256)
-    ap.add_argument("--max-depth", type=int, default=7, help="illum's; Mitsuba gets one more")
-    ap.add_argument("--rr-depth", type=int, default=3)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--filter-width", type=float, default=1.5, help="illum's Gaussian radius (sigma = radius / 3)")
-    ap.add_argument("--budgets", default="4,16")
-    ap.add_argument("--seeds", type=int, default=2)
+    add_setup_args(ap, budgets="4,16")
     ap.add_argument("--mitsuba-ref-s", type=float, default=90.0, help="Mitsuba reference seconds per scene")
     ap.add_argument("--ref-scale", type=float, default=1.0, help="scales both references' seconds")
     ap.add_argument("--ref-repeats", type=int, default=8, help="Mitsuba reference renders averaged")
