@@ -47,7 +47,8 @@ target is <= 0.5 on every scene.
 Cache (``--cache``, default /work/scratch/mitsuba-table): per scene, keyed by the stage file's bytes
 and the setup, the exported scene, both references and Mitsuba's runs. A rerun reuses the
 references; ``--illum-only`` also reuses Mitsuba's timed runs (measured earlier, under that run's
-load) and renders only illum; ``--fresh-illum-ref`` re-renders illum's reference.
+load) and renders only illum (compare its CPU-second ratios: the wall-clock ones then mix two
+loads); ``--fresh-illum-ref`` re-renders illum's reference.
 
 Outputs in ``--out``: table.md (command, versions, load averages, tables), table.json (every run).
 """
@@ -282,7 +283,9 @@ def write_md(a, results: list[dict], cmd: str, versions: dict) -> str:
           "converges faster; the issue's target is <= 0.5 (bold).", ""]
     if any(r.get("mitsuba_measured") not in (None, "this run") for r in results):
         md += ["**--illum-only rerun**: Mitsuba's runs and both references come from the cache, measured "
-               + ", ".join(sorted({str(r["mitsuba_measured"]) for r in results})) + " (under that run's load).", ""]
+               + ", ".join(sorted({str(r["mitsuba_measured"]) for r in results})) + " under that run's load, so the "
+               "wall-clock ratios mix two loads: read the CPU-seconds table (a Cornell-box check: wall 2.4x -> 1.5x "
+               "when the load fell from 15 to 8, CPU 2.6x -> 2.8x).", ""]
     for key, title in (("ratio", "Equal wall-clock time"), ("ratio_cpu", "Equal CPU time (relMSE x CPU-seconds)")):
         md += [f"## {title}: relMSE ratio illum / Mitsuba", "",
                "| scene | stage's estimators | " + " | ".join(f"{b:g} s stage | {b:g} s mis" for b in B) + " |",
