@@ -95,6 +95,47 @@ class MitsubaServer:
         self.proc.wait()
 
 
+class MitsubaClock:
+    """Mitsuba takes a sample count, not a time: its seconds per spp, measured on a serve process
+    (a warm-up render, which compiles Dr.Jit's kernels, then 1- and 4-spp renders, three each), and
+    kept up to date by every timed run so that the next spp follows the shared machine's load.
+    ``mx``: the render task's integrator settings (max_depth, rr_depth)."""
+
+    def __init__(self, srv: MitsubaServer, mx: dict):
+        self.srv, self.mx = srv, mx
+        w = srv.render(spp=1, seed=5, repeat=1, warmup=True, **mx)
+        p1 = srv.render(spp=1, seed=7, repeat=3, warmup=False, **mx)
+        p4 = srv.render(spp=4, seed=9, repeat=3, warmup=False, **mx)
+        self.t1, self.t4 = float(np.median(p1["seconds"])), float(np.median(p4["seconds"]))
+        self.per_spp = max((self.t4 - self.t1) / 3.0, 1e-4)
+        self.fixed = max(self.t1 - self.per_spp, 0.0)
+        self.warmup_s = float(w["warmup_seconds"])
+
+    def probe(self) -> dict:
+        return {"warmup_s": self.warmup_s, "t1": self.t1, "t4": self.t4, "fixed": self.fixed}
+
+    def spp_for(self, seconds: float) -> int:
+        return max(1, int(round((seconds - self.fixed) / self.per_spp)))
+
+    def run(self, budget: float, seed: int) -> tuple[np.ndarray, float, float, int]:
+        """One timed ``mi.render`` of about ``budget`` seconds: (image, wall s, CPU s, spp). The
+        seconds per spp then follow the ones just measured (the load changes)."""
+        spp = self.spp_for(budget)
+        m = self.srv.render(spp=spp, seed=seed, repeat=1, warmup=False, **self.mx)
+        secs, cpu = float(m["seconds"][0]), float(m["cpu_seconds"][0])
+        self.per_spp = 0.5 * self.per_spp + 0.5 * max((secs - self.fixed) / spp, 1e-4)
+        return m["image"], secs, cpu, spp
+
+    def reference(self, spp: int, repeats: int) -> dict:
+        """``repeats`` renders of ``spp`` averaged: image, its noise floor (the spread between the
+        repeats), spp, wall and CPU seconds."""
+        t0 = time.perf_counter()
+        m = self.srv.render(spp=spp, seed=777000, repeat=repeats, warmup=False, keep_each=True, **self.mx)
+        each = np.stack([m[f"image{i}"] for i in range(repeats)])
+        return {"image": m["image"], "floor": floor(m["image"], each.var(axis=0, ddof=1) / repeats),
+                "spp": spp * repeats, "seconds": time.perf_counter() - t0, "cpu_s": float(np.sum(m["cpu_seconds"]))}
+
+
 def floor(ref: np.ndarray, var_of_mean: np.ndarray) -> float:
     """The reference's own expected relMSE."""
     return float(np.mean(var_of_mean / (ref ** 2 + EPS_REL)))
@@ -119,13 +160,9 @@ def run_stage(a, stage: str, ref_spp_illum: int, server_work: str) -> dict:
         # Warm-ups (illum: numba kernels, stage load; Mitsuba: scene load, Dr.Jit kernels), then Mitsuba's probe.
         for mode in ("splat", "importance"):
             render(stage, RenderOptions(spp=1, seed=99, pixel_filter_mode=mode, **base), scene_cache=cache)
-        w = srv.render(spp=1, seed=5, repeat=1, warmup=True, **mx)
-        p1 = srv.render(spp=1, seed=7, repeat=3, warmup=False, **mx)
-        p4 = srv.render(spp=4, seed=9, repeat=3, warmup=False, **mx)
-        t1, t4 = float(np.median(p1["seconds"])), float(np.median(p4["seconds"]))
-        per_spp = max((t4 - t1) / 3.0, 1e-4)
-        fixed = max(t1 - per_spp, 0.0)
-        out["mitsuba_probe"] = {"warmup_s": float(w["warmup_seconds"]), "t1": t1, "t4": t4, "fixed": fixed}
+        clock = MitsubaClock(srv, mx)
+        t1, t4 = clock.t1, clock.t4
+        out["mitsuba_probe"] = clock.probe()
         print(f"{stage}: Mitsuba {srv.banner}; 1 spp {t1:.3f} s, 4 spp {t4:.3f} s", flush=True)
 
         # References, each with its own filter and film.
@@ -137,12 +174,8 @@ def run_stage(a, stage: str, ref_spp_illum: int, server_work: str) -> dict:
             img = r.film.mean().astype(np.float64)
             refs[f"illum {mode}"] = (img, floor(img, r.film.variance_of_mean()), ref_spp_illum,
                                      time.perf_counter() - t0, time.process_time() - c0)
-        t0 = time.perf_counter()
-        m = srv.render(spp=a.ref_spp_mitsuba, seed=777000, repeat=a.ref_repeats, warmup=False, keep_each=True, **mx)
-        each = np.stack([m[f"image{i}"] for i in range(a.ref_repeats)])
-        refs["mitsuba gaussian film"] = (m["image"], floor(m["image"], each.var(axis=0, ddof=1) / a.ref_repeats),
-                                         a.ref_spp_mitsuba * a.ref_repeats, time.perf_counter() - t0,
-                                         float(np.sum(m["cpu_seconds"])))
+        m = clock.reference(a.ref_spp_mitsuba, a.ref_repeats)
+        refs["mitsuba gaussian film"] = (m["image"], m["floor"], m["spp"], m["seconds"], m["cpu_s"])
         out["refs"] = {k: {"spp": v[2], "seconds": v[3], "cpu_s": v[4], "floor": v[1], "mean": float(v[0].mean())}
                        for k, v in refs.items()}
         for k, v in out["refs"].items():
@@ -163,11 +196,7 @@ def run_stage(a, stage: str, ref_spp_illum: int, server_work: str) -> dict:
                         cpu = time.process_time() - c0
                         img, secs, spp = r.film.mean().astype(np.float64), r.stats["seconds"]["render"], r.stats["spp"]
                     else:
-                        spp = max(1, int(round((b - fixed) / per_spp)))
-                        m = srv.render(spp=spp, seed=seed * 1000 + int(b * 10), repeat=1, warmup=False, **mx)
-                        img, secs, cpu = m["image"], float(m["seconds"][0]), float(m["cpu_seconds"][0])
-                        # Track the load: the next spp follows the seconds per spp just measured.
-                        per_spp = 0.5 * per_spp + 0.5 * max((secs - fixed) / spp, 1e-4)
+                        img, secs, cpu, spp = clock.run(b, seed * 1000 + int(b * 10))
                     ref, fl = refs[who][0], refs[who][1]
                     e = relmse(img, ref)
                     run = {"renderer": who, "budget": b, "seed": seed, "seconds": secs, "cpu_s": cpu, "spp": int(spp),
@@ -232,18 +261,23 @@ def write_md(a, results: list[dict], cmd: str) -> str:
     return "\n".join(md) + "\n"
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("stages", nargs="*", default=list(STAGES))
-    ap.add_argument("--mitsuba-python", required=True)
+def add_setup_args(ap: argparse.ArgumentParser, budgets: str) -> None:
+    """The equal-time setup flags shared with bench_mitsuba_table.py."""
     ap.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--max-depth", type=int, default=7, help="illum's; Mitsuba gets one more")
     ap.add_argument("--rr-depth", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--filter-width", type=float, default=1.5, help="illum's Gaussian radius (sigma = radius / 3)")
-    ap.add_argument("--budgets", default="2,8")
+    ap.add_argument("--budgets", default=budgets)
     ap.add_argument("--seeds", type=int, default=2)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("stages", nargs="*", default=list(STAGES))
+    ap.add_argument("--mitsuba-python", required=True)
+    add_setup_args(ap, budgets="2,8")
     ap.add_argument("--ref-spp-illum", default="512", help="per stage, comma-separated (one value: all stages)")
     ap.add_argument("--ref-spp-mitsuba", type=int, default=256, help="per reference render")
     ap.add_argument("--ref-repeats", type=int, default=8, help="Mitsuba reference renders averaged")

@@ -183,32 +183,59 @@ def _const(inp, what: str, path: str, errors: list[str]):
     return inp.value
 
 
-def eligibility(desc: SceneDescription) -> list[str]:
-    """Reasons why the stage cannot be mapped exactly to Mitsuba diffuse + area lights ([] = fine)."""
+def _lambert_equivalent(mat) -> bool:
+    """Specular workflow with an untextured specularColor of 0: illum's UsdPreviewSurface has no
+    specular lobe then (only the Schlick grazing term on the diffuse lobe, see the docstring)."""
+    return (mat.use_specular_workflow and mat.specular_color.texture is None and mat.specular_color.primvar is None
+            and not any(float(x) != 0.0 for x in np.ravel(mat.specular_color.value)))
+
+
+def eligibility(desc: SceneDescription, full: bool = False) -> list[str]:
+    """Reasons why the stage cannot be exported ([] = fine).
+
+    full=False: exactly Mitsuba ``diffuse`` + area lights (the cross-check, part A). full=True: the
+    approximate mapping of ``material_record`` (UsdPreviewSurface -> diffuse / principled with
+    bitmap textures, normal maps and cut-outs) and ``export_scene``'s light mapping (adds distant
+    lights and treatAsPoint spheres), for equal-time comparisons where each renderer is scored
+    against its own reference (bench_mitsuba_table.py).
+    """
     why: list[str] = []
     for mat in desc.materials:
         p = mat.path or "<fallback material>"
-        _const(mat.diffuse_color, "diffuseColor", p, why)
-        spec = _const(mat.specular_color, "specularColor", p, why)
-        rough = _const(mat.roughness, "roughness", p, why)
-        op = _const(mat.opacity, "opacity", p, why)
+        if not full:
+            _const(mat.diffuse_color, "diffuseColor", p, why)
+            spec = _const(mat.specular_color, "specularColor", p, why)
+            rough = _const(mat.roughness, "roughness", p, why)
+            op = _const(mat.opacity, "opacity", p, why)
+            if not _lambert_equivalent(mat):
+                why.append(f"{p}: not specular workflow with specularColor 0 (has a specular lobe)")
+            if float(rough) != 1.0:
+                why.append(f"{p}: roughness {rough} != 1")
+            if float(op) != 1.0:
+                why.append(f"{p}: opacity {op}")
+            if mat.normal.texture is not None:
+                why.append(f"{p}: normal map")
+        else:
+            for f in ("diffuse_color", "specular_color", "metallic", "roughness", "opacity", "normal"):
+                inp = getattr(mat, f)
+                if inp.primvar is not None:
+                    why.append(f"{p}: {f} read from a primvar")
+                if inp.texture is not None and inp.texture.st_transform:
+                    why.append(f"{p}: {f} texture has a UsdTransform2d")
+            if mat.specular_color.texture is not None:
+                why.append(f"{p}: specularColor is textured")
         em = _const(mat.emissive_color, "emissiveColor", p, why)
-        if not mat.use_specular_workflow or any(float(x) != 0.0 for x in np.ravel(spec)):
-            why.append(f"{p}: not specular workflow with specularColor 0 (has a specular lobe)")
-        if float(rough) != 1.0:
-            why.append(f"{p}: roughness {rough} != 1")
-        if float(op) != 1.0:
-            why.append(f"{p}: opacity {op}")
         if any(float(x) != 0.0 for x in np.ravel(em)):
             why.append(f"{p}: emissive")
+    kinds = ("rect", "disk", "sphere", "dome", "distant") if full else ("rect", "disk", "sphere", "dome")
     for lt in desc.lights:
-        if lt.kind not in ("rect", "disk", "sphere", "dome"):
+        if lt.kind not in kinds:
             why.append(f"{lt.path}: {lt.kind} light not exported")
         if lt.texture_file and not (lt.kind == "dome" and lt.texture_format in ("automatic", "latlong")):
             why.append(f"{lt.path}: textured light")
         if lt.portals is not None:
             why.append(f"{lt.path}: dome portals")
-        if lt.kind == "sphere" and lt.treat_as_point:
+        if lt.kind == "sphere" and lt.treat_as_point and not full:
             why.append(f"{lt.path}: treatAsPoint")
         if lt.shaping is not None or lt.shadow is not None:
             why.append(f"{lt.path}: ShapingAPI/ShadowAPI")
@@ -226,6 +253,102 @@ def eligibility(desc: SceneDescription) -> list[str]:
     return why
 
 
+class TextureExport:
+    """Textures decoded by illum's own ``TextureCache`` (sourceColorSpace, row 0 = bottom = t 0) and
+    stored in the scene file as float32 (H, W, C) arrays with the UsdUVTexture scale and bias
+    applied (a bilinear lookup commutes with them), one array per distinct use. Mitsuba's
+    ``bitmap`` puts row 0 at v = 0, so with the mesh's uv = st no flip is needed (measured with a
+    row-indexed bitmap on Mitsuba 3.9). Wrap modes map one to one, except 'black' (no Mitsuba
+    equivalent), which becomes 'clamp'."""
+
+    def __init__(self, arrays: dict):
+        from renderer.textures import TextureCache, output_channels
+
+        self.cache = TextureCache()
+        self.channels = output_channels
+        self.arrays = arrays
+        self.keys: dict = {}
+
+    def add(self, tex, width: int, encode=None, threshold: float | None = None) -> dict:
+        """A texture parameter record {"tex": array name, "wrap": mode, "nearest": bool} for ``tex``'s
+        connected output, broadcast or cut to ``width`` channels. encode: 'normal' stores the
+        tangent-space normal n = texel * scale + bias re-encoded as (n + 1) / 2 (Mitsuba's
+        ``normalmap`` decodes 2 v - 1); threshold: a 0/1 cut-out map (value >= threshold),
+        looked up nearest so that it stays binary."""
+        key = (tex, width, encode, threshold)
+        if key not in self.keys:
+            px = self.cache.image(tex)
+            if px is None:
+                raise ValueError(f"{tex.file}: texture could not be read")
+            ch = list(self.channels(tex.output))
+            val = px[..., ch].astype(np.float64) * np.asarray(tex.scale)[ch] + np.asarray(tex.bias)[ch]
+            if val.shape[-1] != width:
+                val = np.repeat(val[..., :1], width, axis=-1) if val.shape[-1] == 1 else val[..., :width]
+            if encode == "normal":
+                val = 0.5 * (val + 1.0)
+            if threshold is not None:
+                val = (val >= threshold).astype(np.float64)
+            name = f"tex{len(self.keys)}"
+            self.arrays[name] = np.ascontiguousarray(val, dtype=np.float32)
+            wraps = {m: ("clamp" if m == "black" else m) for m in self.cache.wrap_modes(tex)}
+            if len(set(wraps.values())) != 1:
+                raise ValueError(f"{tex.file}: different s and t wrap modes are not exported")
+            self.keys[key] = {"tex": name, "wrap": next(iter(wraps.values())), "nearest": threshold is not None}
+        return self.keys[key]
+
+    def param(self, inp, width: int) -> dict:
+        """{"value": constant} or a texture record for a MaterialInput."""
+        if inp.texture is not None:
+            return self.add(inp.texture, width)
+        v = np.ravel(np.asarray(inp.value, dtype=np.float64))
+        return {"value": (v[:width] if v.size >= width else np.repeat(v[:1], width)).tolist()}
+
+
+def material_record(mat, tex: TextureExport) -> dict:
+    """UsdPreviewSurface -> a Mitsuba BSDF description (mitsuba_side.material_bsdf builds it).
+
+    * specular workflow with specularColor 0 (no specular lobe in illum): ``diffuse`` with the
+      diffuseColor (constant or texture). Exact for the cross-check's untextured, roughness-1 stages.
+    * otherwise ``principled`` (Mitsuba's Disney BSDF, GGX with alpha = roughness^2 as in
+      UsdPreviewSurface): base_color = diffuseColor, roughness, metallic (0 in the specular
+      workflow), eta = ior in the metallic workflow; in the specular workflow eta from the mean of
+      specularColor taken as F0 (eta = (1 + sqrt F0) / (1 - sqrt F0)), the colour of F0 dropped.
+      Not equal to illum's model (Disney diffuse with retro-reflection, no energy-conserving
+      diffuse/specular coupling like illum's 1 - E terms), only comparable in look.
+    * normal map: ``normalmap`` around it (tangent frame from dp/du, i.e. the st parametrisation).
+    * opacity: a ``mask`` outermost; with opacityThreshold > 0 a binary cut-out map.
+    Surfaces are ``twosided`` (illum shades both sides): mask(twosided(normalmap(bsdf))).
+    """
+    rec: dict = {}
+    if _lambert_equivalent(mat):
+        rec["type"] = "diffuse"
+        rec["reflectance"] = tex.param(mat.diffuse_color, 3)
+    else:
+        rec["type"] = "principled"
+        rec["base_color"] = tex.param(mat.diffuse_color, 3)
+        rec["roughness"] = tex.param(mat.roughness, 1)
+        if mat.use_specular_workflow:
+            f0 = float(np.clip(np.mean(np.asarray(mat.specular_color.value, dtype=np.float64)), 1e-4, 0.95))
+            rec["metallic"] = {"value": [0.0]}
+            rec["eta"] = (1.0 + math.sqrt(f0)) / (1.0 - math.sqrt(f0))
+        else:
+            rec["metallic"] = tex.param(mat.metallic, 1)
+            rec["eta"] = float(max(mat.ior, 1.0 + 1e-3))
+    if mat.normal.texture is not None:
+        rec["normalmap"] = tex.add(mat.normal.texture, 3, encode="normal")
+    op = mat.opacity
+    if op.texture is not None:
+        thr = float(mat.opacity_threshold)
+        rec["opacity"] = tex.add(op.texture, 1, threshold=thr if thr > 0.0 else None)
+    else:
+        o = float(np.ravel(op.value)[0])
+        if mat.opacity_threshold > 0.0:
+            o = 1.0 if o >= mat.opacity_threshold else 0.0
+        if o < 1.0:
+            rec["opacity"] = {"value": [o]}
+    return rec
+
+
 def _normal_dir(M: np.ndarray, v) -> np.ndarray:
     """World direction of the local normal v under the 4x4 M (inverse transpose), unit length."""
     A = M[:3, :3]
@@ -233,30 +356,33 @@ def _normal_dir(M: np.ndarray, v) -> np.ndarray:
     return n / np.linalg.norm(n)
 
 
-def export_scene(desc: SceneDescription, width: int, height: int, path: str) -> dict:
+def export_scene(desc: SceneDescription, width: int, height: int, path: str, opaque_emitters: bool = False) -> dict:
     """Write the neutral scene file (npz with a json string) and return the json dict.
 
     Light geometry is derived here from the LightDesc and the UsdLux text (rect: width x height
     in local XY, disk: radius in local XY, both emitting toward local -Z; sphere: radius, outward),
     independently of renderer/lights; the radiance is illum's ``emitted_radiance`` with illum's
-    world area, and the area derived here is checked against it.
+    world area, and the area derived here is checked against it. opaque_emitters: Mitsuba's
+    emitter shapes get a black diffuse BSDF instead of the null one (mitsuba_side.build_scene_dict).
     """
     arrays: dict[str, np.ndarray] = {}
+    textures = TextureExport(arrays)
+    materials = [material_record(mat, textures) for mat in desc.materials]
     meshes = []
     for i, m in enumerate(desc.meshes):
         tri = np.asarray(m.points, dtype=np.float64)[np.asarray(m.triangles)]
         arrays[f"mesh{i}_points"] = tri.reshape(-1, 3)
         if m.normals is not None:
             arrays[f"mesh{i}_normals"] = np.asarray(m.normals, dtype=np.float64).reshape(-1, 3)
-        mat = desc.materials[m.material]
-        albedo = np.clip(np.asarray(mat.diffuse_color.value, dtype=np.float64).reshape(3), 0.0, 1.0)
-        meshes.append({"path": m.path, "albedo": albedo.tolist(), "triangles": int(tri.shape[0])})
+        if m.st is not None:
+            arrays[f"mesh{i}_st"] = np.asarray(m.st, dtype=np.float64).reshape(-1, 2)
+        meshes.append({"path": m.path, "material": materials[m.material], "triangles": int(tri.shape[0])})
     lights = []
     for lt in desc.lights:
         M = np.asarray(lt.light_to_world, dtype=np.float64)
         A = M[:3, :3]
         c = M[:3, 3]
-        illum_area = KIND_CLASSES[lt.kind].world_area(lt) if lt.kind != "dome" else 1.0
+        illum_area = KIND_CLASSES[lt.kind].world_area(lt) if lt.kind not in ("dome", "distant") else 1.0
         L = emitted_radiance(lt, illum_area)
         rec = {"path": lt.path, "kind": lt.kind, "L": L.tolist(), "illum_world_area": float(illum_area)}
         if lt.kind == "rect":
@@ -276,6 +402,21 @@ def export_scene(desc: SceneDescription, width: int, height: int, path: str) -> 
             r = float(lt.radius * s[0])
             area = 4.0 * np.pi * r * r
             rec.update(center=c.tolist(), radius=r)
+            if lt.treat_as_point:
+                # A point light of intensity I = L pi r^2 (W/sr per unit colour), illum's own value.
+                from renderer.lights.sphere import SphereLight
+
+                area = illum_area
+                rec.update(point=True, I=SphereLight.point_intensity(lt).tolist())
+        elif lt.kind == "distant":
+            from renderer.lights.distant import DistantLight
+            from renderer.lights.radiometry import distant_size_factor
+
+            # Mitsuba's ``directional`` is a delta light: its irradiance at normal incidence is the
+            # cone's, L pi sin^2(theta_max) (radiometry's size factor; for angle 0 L already is it).
+            area = illum_area
+            E = L * (distant_size_factor(lt.angle) if lt.angle > 0.0 else 1.0)
+            rec.update(direction=(-DistantLight.world_axis(lt)).tolist(), E=E.tolist(), angle=float(lt.angle))
         else:
             area = 1.0
             # The dome's frame: the rotation of its transform (polar decomposition), top pole local +Y.
@@ -301,6 +442,7 @@ def export_scene(desc: SceneDescription, width: int, height: int, path: str) -> 
     arrays["filter_cdf"] = np.asarray(cam.filter._cdf, dtype=np.float64)
     scene = {
         "source": desc.source, "resolution": [int(width), int(height)], "meshes": meshes, "lights": lights,
+        "opaque_emitters": bool(opaque_emitters),
         "camera": {"path": desc.camera.path, "camera_to_world": cam.camera_to_world.tolist(),
                    "window": [wx0, wx1, wy0, wy1], "near": cam.near * scale, "far": cam.far * scale,
                    "exposure_scale": float(desc.camera.exposure_scale)},

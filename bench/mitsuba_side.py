@@ -16,11 +16,15 @@ conventions happen here:
   emission normal n.
 * disk light: same with Mitsuba's unit ``disk`` and columns (e1, e2, n, centre), e1/e2 the
   world radius vectors.
-* sphere light: ``sphere`` (centre, radius), emits outward.
+* sphere light: ``sphere`` (centre, radius), emits outward. treatAsPoint: ``point`` with illum's
+  intensity L pi r^2.
+* distant light: ``directional`` (a delta light: hard shadows where illum's cone of ``angle``
+  gives soft ones) with the cone's irradiance at normal incidence, L pi sin^2(theta_max).
 * constant dome: ``constant`` emitter. Lat-long dome: ``envmap`` whose bitmap (16x the source
   resolution) follows the UsdLux/OpenEXR convention with nearest-texel lookups, as illum does
   (``envmap_bitmap``); ``probe_envmap`` checks Mitsuba's radiance against that lookup.
-* emitter shapes get the ``null`` BSDF: illum's lights are transparent to every ray (a ray
+* emitter shapes get the ``null`` BSDF (or, with ``opaque_emitters`` in the scene json, a black
+  ``diffuse``, so that a light seen against the empty background is visible; see build_scene_dict): illum's lights are transparent to every ray (a ray
   crossing a light picks up its emission and continues), and Mitsuba's ``path`` integrator
   continues through null surfaces. Difference: Mitsuba counts that crossing as one path vertex
   (depth and Russian roulette), illum does not (bench_mitsuba.py reports pixels that see a
@@ -29,7 +33,10 @@ conventions happen here:
   ``perspective`` looks down +Z with +Y up and +X to the image's *left*. A 180 degree turn about
   Y maps one onto the other: to_world = C @ diag(-1, 1, -1, 1). The window's horizontal extent
   gives the x field of view (only symmetric windows are exported).
-* surfaces: ``twosided`` ``diffuse`` (illum shades both sides of every surface).
+* surfaces: ``twosided`` (illum shades both sides of every surface) around ``diffuse`` or, for
+  materials with a specular lobe, ``principled``; textures as raw ``bitmap``s of illum's decoded
+  texels, normal maps as ``normalmap``, cut-outs as ``mask`` (``material_bsdf``; the mapping is
+  documented at bench_mitsuba.material_record).
 
 Tasks
 -----
@@ -59,8 +66,8 @@ import time
 import numpy as np
 
 
-def _write_ply(path: str, points: np.ndarray, normals: np.ndarray | None) -> None:
-    """Binary little-endian PLY with unshared vertices (3 per triangle) and optional normals."""
+def _write_ply(path: str, points: np.ndarray, normals: np.ndarray | None, uv: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY with unshared vertices (3 per triangle), optional normals and uv."""
     v = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     nv = v.shape[0]
     nf = nv // 3
@@ -69,6 +76,9 @@ def _write_ply(path: str, points: np.ndarray, normals: np.ndarray | None) -> Non
     if normals is not None:
         props += ["property float nx", "property float ny", "property float nz"]
         cols.append(np.asarray(normals, dtype=np.float32).reshape(-1, 3))
+    if uv is not None:
+        props += ["property float u", "property float v"]
+        cols.append(np.asarray(uv, dtype=np.float32).reshape(-1, 2))
     header = "\n".join(["ply", "format binary_little_endian 1.0", f"element vertex {nv}", *props,
                         f"element face {nf}", "property list uchar int vertex_indices", "end_header"]) + "\n"
     vert = np.ascontiguousarray(np.concatenate(cols, axis=1), dtype="<f4")
@@ -79,6 +89,34 @@ def _write_ply(path: str, points: np.ndarray, normals: np.ndarray | None) -> Non
         fh.write(header.encode("ascii"))
         fh.write(vert.tobytes())
         fh.write(faces.tobytes())
+
+
+def _texture(mi, param: dict, arrays: dict, raw: bool = True) -> dict | float:
+    """A Mitsuba texture (or float) for an exported material parameter: {"value": [...]} is an
+    ``rgb`` (3 values) or a float (1 value); {"tex": name, ...} a ``bitmap`` of the exported, already
+    linear array (``raw``: no sRGB decode by Mitsuba)."""
+    if "value" in param:
+        v = [float(x) for x in param["value"]]
+        return {"type": "rgb", "value": v} if len(v) == 3 else v[0]
+    return {"type": "bitmap", "bitmap": mi.Bitmap(np.asarray(arrays[param["tex"]], dtype=np.float32)), "raw": raw,
+            "wrap_mode": param["wrap"], "filter_type": "nearest" if param.get("nearest") else "bilinear"}
+
+
+def material_bsdf(mi, rec: dict, arrays: dict) -> dict:
+    """The Mitsuba BSDF of an exported material record (bench_mitsuba.material_record documents the
+    mapping): mask(twosided(normalmap(diffuse | principled)))."""
+    if rec["type"] == "diffuse":
+        bsdf = {"type": "diffuse", "reflectance": _texture(mi, rec["reflectance"], arrays)}
+    else:
+        bsdf = {"type": "principled", "base_color": _texture(mi, rec["base_color"], arrays),
+                "roughness": _texture(mi, rec["roughness"], arrays), "metallic": _texture(mi, rec["metallic"], arrays),
+                "eta": float(rec["eta"])}
+    if "normalmap" in rec:
+        bsdf = {"type": "normalmap", "normalmap": _texture(mi, rec["normalmap"], arrays), "bsdf": bsdf}
+    bsdf = {"type": "twosided", "bsdf": bsdf}
+    if "opacity" in rec:
+        bsdf = {"type": "mask", "opacity": _texture(mi, rec["opacity"], arrays), "bsdf": bsdf}
+    return bsdf
 
 
 def _frame_to_world(mi, e1, e2, n, c):
@@ -126,27 +164,34 @@ def build_scene_dict(mi, scene: dict, arrays: dict, tmpdir: str, max_depth: int,
     for i, m in enumerate(scene["meshes"]):
         ply = os.path.join(tmpdir, f"mesh{i}.ply")
         normals = arrays.get(f"mesh{i}_normals")
-        _write_ply(ply, arrays[f"mesh{i}_points"], normals)
-        shape = {
-            "type": "ply", "filename": ply,
-            "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse",
-                                                  "reflectance": {"type": "rgb", "value": list(m["albedo"])}}},
-        }
+        _write_ply(ply, arrays[f"mesh{i}_points"], normals, arrays.get(f"mesh{i}_st"))
+        shape = {"type": "ply", "filename": ply, "bsdf": material_bsdf(mi, m["material"], arrays)}
         if normals is None:
             shape["face_normals"] = True
         d[f"mesh{i}"] = shape
+    # Transparent emitters by default, as illum's; but Mitsuba's ``path`` zeroes a camera path that
+    # meets only null surfaces, so a light seen against the empty background renders black.
+    # ``opaque_emitters`` (bench_mitsuba_table.py) makes them black diffuse: visible, opaque.
+    emitter_bsdf = ({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+                    if scene.get("opaque_emitters") else {"type": "null"})
     for i, lt in enumerate(scene["lights"]):
         L = [float(x) for x in lt["L"]]
         em = {"type": "area", "radiance": {"type": "rgb", "value": L}}
         if lt["kind"] == "rect":
-            d[f"light{i}"] = {"type": "rectangle", "emitter": em, "bsdf": {"type": "null"},
+            d[f"light{i}"] = {"type": "rectangle", "emitter": em, "bsdf": emitter_bsdf,
                               "to_world": _frame_to_world(mi, np.asarray(lt["ex"]) / 2, np.asarray(lt["ey"]) / 2,
                                                           lt["n"], lt["center"])}
         elif lt["kind"] == "disk":
-            d[f"light{i}"] = {"type": "disk", "emitter": em, "bsdf": {"type": "null"},
+            d[f"light{i}"] = {"type": "disk", "emitter": em, "bsdf": emitter_bsdf,
                               "to_world": _frame_to_world(mi, lt["e1"], lt["e2"], lt["n"], lt["center"])}
+        elif lt["kind"] == "sphere" and lt.get("point"):
+            d[f"light{i}"] = {"type": "point", "position": [float(x) for x in lt["center"]],
+                              "intensity": {"type": "rgb", "value": [float(x) for x in lt["I"]]}}
+        elif lt["kind"] == "distant":
+            d[f"light{i}"] = {"type": "directional", "direction": [float(x) for x in lt["direction"]],
+                              "irradiance": {"type": "rgb", "value": [float(x) for x in lt["E"]]}}
         elif lt["kind"] == "sphere":
-            d[f"light{i}"] = {"type": "sphere", "emitter": em, "bsdf": {"type": "null"},
+            d[f"light{i}"] = {"type": "sphere", "emitter": em, "bsdf": emitter_bsdf,
                               "center": [float(x) for x in lt["center"]], "radius": float(lt["radius"])}
         elif lt["kind"] == "dome" and f"light{i}_latlong" in arrays:
             img = envmap_bitmap(arrays[f"light{i}_latlong"], np.asarray(lt["rot"]), np.asarray(L),
