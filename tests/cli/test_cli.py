@@ -16,9 +16,45 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 STAGES = sorted(f for f in os.listdir(os.path.join(ROOT, "stages")) if f.endswith(".usda"))
 
 
-def illum(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "renderer.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd or ROOT, timeout=600)
+# What must run in its own process: commands that start servers or compile in a fresh cache,
+# and limits that are properties of a process (its memory, a load that is abandoned on timeout).
+_OWN_PROCESS = {"serve", "warmup", "submit", "jobs", "--load-timeout", "--max-memory", "--max-job-memory"}
+
+
+def illum(*args, cwd=None, subprocess_only=False):
+    """`illum ARGS` as a CompletedProcess (returncode, stdout, stderr). It runs in this process
+    (renderer.cli.main, the same entry point; an interpreter and numba start-up per call cost
+    seconds) unless the arguments need a process of their own (_OWN_PROCESS) or
+    ``subprocess_only``. In this process, Python warnings are shown, not raised, as in a
+    separate one."""
+    argv = [str(a) for a in args]
+    if subprocess_only or _OWN_PROCESS.intersection(argv):
+        return subprocess.run([sys.executable, "-m", "renderer.cli", *argv], capture_output=True,
+                              text=True, cwd=cwd or ROOT, timeout=600)
+    import contextlib
+    import io
+    import warnings
+
+    from renderer.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    try:
+        os.chdir(cwd or ROOT)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+            warnings.simplefilter("default")
+            try:
+                code = main(argv)
+            except SystemExit as e:  # argparse's usage errors
+                code = e.code if isinstance(e.code, int) else 2
+            except Exception:  # --debug lets it through: the interpreter would print it, exit 1
+                import traceback
+
+                traceback.print_exc(file=err)
+                code = 1
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
 
 
 @pytest.mark.parametrize("stage", STAGES)
