@@ -15,7 +15,7 @@ from renderer.output import srgb_encode, write_image
 from renderer.render import RenderResult, write_outputs
 from tests.stage_builders import quad_light_stage
 
-from .test_cli import ROOT, _error
+from .test_cli import ROOT, _error, illum
 
 # The camera of quad_light_stage: at (0, 6, 0) looking down -Y, image up = world -Z; the 36 mm
 # aperture at 35 mm focal length spans +-6 * 18 / 35 on the floor (y = 0).
@@ -23,6 +23,9 @@ HALF = 6.0 * 18.0 / 35.0
 
 
 def run(*args, umask=None, env=None):
+    """`illum ARGS`: in this process (test_cli.illum) unless a umask or environment is asked for."""
+    if umask is None and env is None:
+        return illum(*args)
     return subprocess.run([sys.executable, "-m", "renderer.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=ROOT, timeout=600, env={**os.environ, **(env or {})},
                           preexec_fn=(lambda: os.umask(umask)) if umask is not None else None)

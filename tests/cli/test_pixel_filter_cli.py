@@ -15,6 +15,8 @@ from pxr import Sdf, Usd
 from renderer.cli import main
 from tests.stage_builders import quad_light_stage
 
+from .test_cli import illum
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
@@ -39,8 +41,7 @@ def test_each_filter_renders_through_the_cli(tmp_path, name, width, mode):
     out, stats = tmp_path / "o.exr", tmp_path / "s.json"
     args = ["render", stage, "-o", out, "--spp", 4, "--stats", stats, "--quiet", "--pixel-filter", name,
             "--pixel-filter-mode", mode] + (["--pixel-filter-width", width] if width else [])
-    r = subprocess.run([sys.executable, "-m", "renderer.cli", *map(str, args)], capture_output=True, text=True,
-                       cwd=ROOT, timeout=600)
+    r = illum(*args)
     assert r.returncode == 0, r.stderr
     inp = oiio.ImageInput.open(str(out))
     spec = inp.spec()
