@@ -4,8 +4,6 @@ unless a flag overrides it, and bad values exit 2 naming the flag or attribute."
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import OpenImageIO as oiio
