@@ -8,8 +8,9 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
-  and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
-  light linking, with unit diffuse/specular multipliers, under any lighting service: exhaustive
+  and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
+  multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
+  general path's), without ShadowAPI or light linking, with unit diffuse/specular multipliers, under any lighting service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
   (renderer/kernels/light_pick.py: one pick per vertex, and the pmf replayed at the previous
   vertex for the MIS weight of a light the continuation ray reaches, as the general path's
@@ -57,6 +58,7 @@ from ..geometry import dot, offset_origin, surface_interaction
 from ..lights.base import ShadingContext
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
+from ..lights.shaping import empty_kernel_record
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from . import _cutout_kernels as ck
 from . import _vertex_kernels as vk
@@ -84,8 +86,8 @@ def fast_path_reason(integ) -> str:
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
-    if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
-        return "ShapingAPI, ShadowAPI or light linking"
+    if scene.shadow_group is not None or scene.illuminates is not None:
+        return "ShadowAPI or light linking"
     plain = ((lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
              & getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
              & getattr(lights, "transparent", np.ones(lights.count, dtype=bool)))
@@ -172,6 +174,12 @@ class FastPath:
         fast_of = np.full(lights.count, -1, dtype=np.int64)
         order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
         fast_of[order] = np.arange(order.size)
+        # The UsdLux record (vertex_kernel's lux): ShapingAPI, each global light's row in the
+        # shaping table (-1: unshaped) and the table's kernel arrays (lights/shaping.py).
+        sh = lights.shaping
+        self.lux = (np.ascontiguousarray(sh.row_of[:lights.count] if sh is not None else np.full(lights.count, -1),
+                                         dtype=np.int64),
+                    sh.kernel_record() if sh is not None else empty_kernel_record())
         rl, sl, dl = self.rect, self.sphere, self.disk
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
@@ -186,7 +194,8 @@ class FastPath:
             rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
-            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp)
+            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
+            self.lux)
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:

@@ -1,0 +1,118 @@
+"""UsdLux ShapingAPI, ShadowAPI and light linking on the compiled path (renderer/integrators/
+fast_path.py) estimate what the general integrator estimates.
+
+The room of test_fast_path.py (three rect lights, a sphere, a point and a disk light) gets cones,
+focus and an IES profile on its lights; renders with the compiled path and with
+``fast_path=False`` are z-tested as in test_fast_path.py (whole image and 16 blocks, each film's
+own variance of the mean). Both routes call the same shaping factor (kernels/shaping.py), so the
+tests check that the kernel applies it wherever the general path does: light samples of the
+batched rect and sphere samplers and of the row samplers, the per-light estimators' light and
+BSDF samples, and the emission that camera and continuation rays see.
+"""
+
+import os
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdLux
+
+from renderer.render import RenderOptions, render
+from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _room
+
+IES = os.path.abspath("stages/ies/narrow_spot.ies")
+
+
+def _shape(path):
+    """Cones, focus and an IES profile on the room's lights (test_fast_path._room, more_kinds)."""
+    stage = Usd.Stage.Open(str(path))
+    for name, attrs in (
+            ("Big", {"cone:angle": 35.0, "cone:softness": 0.3}),
+            ("Sheared", {"focus": 3.0, "focusTint": Gf.Vec3f(0.2, 0.5, 1.0)}),
+            ("Bulb", {"cone:angle": 60.0, "cone:softness": 0.5}),
+            ("Point", {"ies:file": IES, "ies:normalize": True}),
+            ("Disk", {"cone:angle": 25.0, "cone:softness": 0.0, "focus": 2.0})):
+        prim = stage.GetPrimAtPath(f"/World/{name}")
+        api = UsdLux.ShapingAPI.Apply(prim)
+        for key, value in attrs.items():
+            if key == "ies:file":
+                api.GetShapingIesFileAttr().Set(Sdf.AssetPath(value))
+            elif key == "ies:normalize":
+                api.GetShapingIesNormalizeAttr().Set(value)
+            elif key == "focusTint":
+                api.GetShapingFocusTintAttr().Set(value)
+            elif key == "focus":
+                api.GetShapingFocusAttr().Set(value)
+            elif key == "cone:angle":
+                api.GetShapingConeAngleAttr().Set(value)
+            else:
+                api.GetShapingConeSoftnessAttr().Set(value)
+    # The point light aims down at the floor (its axis is local -Z).
+    from pxr import UsdGeom
+
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World/Point")).AddRotateXOp().Set(-90.0)
+    stage.GetRootLayer().Save()
+
+
+def _pair(stage, max_depth, spp, **opt):
+    common = dict(max_depth=max_depth, rr_depth=1, threads=1, spp=spp, pixel_filter_mode="importance")
+    common.update(opt)
+    fast = render(str(stage), RenderOptions(seed=1, **common))
+    slow = render(str(stage), RenderOptions(seed=8, fast_path=False, **common))
+    return fast, slow
+
+
+def _check(fast, slow):
+    assert fast.stats["fast_path"] == "on", fast.stats["fast_path"]
+    assert slow.stats["fast_path"].startswith("disabled")
+    z, zs = _block_z(fast, slow)
+    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
+    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
+    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
+
+
+@pytest.mark.parametrize("opt", [
+    {"estimator": {"": "mis"}},                                # continuation MIS, batched samplers
+    {"estimator": {"": "mis"}, "light_samples": {"": 3}},      # the estimators' own samples at depth 0
+    {"estimator": {"": "lightSampling"}},
+    {"estimator": {"": "bsdfSampling"}},
+    {"estimator": {"": "mis"}, "light_sampler": "bvh"},        # one picked light per vertex
+])
+def test_shaped_lights_on_the_compiled_path_match_the_general_path(tmp_path, opt):
+    stage = tmp_path / "room.usda"
+    _room(stage, more_kinds=True)
+    _shape(stage)
+    fast, slow = _pair(stage, 4, 192, **opt)
+    _check(fast, slow)
+
+
+def test_the_shaping_comparison_detects_a_missing_factor(tmp_path, monkeypatch):
+    """The tests above can fail: with the kernel's shaping factor dropped, the compiled route
+    lights the room as if the cones were not there."""
+    from renderer.integrators import fast_path as fp_mod
+
+    stage = tmp_path / "room.usda"
+    _room(stage, more_kinds=True)
+    _shape(stage)
+    fast0, slow = _pair(stage, 3, 64, estimator={"": "mis"})
+    orig = fp_mod.FastPath.__init__
+
+    def unshaped(self, integ):
+        orig(self, integ)
+        lux = (np.full_like(self.lux[0], -1),) + tuple(self.lux[1:])
+        self.tables = tuple(lux if t is self.lux else t for t in self.tables)
+
+    monkeypatch.setattr(fp_mod.FastPath, "__init__", unshaped)
+    fast = render(str(stage), RenderOptions(seed=1, max_depth=3, rr_depth=1, threads=1, spp=64,
+                                            pixel_filter_mode="importance", estimator={"": "mis"}))
+    assert fast0.stats["fast_path"] == "on"
+    _check(fast0, slow)
+    z, _ = _block_z(fast, slow)
+    assert abs(z) > Z_MAX, f"an unshaped kernel went unseen (z = {z:.2f})"
+
+
+@pytest.mark.parametrize("stage", ["stages/shaping/spotlights.usda"])
+def test_shaping_stages_on_the_compiled_path(stage):
+    """The shaping stage (42 small sphere spots, cones and three IES profiles) with its own
+    lighting service."""
+    fast, slow = _pair(stage, 3, 48, resolution=(64, 36), emitter_samples=1)
+    _check(fast, slow)
