@@ -116,3 +116,56 @@ def test_shaping_stages_on_the_compiled_path(stage):
     lighting service."""
     fast, slow = _pair(stage, 3, 48, resolution=(64, 36), emitter_samples=1)
     _check(fast, slow)
+
+
+def _link(path, light_link=(), shadow_link=()):
+    """lightLink and shadowLink exclusions on the room's lights: (light, excluded prim) pairs."""
+    stage = Usd.Stage.Open(str(path))
+    for pairs, get in ((light_link, "GetLightLinkCollectionAPI"), (shadow_link, "GetShadowLinkCollectionAPI")):
+        for light, prim in pairs:
+            api = UsdLux.LightAPI(stage.GetPrimAtPath(f"/World/{light}"))
+            getattr(api, get)().CreateExcludesRel().AddTarget(f"/World/{prim}")
+    stage.GetRootLayer().Save()
+
+
+LINKS = dict(light_link=(("Big", "Ball"), ("Disk", "Floor"), ("Bulb", "Wall")),
+             shadow_link=(("Big", "Chrome"), ("Point", "Ball")))
+
+
+@pytest.mark.parametrize("opt", [
+    {"estimator": {"": "mis"}},
+    {"estimator": {"": "mis"}, "light_samples": {"": 3}},
+    {"estimator": {"": "controlVariate"}, "light_samples": {"": 4}},
+    {"estimator": {"": "mis"}, "light_sampler": "power"},
+])
+def test_light_linking_on_the_compiled_path_matches_the_general_path(tmp_path, opt):
+    """lightLink (a light skips the excluded meshes at every vertex, and a continuation ray that
+    left an excluded mesh adds none of that light's emission) and shadowLink (the excluded meshes
+    cast no shadow from that light: its own BVH, scene.shadow_accels)."""
+    stage = tmp_path / "room.usda"
+    _room(stage, more_kinds=True)
+    _link(stage, **LINKS)
+    fast, slow = _pair(stage, 4, 192, **opt)
+    _check(fast, slow)
+
+
+def test_the_linking_comparison_detects_ignored_links(tmp_path, monkeypatch):
+    """The test above can fail: a kernel that ignores lightLink lights the excluded meshes."""
+    from renderer.integrators import fast_path as fp_mod
+
+    stage = tmp_path / "room.usda"
+    _room(stage, more_kinds=True)
+    _link(stage, light_link=LINKS["light_link"])
+    orig = fp_mod.FastPath.__init__
+
+    def unlinked(self, integ):
+        orig(self, integ)
+        lux = tuple(self.lux[:3]) + (np.zeros((0, 0), dtype=bool),) + tuple(self.lux[4:])
+        self.tables = tuple(lux if t is self.lux else t for t in self.tables)
+
+    monkeypatch.setattr(fp_mod.FastPath, "__init__", unlinked)
+    fast, slow = _pair(stage, 3, 64, estimator={"": "mis"})
+    assert fast.stats["fast_path"] == "on"
+    z, _ = _block_z(fast, slow)
+    assert abs(z) > Z_MAX, f"ignored light links went unseen (z = {z:.2f})"
+
