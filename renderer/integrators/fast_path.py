@@ -13,7 +13,10 @@ A scene qualifies when it has
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
   does not illuminate, and a continuation ray that left such a vertex adds none of its emission;
   shadowLink: the light's shadow rays are traced against its own BVH, scene.shadow_accels, by
-  _visibility), without ShadowAPI settings, with unit diffuse/specular multipliers, under any lighting service: exhaustive
+  _visibility), and ShadowAPI (lights with shadow:enable off, a shadow distance or falloff get
+  their own shadow group like a shadowLink, traced by shadow_api.visibility, and the blocked
+  fraction of a shadow:color light's ray shows the colour: _vertex_kernels.add_visible_kernel),
+  with unit diffuse/specular multipliers, under any lighting service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
   (renderer/kernels/light_pick.py: one pick per vertex, and the pmf replayed at the previous
   vertex for the MIS weight of a light the continuation ray reaches, as the general path's
@@ -89,13 +92,9 @@ def fast_path_reason(integ) -> str:
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
-    if any(sp is not None for sp in scene.shadow_params):
-        return "ShadowAPI shadow:enable, distance or falloff"
-    plain = ((lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
-             & getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
-             & getattr(lights, "transparent", np.ones(lights.count, dtype=bool)))
+    plain = (lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
     if not np.all(plain):
-        return "a light with a diffuse or specular multiplier or a ShadowAPI shadow"
+        return "a light with a diffuse or specular multiplier"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if opt.max_depth <= 1:
