@@ -14,10 +14,11 @@ import os
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdLux
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from renderer.render import RenderOptions, render
-from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _room
+from tests.integrators.test_fast_path import Z_MAX, _block_z, _room
+from tests.integrators.test_fast_path_materials import _check
 
 IES = os.path.abspath("stages/ies/narrow_spot.ies")
 
@@ -47,8 +48,6 @@ def _shape(path):
             else:
                 api.GetShapingConeSoftnessAttr().Set(value)
     # The point light aims down at the floor (its axis is local -Z).
-    from pxr import UsdGeom
-
     UsdGeom.Xformable(stage.GetPrimAtPath("/World/Point")).AddRotateXOp().Set(-90.0)
     stage.GetRootLayer().Save()
 
@@ -59,15 +58,6 @@ def _pair(stage, max_depth, spp, **opt):
     fast = render(str(stage), RenderOptions(seed=1, **common))
     slow = render(str(stage), RenderOptions(seed=8, fast_path=False, **common))
     return fast, slow
-
-
-def _check(fast, slow):
-    assert fast.stats["fast_path"] == "on", fast.stats["fast_path"]
-    assert slow.stats["fast_path"].startswith("disabled")
-    z, zs = _block_z(fast, slow)
-    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
-    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
-    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
 
 
 @pytest.mark.parametrize("opt", [
@@ -85,29 +75,37 @@ def test_shaped_lights_on_the_compiled_path_match_the_general_path(tmp_path, opt
     _check(fast, slow)
 
 
-def test_the_shaping_comparison_detects_a_missing_factor(tmp_path, monkeypatch):
-    """The tests above can fail: with the kernel's shaping factor dropped, the compiled route
-    lights the room as if the cones were not there."""
+def _detect(monkeypatch, stage, edit, what):
+    """A defect edit(fast_path) made to the compiled route after it is built must show in the
+    z-test against the general path (the tests that compare the two can fail)."""
     from renderer.integrators import fast_path as fp_mod
 
+    orig = fp_mod.FastPath.__init__
+
+    def broken(self, integ):
+        orig(self, integ)
+        lux = self.lux
+        edit(self)
+        self.tables = tuple(self.lux if t is lux else t for t in self.tables)
+
+    monkeypatch.setattr(fp_mod.FastPath, "__init__", broken)
+    fast, slow = _pair(stage, 3, 64, estimator={"": "mis"})
+    assert fast.stats["fast_path"] == "on"
+    z, _ = _block_z(fast, slow)
+    assert abs(z) > Z_MAX, f"{what} went unseen (z = {z:.2f})"
+
+
+def test_the_shaping_comparison_detects_a_missing_factor(tmp_path, monkeypatch):
+    """With the kernel's shaping factor dropped, the compiled route lights the room as if the
+    cones were not there."""
     stage = tmp_path / "room.usda"
     _room(stage, more_kinds=True)
     _shape(stage)
-    fast0, slow = _pair(stage, 3, 64, estimator={"": "mis"})
-    orig = fp_mod.FastPath.__init__
 
-    def unshaped(self, integ):
-        orig(self, integ)
-        lux = (np.full_like(self.lux[0], -1),) + tuple(self.lux[1:])
-        self.tables = tuple(lux if t is self.lux else t for t in self.tables)
+    def unshaped(fp):
+        fp.lux = (np.full_like(fp.lux[0], -1),) + tuple(fp.lux[1:])
 
-    monkeypatch.setattr(fp_mod.FastPath, "__init__", unshaped)
-    fast = render(str(stage), RenderOptions(seed=1, max_depth=3, rr_depth=1, threads=1, spp=64,
-                                            pixel_filter_mode="importance", estimator={"": "mis"}))
-    assert fast0.stats["fast_path"] == "on"
-    _check(fast0, slow)
-    z, _ = _block_z(fast, slow)
-    assert abs(z) > Z_MAX, f"an unshaped kernel went unseen (z = {z:.2f})"
+    _detect(monkeypatch, stage, unshaped, "an unshaped kernel")
 
 
 @pytest.mark.parametrize("stage", ["stages/shaping/spotlights.usda"])
@@ -150,24 +148,15 @@ def test_light_linking_on_the_compiled_path_matches_the_general_path(tmp_path, o
 
 
 def test_the_linking_comparison_detects_ignored_links(tmp_path, monkeypatch):
-    """The test above can fail: a kernel that ignores lightLink lights the excluded meshes."""
-    from renderer.integrators import fast_path as fp_mod
-
+    """A kernel that ignores lightLink lights the excluded meshes."""
     stage = tmp_path / "room.usda"
     _room(stage, more_kinds=True)
     _link(stage, light_link=LINKS["light_link"])
-    orig = fp_mod.FastPath.__init__
 
-    def unlinked(self, integ):
-        orig(self, integ)
-        lux = tuple(self.lux[:3]) + (np.zeros((0, 0), dtype=bool),) + tuple(self.lux[4:])
-        self.tables = tuple(lux if t is self.lux else t for t in self.tables)
+    def unlinked(fp):
+        fp.lux = tuple(fp.lux[:3]) + (np.zeros((0, 0), dtype=bool),) + tuple(fp.lux[4:])
 
-    monkeypatch.setattr(fp_mod.FastPath, "__init__", unlinked)
-    fast, slow = _pair(stage, 3, 64, estimator={"": "mis"})
-    assert fast.stats["fast_path"] == "on"
-    z, _ = _block_z(fast, slow)
-    assert abs(z) > Z_MAX, f"ignored light links went unseen (z = {z:.2f})"
+    _detect(monkeypatch, stage, unlinked, "ignored light links")
 
 
 def _shadow_api(path, settings):
@@ -217,23 +206,15 @@ def test_disabled_shadows_trace_no_shadow_ray(tmp_path):
 
 
 def test_the_shadow_comparison_detects_black_shadows(tmp_path, monkeypatch):
-    """The tests above can fail: dropping the shadow colour (black shadows) is seen."""
-    from renderer.integrators import fast_path as fp_mod
-
+    """Dropping the shadow colour (black shadows) is seen."""
     stage = tmp_path / "room.usda"
     _room(stage, more_kinds=True)
     _shadow_api(stage, {k: {"color": (0.9, 0.9, 0.9)} for k in ("Big", "Sheared", "Bulb", "Disk")})
-    orig = fp_mod.FastPath.__init__
 
-    def black(self, integ):
-        orig(self, integ)
-        self.shadow_tint = np.zeros_like(self.shadow_tint)
+    def black(fp):
+        fp.shadow_tint = np.zeros_like(fp.shadow_tint)
 
-    monkeypatch.setattr(fp_mod.FastPath, "__init__", black)
-    fast, slow = _pair(stage, 3, 64, estimator={"": "mis"})
-    assert fast.stats["fast_path"] == "on"
-    z, _ = _block_z(fast, slow)
-    assert abs(z) > Z_MAX, f"black shadows went unseen (z = {z:.2f})"
+    _detect(monkeypatch, stage, black, "black shadows")
 
 
 def test_shadows_stage_on_the_compiled_path():
