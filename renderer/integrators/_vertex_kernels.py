@@ -55,7 +55,7 @@ from renderer.bsdfs._preview_kernels import (
     _diffuse_constant, _lookup_weights, _mis_weight, _p_diffuse, _sample_dir, _specular,
 )
 from renderer.estimators import compiled as ec
-from renderer.kernels.direct import diffuse_combine_row
+from renderer.kernels.direct import diffuse_combine_row, shadowed_row
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
@@ -1136,11 +1136,11 @@ def resolve_groups_visible_kernel(L, g_int, g_f, sh_x, sh_cov, v):
 def add_visible_kernel(L, sh_path, sh_c, v, tint):
     """L[sh_path[i]] += sh_c[i] (v[i] + (1 - v[i]) tint[i]) (repeated paths accumulate): each
     shadow ray's contribution at its visibility v (k,) in [0, 1], the shadowed fraction showing
-    the light's ShadowAPI shadow:color tint (k, 3) (0: black shadows; estimators.base.tint_shadows)."""
+    the light's ShadowAPI shadow:color tint (k, 3) (0: black shadows; kernels/direct.shadowed_row)."""
     for i in range(sh_path.shape[0]):
         r = sh_path[i]
         for c in range(3):
-            L[r, c] += sh_c[i, c] * (v[i] + (1.0 - v[i]) * tint[i, c])
+            L[r, c] += sh_c[i, c] * shadowed_row(v[i], tint[i, c])
 
 
 @njit(cache=True, nogil=True)
