@@ -19,7 +19,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from ..geometry import dot, offset_origin, to_local, to_world
-from ..kernels.direct import split_kernel
+from ..kernels.direct import split_kernel, tint_rows_kernel
 from ..lights.base import ShadingContext
 from ..sampling import balance_heuristic, power_heuristic, safe_div
 
@@ -226,12 +226,8 @@ def tint_shadows(tint: np.ndarray, light: np.ndarray, idx: np.ndarray, v: np.nda
     has = np.any(c != 0.0, axis=1)
     if not np.any(has):
         return
-    k = idx[has]
-    vk = v[k][:, None]
-    t = vk + (1.0 - vk) * c[has]
-    fd[k] *= t
-    fs[k] *= t
-    v[k] = 1.0
+    k = np.ascontiguousarray(idx[has], dtype=np.int64)
+    tint_rows_kernel(k, v, np.ascontiguousarray(c[has], dtype=np.float64), fd, fs)
 
 
 def split_integrand(bsdf, wo_l, wi_l, weight, lights, light, control, with_pdf=True):

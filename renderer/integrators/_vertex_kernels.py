@@ -35,10 +35,10 @@ The maths is not restated here: it calls the per-row helpers of the surface inte
 on-disk cache is keyed on this file only, so ``guard_cache`` (renderer/kernels/__init__.py) flushes
 this file's cache whenever any of the files it inlines from changes.
 
-Shapes: n live rays; S (n, 17) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
+Shapes: n live rays; S (n, NS) float64 per-ray state, columns ``B`` (beta), ``O`` (origin),
 ``D`` (unit direction), ``TMAX``, ``PP`` (the previous vertex's point, for the light pdf of
-continuation MIS), ``PB`` (the BSDF pdf of d there) and ``PN`` (its shading normal, for the
-light BVH's pmf replay). A block's uniforms UB (4 + 2 lights or 4 + 3,
+continuation MIS), ``PB`` (the BSDF pdf of d there), ``PN`` (its shading normal, for the
+light BVH's pmf replay) and ``PM`` (its mesh, for light linking). A block's uniforms UB (4 + 2 lights or 4 + 3,
 BLK) come from a counter-based generator inside the kernel (_uniform_pass), batch axis last (the
 rect and sphere lights' batch samplers need unit stride along the batch); columns ``U_*``.
 """
@@ -55,11 +55,12 @@ from renderer.bsdfs._preview_kernels import (
     _diffuse_constant, _lookup_weights, _mis_weight, _p_diffuse, _sample_dir, _specular,
 )
 from renderer.estimators import compiled as ec
-from renderer.kernels.direct import diffuse_combine_row
+from renderer.kernels.direct import diffuse_combine_row, shadowed_row
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
+from renderer.kernels.shaping import shaping_factor_row
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
@@ -76,7 +77,8 @@ TMAX = 9
 PP = 10
 PB = 13
 PN = 14
-NS = 17
+PM = 17
+NS = 18
 # Uniform columns: lobe choice, direction (2), roulette, then (2 per light) light samples, or
 # with a lighting service that picks (uniform, power, bvh), the pick's u and one light sample.
 U_LOBE = 0
@@ -419,7 +421,8 @@ LP_AREA = 30
 LP_FLAG = 31  # rect is_rect, sphere and distant delta
 LP_TEX = 32  # dome image, -1 for a constant dome
 LP_J = 33  # the row in the light's kind table
-NLP = 34
+LP_SHAPE = 34  # the light's row in the ShapingAPI table (lights/shaping.py), -1 when unshaped
+NLP = 35
 
 
 @njit(cache=True, nogil=True)
@@ -475,7 +478,20 @@ def _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is
             LP[g, LP_FLAG] = 1.0 if (i_delta[j] and not i_dome[j]) else 0.0
             LP[g, LP_TEX] = i_tex[j]
         LP[g, LP_J] = j
+        LP[g, LP_SHAPE] = -1.0
     return LP
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _shaped(LP, g, SHP, d, Le):
+    """Le (3-tuple) of light g seen along unit d (receiver -> light) times the light's ShapingAPI
+    factor toward the emission direction -d (kernels/shaping.shaping_factor_row, the general
+    path's formula); Le itself for an unshaped light. SHP: ShapingTable.kernel_record()."""
+    j = int(LP[g, LP_SHAPE])
+    if j < 0:
+        return Le
+    f0, f1, f2 = shaping_factor_row(j, -d[0], -d[1], -d[2], *SHP)
+    return (Le[0] * f0, Le[1] * f1, Le[2] * f2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -640,15 +656,16 @@ def _record(smp, i, wi, dist, p_l, p_b, fd, fs, usable):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
+def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs, SHP):
     """Light g's N light samples into ls and N BSDF samples into bs (those its estimator needs)
     at the vertex V, as estimators.base.light_samples and bsdf_samples draw them: uniforms
-    splitmix_u01(key, ctr + 1 ...), five per sample."""
+    splitmix_u01(key, ctr + 1 ...), five per sample. SHP: the ShapingAPI record (_shaped)."""
     p, ng, sf, tf, ns, wo, ao, bo, p_d, eps, m = V
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
         wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
                                                  IMG, lcon[0], lcon[1], lcon[2])
+        Le = _shaped(LP, g, SHP, wi, Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le)
         above = lz > 0.0 and cos_g > 0.0
         if not above:
@@ -667,6 +684,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
         # Lights are intersected from p itself (estimators.base.bsdf_samples).
         t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
+        Le = _shaped(LP, g, SHP, (wx, wy, wz), Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le)
         hit = p_b > 0.0 and cos_g > 0.0 and wl[2] > 0.0 and (Le[0] > 0.0 or Le[1] > 0.0 or Le[2] > 0.0)
         if not hit:
@@ -677,20 +695,20 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH, GR, k_sh,
-                 k_grp, scratch):
+                 k_grp, scratch, SHP):
     """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
     estimator (token index tok, α index alpha, N samples, heuristic power_g; exact, E: whether
     its F = c(wo) E is exact and E (3-tuple)): the samples (_draw_pair), the estimator's
     coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:] (sh_o, sh_d, sh_t,
-    sh_path, sh_c, sh_x, sh_cov: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
-    and covered flag) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
+    sh_path, sh_c, sh_x, sh_cov, sh_l: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
+    and covered flag, sh_l the light g) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
     rays, N, mode), g_f (F, beta)), which resolve_groups_kernel adds once the rays are traced.
-    Returns the new (k_sh, k_grp)."""
+    Returns the new (k_sh, k_grp). SHP: the ShapingAPI record (_shaped)."""
     ls, bs, cl, cb = scratch
     need_l, need_b = ec.needs(tok)
-    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs)
+    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs, SHP)
     mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
-    sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov = SH
+    sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov, sh_l = SH
     p, ng, eps = V[0], V[1], V[9]
     first = k_sh
     for half in range(2):
@@ -711,6 +729,7 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key,
                 sh_x[k_sh, c] = co[i, ec.C_X + c] if cov > 0.0 else 0.0
             sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
             sh_path[k_sh] = pr_path
+            sh_l[k_sh] = g
             sh_c[k_sh, 0] = c0
             sh_c[k_sh, 1] = c1
             sh_c[k_sh, 2] = c2
@@ -743,7 +762,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -768,13 +787,18 @@ def vertex_kernel(
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
     its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
     light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
-    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables). L (m, 3)
+    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); lux: the UsdLux
+    record (FastPath.lux: each global light's ShapingAPI row, -1 unshaped, and
+    ShapingTable.kernel_record(); lightLink: each triangle's mesh (T,) int64 and illum (lights,
+    meshes) bool, or (0, 0) without light linking). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
     being the radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]:
     how many vertices scattered (took the light half); counts[3]: how many estimator groups (below);
     counts[4 + l] (zero on entry) gains the (vertex, light l) pairs this bounce estimated.
+    est_out[4] (capacity as sh_path) receives each shadow ray's light (kernel order), for its
+    shadowLink BVH and ShadowAPI settings (FastPath._visibility).
 
     est, est_out: the per-light estimators' records (FastPath._estimators). Lights on continuation
     MIS at this bounce's vertices (est[3]) take the light half above; every other light takes its
@@ -830,13 +854,22 @@ def vertex_kernel(
     lcon = (close_ratio, min_sa, graz)
     # The global index of each light in the kernel's order.
     glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
+    # ShapingAPI: each light's shaping row in LP, the factor's tables in SHP (_shaped).
+    shp_row = lux[0]
+    SHP = lux[1]
+    # lightLink: each triangle's mesh and illum[light, mesh] (empty: every light lights everything).
+    tri_mesh = lux[2]
+    illum = lux[3]
+    linked = illum.shape[0] > 0
+    for g in range(nl):
+        LP[g, LP_SHAPE] = shp_row[glob[g]]
     # The per-light estimators (FastPath.trace's record): token, alpha and N per light at this
     # bounce's vertices; whether each light is on continuation MIS there (cont) and was at the
     # vertex the rays left (cont_prev); F's irradiance E (n, lights, 3) and its exactness; the
     # key of their uniforms. Outputs: each shadow ray's X and covered flag, and the groups.
     e_tok, e_alpha, e_N, cont, cont_prev, e_E, e_exact, e_key = est
-    sh_x, sh_cov, g_int, g_f = est_out
-    SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov)
+    sh_x, sh_cov, g_int, g_f, sh_l = est_out
+    SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov, sh_l)
     GR = (g_int, g_f)
     n_max = max(1, e_N.max()) if nl else 1
     scratch = (np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NC)),
@@ -894,12 +927,16 @@ def vertex_kernel(
             for c_ in range(n_c):
                 g = fast_of[found[c_]] if picks else g0 + c_
                 gl = glob[g]
-                # A light whose estimator covered it at the vertex the ray left adds nothing here.
+                # A light whose estimator covered it at the vertex the ray left adds nothing here,
+                # nor one that does not illuminate that vertex's mesh (lightLink).
                 if not (unsampled[r] or cont_prev[gl]):
+                    continue
+                if linked and not unsampled[r] and not illum[gl, int(S[r, PM])]:
                     continue
                 tl, Le, seen = _finite_seen(LP, g, o, d)
                 if not (seen and tl < t_geo):
                     continue
+                Le = _shaped(LP, g, SHP, d, Le)
                 if unsampled[r]:
                     w = 1.0
                 else:
@@ -917,6 +954,8 @@ def vertex_kernel(
                 for q in range(n_fin, nl):
                     gl = glob[q]
                     if not (unsampled[r] or cont_prev[gl]):
+                        continue
+                    if linked and not unsampled[r] and not illum[gl, int(S[r, PM])]:
                         continue
                     p_l, Le = _infinite_seen(LP, q, d, IMG)
                     if Le[0] == 0.0 and Le[1] == 0.0 and Le[2] == 0.0:
@@ -960,6 +999,8 @@ def vertex_kernel(
                     gl = glob[g]
                     u0 = UB[U_LIGHT + 2 * gl, i]
                     u1 = UB[U_LIGHT + 2 * gl + 1, i]
+                if linked and not illum[gl, tri_mesh[k]]:
+                    continue  # lightLink: the light does not illuminate this mesh
                 counts[4 + gl] += 1
                 if not cont[gl]:
                     # Not on continuation MIS at this vertex: the light's own estimator.
@@ -971,7 +1012,7 @@ def vertex_kernel(
                     k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], exact, E, V, Pm,
                                                (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
                                                np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
-                                               scratch)
+                                               scratch, SHP)
                     continue
                 if g < n_batch:
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
@@ -983,11 +1024,17 @@ def vertex_kernel(
                     c0 = C[g, 0 * BLK + i]
                     c1 = C[g, 1 * BLK + i]
                     c2 = C[g, 2 * BLK + i]
+                    if LP[g, LP_SHAPE] >= 0.0:
+                        # ShapingAPI: the contribution is linear in the sample's radiance.
+                        c0, c1, c2 = _shaped(LP, g, SHP, wi, (c0, c1, c2))
+                        if not (c0 > 0.0 or c1 > 0.0 or c2 > 0.0):
+                            continue
                 else:
                     wi, dist, pdf_l, Le, delta = _light_sample(LP, g, (px, py, pz), u0, u1, IMG, close_ratio, min_sa,
                                                                graz)
                     if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
                         continue
+                    Le = _shaped(LP, g, SHP, wi, Le)
                     # Divided by the pick's pmf: a delta light's weight is 1 (its radiance is
                     # divided), the others' h(pmf p_l, p_b) / (pmf p_l).
                     if delta:
@@ -1010,6 +1057,7 @@ def vertex_kernel(
                 # Infinite lights: embree's far limit, as Accel gives inf.
                 sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
                 sh_path[k_sh] = pr_path
+                sh_l[k_sh] = g
                 sh_c[k_sh, 0] = c0
                 sh_c[k_sh, 1] = c1
                 sh_c[k_sh, 2] = c2
@@ -1029,6 +1077,7 @@ def vertex_kernel(
                 n_o32[k_next, c] = n_S[k_next, O + c]
                 n_d32[k_next, c] = n_S[k_next, D + c]
             n_S[k_next, TMAX] = math.inf
+            n_S[k_next, PM] = tri_mesh[k] if linked else 0.0
             n_S[k_next, PB] = W[W_PDFB * BLK + i]
             n_t32[k_next] = 1e37
             k_next += 1
@@ -1054,6 +1103,7 @@ def start_kernel(o, d, tmax, S, o32, d32, t32):
             d32[r, c] = d[r, c]
         S[r, TMAX] = tmax[r]
         S[r, PB] = 0.0
+        S[r, PM] = 0.0
         t32[r] = min(tmax[r], 1e37)
 
 
@@ -1066,6 +1116,13 @@ def resolve_groups_kernel(L, g_int, g_f, sh_x, sh_cov, blocked):
     v = np.empty(blocked.shape[0])
     for i in range(v.shape[0]):
         v[i] = 0.0 if blocked[i] else 1.0
+    resolve_groups_visible_kernel(L, g_int, g_f, sh_x, sh_cov, v)
+
+
+@njit(cache=True, nogil=True)
+def resolve_groups_visible_kernel(L, g_int, g_f, sh_x, sh_cov, v):
+    """resolve_groups_kernel given each ray's visibility v (k,) in [0, 1] (ShadowAPI's falloff
+    makes it fractional, integrators/shadow_api.py)."""
     for k in range(g_int.shape[0]):
         first = g_int[k, 1]
         e = diffuse_combine_row(g_f[k, 0], g_f[k, 1], g_f[k, 2], sh_x, v, sh_cov, first, first + g_int[k, 2],
@@ -1073,6 +1130,17 @@ def resolve_groups_kernel(L, g_int, g_f, sh_x, sh_cov, blocked):
         r = g_int[k, 0]
         for c in range(3):
             L[r, c] += g_f[k, 3 + c] * e[c]
+
+
+@njit(cache=True, nogil=True)
+def add_visible_kernel(L, sh_path, sh_c, v, tint):
+    """L[sh_path[i]] += sh_c[i] (v[i] + (1 - v[i]) tint[i]) (repeated paths accumulate): each
+    shadow ray's contribution at its visibility v (k,) in [0, 1], the shadowed fraction showing
+    the light's ShadowAPI shadow:color tint (k, 3) (0: black shadows; kernels/direct.shadowed_row)."""
+    for i in range(sh_path.shape[0]):
+        r = sh_path[i]
+        for c in range(3):
+            L[r, c] += sh_c[i, c] * shadowed_row(v[i], tint[i, c])
 
 
 @njit(cache=True, nogil=True)
@@ -1090,4 +1158,4 @@ guard_cache(__name__, module_dispatchers(globals()),
             ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/kernels/direct.py",
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
-             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py"])
+             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py"])

@@ -8,8 +8,15 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
-  and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
-  light linking, with unit diffuse/specular multipliers, under any lighting service: exhaustive
+  and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
+  multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
+  general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
+  does not illuminate, and a continuation ray that left such a vertex adds none of its emission;
+  shadowLink: the light's shadow rays are traced against its own BVH, scene.shadow_accels, by
+  _visibility), and ShadowAPI (lights with shadow:enable off, a shadow distance or falloff get
+  their own shadow group like a shadowLink, traced by shadow_api.visibility, and the blocked
+  fraction of a shadow:color light's ray shows the colour: _vertex_kernels.add_visible_kernel),
+  with unit diffuse/specular multipliers, under any lighting service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
   (renderer/kernels/light_pick.py: one pick per vertex, and the pmf replayed at the previous
   vertex for the MIS weight of a light the continuation ray reaches, as the general path's
@@ -57,6 +64,7 @@ from ..geometry import dot, offset_origin, surface_interaction
 from ..lights.base import ShadingContext
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
+from ..lights.shaping import empty_kernel_record
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from . import _cutout_kernels as ck
 from . import _vertex_kernels as vk
@@ -84,13 +92,9 @@ def fast_path_reason(integ) -> str:
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
-    if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
-        return "ShapingAPI, ShadowAPI or light linking"
-    plain = ((lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
-             & getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
-             & getattr(lights, "transparent", np.ones(lights.count, dtype=bool)))
+    plain = (lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
     if not np.all(plain):
-        return "a light with a diffuse or specular multiplier or a ShadowAPI shadow"
+        return "a light with a diffuse or specular multiplier"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if opt.max_depth <= 1:
@@ -172,6 +176,23 @@ class FastPath:
         fast_of = np.full(lights.count, -1, dtype=np.int64)
         order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
         fast_of[order] = np.arange(order.size)
+        # The UsdLux record (vertex_kernel's lux): ShapingAPI, each global light's row in the
+        # shaping table (-1: unshaped) and the table's kernel arrays (lights/shaping.py).
+        # lightLink: each triangle's mesh and illuminates[light, mesh] ((0, 0): no linking).
+        sh = lights.shaping
+        self.lux = (np.ascontiguousarray(sh.row_of[:lights.count] if sh is not None else np.full(lights.count, -1),
+                                         dtype=np.int64),
+                    sh.kernel_record() if sh is not None else empty_kernel_record(),
+                    np.ascontiguousarray(g.mesh, dtype=np.int64),
+                    np.ascontiguousarray(scene.illuminates if scene.illuminates is not None
+                                         else np.zeros((0, 0), dtype=bool)))
+        # Shadow rays of lights with a shadowLink or ShadowAPI settings (scene.shadow_group >= 0)
+        # or a shadow colour are traced by _visibility; the others as before (_blocked).
+        self.order = order
+        self.shadow_group = (scene.shadow_group if scene.shadow_group is not None
+                             else np.full(lights.count, -1, dtype=np.int64))
+        self.shadow_tint = lights.shadow_tint
+        self.lux_shadows = scene.shadow_group is not None or lights.shadow_tint is not None
         rl, sl, dl = self.rect, self.sphere, self.disk
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
@@ -186,7 +207,8 @@ class FastPath:
             rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
-            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp)
+            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
+            self.lux)
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
@@ -259,13 +281,21 @@ class FastPath:
             integ.rule_counts["alpha_one_fallback"] += int(per_light[cv_tok & (self.est_alpha != one)
                                                                      & (est[2] < 2)].sum())
             blocked = np.zeros(0, dtype=bool)
-            if k_sh:
+            v = np.zeros(0)
+            traced = k_sh
+            if k_sh and self.lux_shadows:
+                v, tint, traced = self._visibility(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], est_out[4][:k_sh], rng)
+                vk.add_visible_kernel(L, sh_path[:k_sh], sh_c[:k_sh], v, tint)
+            elif k_sh:
                 blocked = self._blocked(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], rng)
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
             if k_grp:
-                sh_x, sh_cov, g_int, g_f = est_out
-                vk.resolve_groups_kernel(L, g_int[:k_grp], g_f[:k_grp], sh_x[:k_sh], sh_cov[:k_sh], blocked)
-            integ.rays.add(shadow=k_sh, extension=k_next)
+                sh_x, sh_cov, g_int, g_f = est_out[:4]
+                if self.lux_shadows:
+                    vk.resolve_groups_visible_kernel(L, g_int[:k_grp], g_f[:k_grp], sh_x[:k_sh], sh_cov[:k_sh], v)
+                else:
+                    vk.resolve_groups_kernel(L, g_int[:k_grp], g_f[:k_grp], sh_x[:k_sh], sh_cov[:k_sh], blocked)
+            integ.rays.add(shadow=traced, extension=k_next)
             path, depth, S = n_path[:k_next], n_depth[:k_next], n_S[:k_next]
             o32, d32, t32 = n_o32[:k_next], n_d32[:k_next], n_t32[:k_next]
             unsampled = np.zeros(k_next, dtype=bool)
@@ -277,7 +307,8 @@ class FastPath:
         ``bounce`` (every row of a fast-path bounce has): est (tokens, alphas, N per light, on
         continuation MIS here, was at the vertex the rays left, E (n, lights, 3), exact (n,
         lights), the uniforms' key), est_out (each shadow ray's X (cap n, 3) and covered flag,
-        the groups' (g, 5) int64 and (g, 6) records), and cap: shadow rays per row at most.
+        the groups' (g, 5) int64 and (g, 6) records, each shadow ray's light (cap n,) int64 in
+        the kernel's order), and cap: shadow rays per row at most.
         surf: the kernel's surface record (its bent shading normals, about which F is taken)."""
         integ = self.integ
         nl = integ.lights.count
@@ -309,7 +340,7 @@ class FastPath:
         est = (self.est_tok, self.est_alpha, np.ascontiguousarray(N, dtype=np.int64), np.ascontiguousarray(cont),
                np.ascontiguousarray(cont_prev), E, exact, np.uint64(key2))
         est_out = (np.empty((n * cap, 3)), np.empty(n * cap), np.empty((n_groups, 5), dtype=np.int64),
-                   np.empty((n_groups, 6)))
+                   np.empty((n_groups, 6)), np.empty(n * cap, dtype=np.int64))
         return est, est_out, cap
 
     def _surfaces(self, prim, b1, b2, S):
@@ -398,6 +429,32 @@ class FastPath:
             prim[rows], b1[rows], b2[rows] = hp, hu, hv
             t32[rows] = (t0 + t_far).astype(np.float32)
             rows = rows[hp >= 0]
+
+    def _visibility(self, sh_o, sh_d, sh_t, sh_l, rng):
+        """(v (k,) float in [0, 1], tint (k, 3), plain rays traced) for the shadow rays sh_o, sh_d
+        (k, 3), sh_t (k,) float32 of the lights sh_l (k,) (kernel order): each light's shadowLink
+        BVH and ShadowAPI settings (scene.shadow_group, PathIntegrator.visible_from: what the
+        general path's _visible does for them), the plain rays as _blocked; tint each ray's
+        light's shadow:color (0: black shadows)."""
+        integ = self.integ
+        scene = integ.scene
+        light = self.order[sh_l]
+        grp = self.shadow_group[light]
+        v = np.empty(sh_l.shape[0])
+        plain = np.nonzero(grp < 0)[0]
+        traced = plain.size
+        if plain.size:
+            v[plain] = ~self._blocked(sh_o[plain], sh_d[plain], sh_t[plain], rng)
+        if traced < v.size:
+            o, d, t = (a.astype(np.float64) for a in (sh_o, sh_d, sh_t))
+            for g in np.unique(grp[grp >= 0]):
+                rows = np.nonzero(grp == g)[0]
+                params = scene.shadow_params[g] if scene.shadow_params else None
+                # (visible_from counts these rays itself.)
+                v[rows] = integ.visible_from(o[rows], d[rows], t[rows], scene.shadow_accels[g], params, rng)
+        tint = (np.ascontiguousarray(self.shadow_tint[light], dtype=np.float64) if self.shadow_tint is not None
+                else np.zeros((v.size, 3)))
+        return v, tint, traced
 
     def _blocked(self, sh_o, sh_d, sh_t, rng) -> np.ndarray:
         """(k,) bool, True where the shadow rays sh_o, sh_d (k, 3), sh_t (k,) float32 (as the

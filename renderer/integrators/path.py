@@ -716,11 +716,18 @@ class PathIntegrator:
         o = offset_origin(p, ng, wi, eps)
         # Stop short of the light's surface by a relative margin and the origin offset.
         t_max = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - eps, np.inf)
+        return self.visible_from(o, wi, t_max, accel, shadow, rng)
+
+    def visible_from(self, o, wi, t_max, accel=None, shadow=None, rng=None) -> np.ndarray:
+        """_visible for shadow rays whose origins o (m, 3) are offset already and whose far
+        limits t_max (m,) stop short of the light: (m,) bool, or float with ``shadow``; counted
+        in rays.shadow (ShadowAPI's disabled shadows trace none). The fast path's shadow rays of
+        lights with a shadowLink or ShadowAPI settings go through here too (fast_path.py)."""
         if shadow is not None:
             v, traced = shadow_visibility(accel or self.scene.accel, o, wi, t_max, shadow)
             self.rays.add(shadow=traced)
             return v
-        self.rays.add(shadow=p.shape[0])
+        self.rays.add(shadow=o.shape[0])
         if self.scene.materials.has_cutout:
             return self._visible_through_cutouts(o, wi, t_max, rng, accel)
         return ~(accel or self.scene.accel).occluded(o, wi, t_max)

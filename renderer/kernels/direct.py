@@ -27,6 +27,28 @@ def split_kernel(f_all, f_d, control, wo_z, wi_z, sd, ss, weight, out_g, out_res
             out_res[r, k] = ((f_d[r, k] - g) * sd[r] + (f_all[r, k] - f_d[r, k]) * ss[r]) * w
 
 
+@njit(cache=True, nogil=True)
+def shadowed_row(v, c):
+    """UsdLux ShadowAPI shadow:color: what one channel of shadow colour c sees of a sample of
+    visibility v in [0, 1], the shadowed fraction 1 - v showing c: v + (1 - v) c. The one formula
+    of both routes (tint_rows_kernel for the general path's estimators, the fast path's
+    _vertex_kernels.add_visible_kernel)."""
+    return v + (1.0 - v) * c
+
+
+@njit(cache=True, nogil=True)
+def tint_rows_kernel(k, v, c, fd, fs):
+    """estimators.base.tint_shadows' arithmetic: for the rows k (m,) with shadow colours c
+    (m, 3), fd[k] and fs[k] ((rows, 3)) *= shadowed_row(v[k], c) per channel, then v[k] = 1."""
+    for i in range(k.shape[0]):
+        r = k[i]
+        for ch in range(3):
+            t = shadowed_row(v[r], c[i, ch])
+            fd[r, ch] *= t
+            fs[r, ch] *= t
+        v[r] = 1.0
+
+
 # The diffuse-lobe combinations of the control variate and the ratio estimator, one per
 # estimator mode: the control variate's α in ALPHAS order (estimators/__init__.py), then ratio.
 CV_ONE = 0

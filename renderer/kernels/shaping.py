@@ -61,6 +61,65 @@ def _ies_eval(p, theta, phi, v_all, v_off, h_all, h_off, c_all, c_off):
     return a * (1.0 - t) + b * t
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def shaping_factor_row(j, e0, e1, e2, to_local, focus, tint, theta_cut, theta_soft, ies_of, angle_scale, ies_scale,
+                       v_all, v_off, h_all, h_off, c_all, c_off):
+    """The factor (f0, f1, f2) of shaping row j toward the world emission direction (e0, e1, e2)
+    (light -> receiver; any length, 0 for a zero vector): focus, cone and IES (module docstring
+    of renderer/lights/shaping.py). The one formula every caller uses: shaping_apply_kernel
+    (the general path) and the fast path's vertex kernel (renderer/integrators/_vertex_kernels.py)."""
+    x = to_local[j, 0, 0] * e0 + to_local[j, 0, 1] * e1 + to_local[j, 0, 2] * e2
+    y = to_local[j, 1, 0] * e0 + to_local[j, 1, 1] * e1 + to_local[j, 1, 2] * e2
+    z = to_local[j, 2, 0] * e0 + to_local[j, 2, 1] * e1 + to_local[j, 2, 2] * e2
+    length = math.sqrt(x * x + y * y + z * z)
+    if not length > 0.0:
+        return 0.0, 0.0, 0.0
+    x /= length
+    y /= length
+    z /= length
+    cos_off = min(max(-z, -1.0), 1.0)
+    theta = math.atan2(math.hypot(x, y), -z)
+    f0 = 1.0
+    f1 = 1.0
+    f2 = 1.0
+    fo = focus[j]
+    if fo > 0.0:
+        ff = abs(cos_off) ** fo
+        f0 *= tint[j, 0] + ff * (1.0 - tint[j, 0])
+        f1 *= tint[j, 1] + ff * (1.0 - tint[j, 1])
+        f2 *= tint[j, 2] + ff * (1.0 - tint[j, 2])
+    soft = theta_soft[j]
+    if soft < _PI:
+        cut = theta_cut[j]
+        width = cut - soft
+        if width <= 0.0:
+            w = 0.0 if theta > soft else 1.0
+        else:
+            t = min(max((theta - soft) / width, 0.0), 1.0)
+            w = 1.0 - t * t * (3.0 - 2.0 * t)
+        f0 *= w
+        f1 *= w
+        f2 *= w
+    p = ies_of[j]
+    if p >= 0:
+        s = angle_scale[j]
+        if s > 0.0:
+            ti = theta / s
+        elif s < 0.0:
+            ti = (theta - _PI) / -s + _PI
+        else:
+            ti = theta
+        ti = min(max(ti, 0.0), _PI)
+        phi = math.atan2(-y, -x)
+        if phi < 0.0:
+            phi += _TWO_PI
+        val = _ies_eval(p, ti, phi, v_all, v_off, h_all, h_off, c_all, c_off) * ies_scale[j]
+        f0 *= val
+        f1 *= val
+        f2 *= val
+    return f0, f1, f2
+
+
 @njit(cache=True, nogil=True)
 def shaping_apply_kernel(light, e, L, row_of, to_local, focus, tint, theta_cut, theta_soft, ies_of, angle_scale,
                          ies_scale, v_all, v_off, h_all, h_off, c_all, c_off):
@@ -70,59 +129,8 @@ def shaping_apply_kernel(light, e, L, row_of, to_local, focus, tint, theta_cut, 
         j = row_of[light[r]]
         if j < 0:
             continue
-        e0, e1, e2 = e[r, 0], e[r, 1], e[r, 2]
-        x = to_local[j, 0, 0] * e0 + to_local[j, 0, 1] * e1 + to_local[j, 0, 2] * e2
-        y = to_local[j, 1, 0] * e0 + to_local[j, 1, 1] * e1 + to_local[j, 1, 2] * e2
-        z = to_local[j, 2, 0] * e0 + to_local[j, 2, 1] * e1 + to_local[j, 2, 2] * e2
-        length = math.sqrt(x * x + y * y + z * z)
-        if not length > 0.0:
-            L[r, 0] = 0.0
-            L[r, 1] = 0.0
-            L[r, 2] = 0.0
-            continue
-        x /= length
-        y /= length
-        z /= length
-        cos_off = min(max(-z, -1.0), 1.0)
-        theta = math.atan2(math.hypot(x, y), -z)
-        f0 = 1.0
-        f1 = 1.0
-        f2 = 1.0
-        fo = focus[j]
-        if fo > 0.0:
-            ff = abs(cos_off) ** fo
-            f0 *= tint[j, 0] + ff * (1.0 - tint[j, 0])
-            f1 *= tint[j, 1] + ff * (1.0 - tint[j, 1])
-            f2 *= tint[j, 2] + ff * (1.0 - tint[j, 2])
-        soft = theta_soft[j]
-        if soft < _PI:
-            cut = theta_cut[j]
-            width = cut - soft
-            if width <= 0.0:
-                w = 0.0 if theta > soft else 1.0
-            else:
-                t = min(max((theta - soft) / width, 0.0), 1.0)
-                w = 1.0 - t * t * (3.0 - 2.0 * t)
-            f0 *= w
-            f1 *= w
-            f2 *= w
-        p = ies_of[j]
-        if p >= 0:
-            s = angle_scale[j]
-            if s > 0.0:
-                ti = theta / s
-            elif s < 0.0:
-                ti = (theta - _PI) / -s + _PI
-            else:
-                ti = theta
-            ti = min(max(ti, 0.0), _PI)
-            phi = math.atan2(-y, -x)
-            if phi < 0.0:
-                phi += _TWO_PI
-            val = _ies_eval(p, ti, phi, v_all, v_off, h_all, h_off, c_all, c_off) * ies_scale[j]
-            f0 *= val
-            f1 *= val
-            f2 *= val
+        f0, f1, f2 = shaping_factor_row(j, e[r, 0], e[r, 1], e[r, 2], to_local, focus, tint, theta_cut, theta_soft,
+                                        ies_of, angle_scale, ies_scale, v_all, v_off, h_all, h_off, c_all, c_off)
         L[r, 0] *= f0
         L[r, 1] *= f1
         L[r, 2] *= f2

@@ -57,7 +57,7 @@ import numpy as np
 
 from renderer.color import luminance
 
-__all__ = ["ShapingTable", "ies_theta_inverse", "ONE_SIDED_KINDS"]
+__all__ = ["ShapingTable", "empty_kernel_record", "ies_theta_inverse", "ONE_SIDED_KINDS"]
 
 # Kinds that emit only into the hemisphere about local -Z (others: every direction).
 ONE_SIDED_KINDS = ("rect", "disk")
@@ -212,10 +212,16 @@ class ShapingTable:
     def _kernel(self, light, e, L) -> None:
         from renderer.kernels.shaping import shaping_apply_kernel
 
+        shaping_apply_kernel(light, e, L, self.row_of, *self.kernel_record())
+
+    def kernel_record(self) -> tuple:
+        """The arguments of renderer/kernels/shaping.shaping_factor_row after (j, e): the k rows'
+        to_local, focus, tint, theta_cut, theta_soft, ies_of, angle_scale, ies_scale and the flat
+        IES tables (v_all, v_off, h_all, h_off, c_all, c_off)."""
         if not hasattr(self, "_packed"):
             self._pack()
-        shaping_apply_kernel(light, e, L, self.row_of, self.to_local, self.focus, self.tint, self.theta_cut,
-                             self.theta_soft, self.ies_of, self.angle_scale, self.ies_scale, *self._packed)
+        return (self.to_local, self.focus, self.tint, self.theta_cut, self.theta_soft, self.ies_of, self.angle_scale,
+                self.ies_scale, *self._packed)
 
     def _pack(self) -> None:
         """Flat IES tables for the kernel (see renderer/kernels/shaping.py)."""
@@ -342,6 +348,14 @@ class ShapingTable:
         base = luminance(L_rgb)
         shaped = luminance(L_rgb * self.ratio)
         return np.divide(shaped, base, out=np.zeros_like(base), where=base > 0.0)
+
+
+def empty_kernel_record() -> tuple:
+    """ShapingTable.kernel_record for a scene without shaped lights (no rows, the same types)."""
+    f, i = np.float64, np.int64
+    return (np.zeros((0, 3, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0, dtype=i),
+            np.zeros(0), np.zeros(0), np.zeros(2, dtype=f), np.zeros(2, dtype=i), np.zeros(2, dtype=f),
+            np.zeros(2, dtype=i), np.zeros(4, dtype=f), np.zeros(2, dtype=i))
 
 
 def _frame(m3: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
