@@ -472,6 +472,7 @@ class Accel:
             # The mesh object must stay alive as long as the scene uses its buffers.
             self._mesh = TriangleMesh(self._scene, np.ascontiguousarray(tri, dtype=np.float32))
         self.rays_traced = {"intersect": 0, "occluded": 0}
+        self._count_lock = threading.Lock()
 
     def close(self) -> None:
         """Stop the pool and release the Embree scene (once; later calls do nothing). Tracing
@@ -491,6 +492,24 @@ class Accel:
             raise RuntimeError("this Accel traces through embreex: no native Embree scene")
         lib = self._native.lib
         return NativeHandles(self._native.scene, lib.intersect[1], lib.occluded[1])
+
+    def packet_handles(self, width: int) -> tuple[int, int, int]:
+        """(scene, rtcIntersect<W>, rtcOccluded<W>) for kernels that trace packets of ``width``
+        rays (1: single rays) with _intersect_rows / _occluded_rows; valid until close()."""
+        self._check_open()
+        if self._native is None:
+            raise RuntimeError("this Accel traces through embreex: no native Embree scene")
+        if width not in PACKET_WIDTHS:
+            raise ValueError(f"Embree packet width must be one of {PACKET_WIDTHS}, not {width}")
+        lib = self._native.lib
+        return self._native.scene, lib.intersect[width], lib.occluded[width]
+
+    def count_traced(self, intersect: int = 0, occluded: int = 0) -> None:
+        """Add rays a kernel traced through the handles above to ``rays_traced`` (the batch
+        calls count their own)."""
+        with self._count_lock:
+            self.rays_traced["intersect"] += int(intersect)
+            self.rays_traced["occluded"] += int(occluded)
 
     def _check_open(self) -> None:
         if self._closed and self._native is not None:
