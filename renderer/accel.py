@@ -11,7 +11,9 @@ Two routes trace the same BVH build:
   (``embreex.libs/libembree4*.so.4``), called from numba ``nogil`` kernels through the functions'
   addresses. The batch calls trace packets of BATCH_WIDTH rays (rtcIntersect8 / rtcOccluded8);
   kernels elsewhere can trace single rays themselves with ``Accel.native_handles()``,
-  ``set_ray`` and ``rtc_intersect1`` / ``rtc_occluded1``. Same BVH flags as embreex (robust), so
+  ``set_ray`` and ``rtc_intersect1`` / ``rtc_occluded1``, or packets with
+  ``Accel.packet_handles(width)`` and ``_intersect_rows`` / ``_occluded_rows`` (and report what
+  they traced with ``Accel.count_traced``). Same BVH flags as embreex (robust), so
   the hits are identical; bench/bench_embree_native.py measures the routes on every stage
   (bench/results/embree_native/results.md).
 * embreex's batch calls: the fallback when the native library cannot be loaded (one warning).

@@ -41,6 +41,12 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
+Where no bounce needs numpy work (no per-hit surface rows, no F pre-pass: ``kernel_reason``),
+the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
+inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
+so render threads running chunks side by side scale; it makes the Python loop's calls with the
+Python loop's keys, so the image is the same to the bit (tests/integrators/test_fast_path_kernel.py).
+
 One difference in the order of work, not in the estimate: at the last scattering vertex
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
 a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
