@@ -57,11 +57,11 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
     (2, l) samples per light at the first vertex and deeper, cont (3, l) bool on continuation MIS
     for camera rays (all), at the first vertex and deeper, cap (2,) shadow rays per row at most,
     groups (2,) estimator groups per row, cv (l,) bool the control variate's lights, fallback
-    (2, l) bool those falling back to alpha = one). walk: (on, fns, geo, cut, tab, eps): on False
-    for a scene without cut-outs, else _cutout_kernels' record. tally (N_TALLY,) int64: counters
-    T_* added in place."""
+    (2, l) bool those falling back to alpha = one). walk: _cutout_kernels' record (fns, geo, cut,
+    tab, eps; FastPath.walk), or None for a scene without cut-outs (numba prunes the walks' branches
+    then: a plain scene compiles none of their code). tally (N_TALLY,) int64: counters T_* added
+    in place."""
     scene, fn_i, fn_o, width = emb
-    cut_on, fns, geo, cut, tab, eps = walk
     tok, alpha, N_at, cont_at, cap_at, grp_at, cv, fallback = plan
     nl = tok.shape[0]
     m = o.shape[0]
@@ -108,9 +108,10 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
         _intersect_rows(fn_i, scene, width, o32[:n], d32[:n], t32[:n], True, 0, n, t32[:n], prim[:n], b1[:n], b2[:n],
                         False)
         tally[T_INTERSECT] += n
-        if cut_on:
-            tally[T_EXTENSION] += through_cutouts_kernel(fns, np.uint64(ckeys[bounce, 0]), S[:n], d32[:n], prim[:n],
-                                                         b1[:n], b2[:n], t32[:n], geo, cut, tab, eps)
+        if walk is not None:
+            tally[T_EXTENSION] += through_cutouts_kernel(walk[0], np.uint64(ckeys[bounce, 0]), S[:n], d32[:n],
+                                                         prim[:n], b1[:n], b2[:n], t32[:n], walk[1], walk[2],
+                                                         walk[3], walk[4])
         j = min(bounce, 1)
         cont = cont_at[1 + j]
         c = cap_at[j]
@@ -133,9 +134,9 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
             if fallback[j, li]:
                 tally[T_ALPHA_ONE_FALLBACK] += pairs
         if k_sh:
-            if cut_on:
-                shadow_cutouts_kernel(fns, np.uint64(ckeys[bounce, 1]), sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], geo,
-                                      cut, tab, eps, blocked[:k_sh])
+            if walk is not None:
+                shadow_cutouts_kernel(walk[0], np.uint64(ckeys[bounce, 1]), sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh],
+                                      walk[1], walk[2], walk[3], walk[4], blocked[:k_sh])
             else:
                 _occluded_rows(fn_o, scene, width, sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], 0, k_sh, blocked[:k_sh])
                 tally[T_OCCLUDED] += k_sh

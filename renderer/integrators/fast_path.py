@@ -263,8 +263,7 @@ class FastPath:
         if self._kernel is None:
             scene = self.integ.scene
             emb = (*scene.accel.packet_handles(TRACE_WIDTH), TRACE_WIDTH)
-            walk = self.walk if self.cutouts else self._cutout_walk(cut=False)
-            self._kernel = (emb, self.surf, self.tables, self.plan, (self.cutouts, *walk))
+            self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None)
         return self._kernel
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
@@ -434,11 +433,9 @@ class FastPath:
                    else self.no_normals)
         return P, row, emission, bent_ns
 
-    def _cutout_walk(self, cut: bool = True):
+    def _cutout_walk(self):
         """The compiled cut-out walks' scene record (_cutout_kernels: fns, geo, cut, tab, eps),
-        or None where accel.py traces through embreex only (the numpy loops serve then). With
-        cut False, a record of the same types that cuts nothing (trace_kernel's for a scene
-        without cut-outs)."""
+        or None where accel.py traces through embreex only (the numpy loops serve then)."""
         scene = self.integ.scene
         try:
             h = scene.accel.native_handles()
@@ -449,8 +446,7 @@ class FastPath:
         return ((h.scene, h.intersect1, h.occluded1),
                 (vertices, face_normal, normals, np.ascontiguousarray(scene.geometry.st, dtype=np.float64), tri_mat,
                  tri_mag),
-                np.ascontiguousarray(mats.cutout_materials if cut else np.zeros(len(mats), dtype=bool)),
-                mats.presence_table(), scene.accel.epsilon_terms())
+                np.ascontiguousarray(mats.cutout_materials), mats.presence_table(), scene.accel.epsilon_terms())
 
     def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng, key) -> None:
         """Camera and extension rays pass through absent cut-out surfaces, as in the general
