@@ -136,3 +136,40 @@ def test_scenes_with_numpy_work_per_bounce_keep_the_python_loop(tmp_path):
     assert "F of the control variate" in reason("stages/cornell_box.usda", estimator={"": "controlVariate"})
     assert reason("stages/cornell_box.usda") == ""
     assert reason(_card(tmp_path)) == ""
+
+
+def test_the_compiled_loop_releases_the_gil(monkeypatch):
+    """While trace_kernel runs, another Python thread runs: it counts during most calls. (A call
+    holding the GIL stops every Python thread until it returns: the counter could then only move
+    through a GIL switch in the microseconds between its readings and the call.)"""
+    import threading
+    import time
+
+    from renderer.integrators import _trace_kernel as tk
+
+    ticks = [0]
+    done = threading.Event()
+
+    def count():
+        while not done.is_set():
+            ticks[0] += 1
+            time.sleep(0)  # hands the GIL back at once
+
+    moved = []
+    orig = tk.trace_kernel
+
+    def watched(*a):
+        before = ticks[0]
+        orig(*a)
+        moved.append(ticks[0] - before)
+
+    monkeypatch.setattr(tk, "trace_kernel", watched)
+    counter = threading.Thread(target=count, daemon=True)
+    counter.start()
+    try:
+        r = render("stages/cornell_box.usda", RenderOptions(spp=2, resolution=(128, 128), threads=1, max_depth=4))
+    finally:
+        done.set()
+        counter.join()
+    assert r.stats["fast_path"] == "on" and len(moved) == 8  # 2 passes of 4 chunks
+    assert sum(m > 0 for m in moved) >= len(moved) // 2, moved
