@@ -9,6 +9,11 @@ shadow rays per second of render, from its stats); then time native Embree alone
 one cosine bounce from their hits (renderer.bench.raw_ray_batches), best of three. The ratio is
 the share of Embree's own single-ray speed the whole renderer keeps (the one-integrator issue's
 target: at least 0.8). Prints a markdown table.
+
+--cpu: both rates per CPU second of this process instead of per wall second, one thread each
+(the render's CPU time from its start to its end, load and build included). On a machine shared
+with other sessions the wall-clock rates swing with the load (Linux's autogroup scheduler gives a
+session one share of the CPU whatever it runs), the CPU-time ones much less.
 """
 from __future__ import annotations
 
@@ -28,8 +33,9 @@ from renderer.usd import load_stage
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def single_ray_rate(stage: str, res, threads: int, seed: int = 0) -> float:
-    """Mrays/s of native Embree, one ray per call, on the stage's camera and bounce rays."""
+def single_ray_rate(stage: str, res, threads: int, seed: int = 0, clock=time.perf_counter) -> float:
+    """Mrays/s of native Embree, one ray per call, on the stage's camera and bounce rays (per
+    second of ``clock``)."""
     desc = load_stage(stage)
     scene = build_scene(desc, threads=threads)
     try:
@@ -43,9 +49,9 @@ def single_ray_rate(stage: str, res, threads: int, seed: int = 0) -> float:
             best = np.inf
             for _ in range(3):
                 t32 = np.full(o32.shape[0], 3.0e37, dtype=np.float32)
-                t0 = time.perf_counter()
+                t0 = clock()
                 accel.intersect_prepared(o32, d32, t32, width=1)
-                best = min(best, time.perf_counter() - t0)
+                best = min(best, clock() - t0)
             rays += o32.shape[0]
             secs += best
         return rays / secs / 1e6
@@ -59,17 +65,24 @@ def main() -> None:
     ap.add_argument("--res", type=int, nargs=2, default=(256, 256))
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--cpu", action="store_true", help="rays per CPU second, one thread")
     a = ap.parse_args()
+    if a.cpu:
+        a.threads = 1
+    clock = time.process_time if a.cpu else time.perf_counter
     stages = a.stages or sorted(p for p in glob.glob(os.path.join(ROOT, "stages", "**", "*.usda"), recursive=True)
                                 if "/textures/" not in p)
     print("| stage | route | samples/s | renderer Mrays/s | Embree single-ray Mrays/s | ratio |\n|---|---|---|---|---|---|")
     for st in stages:
         name = os.path.relpath(st, os.path.join(ROOT, "stages"))
         try:
+            c0 = clock()
             r = render(st, RenderOptions(time_budget=a.seconds, resolution=tuple(a.res), threads=a.threads,
                                          max_depth=7))
             ours = r.stats["mrays_per_second"]
-            raw = single_ray_rate(st, tuple(a.res), a.threads)
+            if a.cpu:
+                ours = sum(r.stats["rays"][k] for k in ("camera", "extension", "shadow")) / (clock() - c0) / 1e6
+            raw = single_ray_rate(st, tuple(a.res), a.threads, clock=clock)
         except Exception as e:  # noqa: BLE001 (a stage without geometry, say: report and go on)
             print(f"| {name} | - | - | - | - | {type(e).__name__}: {e} |", flush=True)
             continue

@@ -11,7 +11,9 @@ Two routes trace the same BVH build:
   (``embreex.libs/libembree4*.so.4``), called from numba ``nogil`` kernels through the functions'
   addresses. The batch calls trace packets of BATCH_WIDTH rays (rtcIntersect8 / rtcOccluded8);
   kernels elsewhere can trace single rays themselves with ``Accel.native_handles()``,
-  ``set_ray`` and ``rtc_intersect1`` / ``rtc_occluded1``. Same BVH flags as embreex (robust), so
+  ``set_ray`` and ``rtc_intersect1`` / ``rtc_occluded1``, or packets with
+  ``Accel.packet_handles(width)`` and ``_intersect_rows`` / ``_occluded_rows`` (and report what
+  they traced with ``Accel.count_traced``). Same BVH flags as embreex (robust), so
   the hits are identical; bench/bench_embree_native.py measures the routes on every stage
   (bench/results/embree_native/results.md).
 * embreex's batch calls: the fallback when the native library cannot be loaded (one warning).
@@ -472,6 +474,7 @@ class Accel:
             # The mesh object must stay alive as long as the scene uses its buffers.
             self._mesh = TriangleMesh(self._scene, np.ascontiguousarray(tri, dtype=np.float32))
         self.rays_traced = {"intersect": 0, "occluded": 0}
+        self._count_lock = threading.Lock()
 
     def close(self) -> None:
         """Stop the pool and release the Embree scene (once; later calls do nothing). Tracing
@@ -491,6 +494,24 @@ class Accel:
             raise RuntimeError("this Accel traces through embreex: no native Embree scene")
         lib = self._native.lib
         return NativeHandles(self._native.scene, lib.intersect[1], lib.occluded[1])
+
+    def packet_handles(self, width: int) -> tuple[int, int, int]:
+        """(scene, rtcIntersect<W>, rtcOccluded<W>) for kernels that trace packets of ``width``
+        rays (1: single rays) with _intersect_rows / _occluded_rows; valid until close()."""
+        self._check_open()
+        if self._native is None:
+            raise RuntimeError("this Accel traces through embreex: no native Embree scene")
+        if width not in PACKET_WIDTHS:
+            raise ValueError(f"Embree packet width must be one of {PACKET_WIDTHS}, not {width}")
+        lib = self._native.lib
+        return self._native.scene, lib.intersect[width], lib.occluded[width]
+
+    def count_traced(self, intersect: int = 0, occluded: int = 0) -> None:
+        """Add rays a kernel traced through the handles above to ``rays_traced`` (the batch
+        calls count their own)."""
+        with self._count_lock:
+            self.rays_traced["intersect"] += int(intersect)
+            self.rays_traced["occluded"] += int(occluded)
 
     def _check_open(self) -> None:
         if self._closed and self._native is not None:

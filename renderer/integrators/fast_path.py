@@ -48,6 +48,12 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
+Where no bounce needs numpy work (no per-hit surface rows, no F pre-pass: ``kernel_reason``),
+the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
+inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
+so render threads running chunks side by side scale; it makes the Python loop's calls with the
+Python loop's keys, so the image is the same to the bit (tests/integrators/test_fast_path_kernel.py).
+
 One difference in the order of work, not in the estimate: at the last scattering vertex
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
 a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
@@ -67,12 +73,15 @@ from ..lights.light_set import KIND_NAMES
 from ..lights.shaping import empty_kernel_record
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from . import _cutout_kernels as ck
+from . import _trace_kernel as tk
 from . import _vertex_kernels as vk
 
 # The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
 FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
 CUTOUT_PASSES = ck.CUTOUT_PASSES
+# Rays per Embree call inside trace_kernel (1: rtcIntersect1 / rtcOccluded1; 4, 8, 16: packets).
+TRACE_WIDTH = 8
 
 
 def fast_path_reason(integ) -> str:
@@ -147,9 +156,11 @@ class FastPath:
             (im.weight, f64), (im.total, f64), (im.row_cdf, f64), (im.row_cdf_start, i64), (im.col_cdf, f64),
             (im.col_cdf_start, i64)))
         mats = scene.materials
-        # Textured inputs or emission: the material is evaluated per hit (st needed) and the
-        # kernel reads per-hit rows; otherwise one packed row per material.
-        self.per_hit = bool(mats.params_needed)
+        # Textured inputs, emission or normal maps: the material is evaluated per hit (st
+        # needed) and the kernel reads per-hit rows; otherwise one packed row per material (cut-
+        # outs alone change no row: presence is the walks' business).
+        self.per_hit = bool(mats.params_needed and (mats.has_emission or mats.has_normal_map
+                                                    or not mats.bsdf_is_constant))
         self.cutouts = bool(mats.has_cutout)
         # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
         self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
@@ -209,11 +220,107 @@ class FastPath:
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
             self.lux)
+        # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
+        self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
+        self.plan = self._plan()
+        self._kernel = None  # trace_kernel's fixed arguments (_kernel_args), made on first use
+
+    def _bounce_plan(self, bounce: int):
+        """The estimators at the vertices of a bounce whose rows have depth ``bounce``: N (lights,)
+        samples per light, cont and cont_prev (lights,) bool (on continuation MIS there, and at
+        the vertex the rays left), cap: shadow rays a row may write, groups: the estimator groups
+        (F's diffuse combinations) a row may write below the last bounce."""
+        nl = self.integ.lights.count
+        N = self.est_samples if bounce == 0 else np.ones(nl, dtype=np.int64)
+        cont = self.cont_at[min(bounce, 1)]
+        cont_prev = self.cont_at[min(bounce - 1, 1)] if bounce > 0 else np.ones(nl, dtype=bool)
+        own = ~cont
+        # A light sample and a BSDF sample per sample on the estimator's lights, one light-half
+        # ray on the others: for every light, or for the one a picking service chose.
+        per_light = np.where(own, 2 * N, 1)
+        cap = max(1, int(per_light.max() if self.picks else per_light.sum()))
+        n_f = int(np.count_nonzero(own & self.needs_F))
+        groups = min(1, n_f) if self.picks else n_f
+        return N, cont, cont_prev, cap, groups
+
+    def _plan(self):
+        """trace_kernel's estimator record (its docstring): the bounce plans of the first vertex
+        and deeper ones, and the masks of the general path's rule counters."""
+        first, deeper = self._bounce_plan(0), self._bounce_plan(1)
+        cv = self.est_tok == TOKENS.index("controlVariate")
+        fallback = np.stack([cv & (self.est_alpha != ALPHAS.index("one")) & (p[0] < 2) for p in (first, deeper)])
+        c = np.ascontiguousarray
+        return (self.est_tok, self.est_alpha, c(np.stack([first[0], deeper[0]]), dtype=np.int64),
+                c(np.stack([first[2], first[1], deeper[1]]), dtype=np.bool_),
+                np.array([first[3], deeper[3]], dtype=np.int64), np.array([first[4], deeper[4]], dtype=np.int64),
+                c(cv), c(fallback))
+
+    def kernel_reason(self) -> str:
+        """'' when trace runs as one compiled call (_trace_kernel.trace_kernel), else why this
+        scene keeps the Python bounce loop (numpy work between the compiled calls)."""
+        if self.per_hit:
+            return "per-hit surfaces (textured inputs, emission or normal maps) are evaluated in numpy"
+        if self.needs_F.any():
+            return "F of the control variate or ratio is a numpy pass per bounce"
+        if self.lux_shadows:
+            return "shadow links, ShadowAPI settings or shadow colours are traced per group from Python"
+        if self.integ.scene.accel.backend != "native":
+            return "no native Embree"
+        if self.cutouts and self.walk is None:
+            return "cut-outs without the compiled walks"
+        return ""
+
+    def _keys(self, rng: np.random.Generator, max_depth: int):
+        """The stream keys of a trace, drawn at once (a Generator call costs ~10 us): the
+        vertex kernel's and the per-light estimators' (their own stream; plain scenes keep theirs
+        as it was) per bounce (max_depth + 1,) int64, and the cut-out walks' (max_depth + 1, 2)
+        (camera and extension rays, shadow rays)."""
+        keys = rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64)
+        keys2 = (rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64) if not np.all(self.cont_at[0])
+                 else np.zeros(max_depth + 1, dtype=np.int64))
+        ckeys = (rng.integers(0, 2 ** 63, size=(max_depth + 1, 2), dtype=np.int64) if self.cutouts
+                 else np.zeros((max_depth + 1, 2), dtype=np.int64))
+        return keys, keys2, ckeys
+
+    def _kernel_args(self):
+        """trace_kernel's arguments fixed for the render: (emb, surf, tables, plan, walk)."""
+        if self._kernel is None:
+            scene = self.integ.scene
+            emb = (*scene.accel.packet_handles(TRACE_WIDTH), TRACE_WIDTH)
+            self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None)
+        return self._kernel
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
         """Radiance (m, 3) arriving at the origins o (m, 3) along -d: PathIntegrator.trace for a
-        qualifying scene, with emit0 = 1."""
+        qualifying scene, with emit0 = 1. One compiled call (_trace_kernel) where kernel_reason
+        finds none, else the bounce loop in Python; both give the same image."""
+        keys = self._keys(rng, max_depth)
+        if self.kernel_reason():
+            return self.trace_loop(o, d, tmax, rng, max_depth, *keys)
+        return self.trace_compiled(o, d, tmax, max_depth, *keys)
+
+    def trace_compiled(self, o, d, tmax, max_depth, keys, keys2, ckeys) -> np.ndarray:
+        """trace as one call of _trace_kernel.trace_kernel (GIL released), with the keys of _keys."""
+        integ = self.integ
+        emb, surf, tables, plan, walk = self._kernel_args()
+        n_u = vk.U_LIGHT + (3 if self.picks else 2 * integ.lights.count)
+        L = np.zeros((o.shape[0], 3))
+        tally = np.zeros(tk.N_TALLY, dtype=np.int64)
+        tk.trace_kernel(emb, np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
+                        np.ascontiguousarray(tmax, dtype=np.float64), keys, keys2, ckeys, n_u, max_depth, surf, tables,
+                        plan, walk, L, tally)
+        integ.rays.add(shadow=tally[tk.T_SHADOW], extension=tally[tk.T_EXTENSION])
+        with integ.rays.lock:
+            for name, t in (("continuation_mis", tk.T_CONTINUATION), ("own_samples", tk.T_OWN_SAMPLES),
+                            ("alpha_one_fallback", tk.T_ALPHA_ONE_FALLBACK)):
+                integ.rule_counts[name] += int(tally[t])
+        integ.scene.accel.count_traced(tally[tk.T_INTERSECT], tally[tk.T_OCCLUDED])
+        return L
+
+    def trace_loop(self, o, d, tmax, rng, max_depth, keys, keys2, ckeys) -> np.ndarray:
+        """trace with the bounce loop in Python, each bounce's compiled calls and numpy work in
+        turn, with the keys of _keys (rng: the numpy cut-out walks' draws)."""
         integ = self.integ
         accel = integ.scene.accel
         nl = integ.lights.count
@@ -234,14 +341,9 @@ class FastPath:
         vk.start_kernel(np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
                         np.ascontiguousarray(tmax, dtype=np.float64), S, o32, d32, t32)
         pairs = 0
-        # One stream key per bounce, drawn at once (a Generator call costs ~10 us).
-        keys = rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64)
         # Continuation MIS at the first vertex and deeper: MIS lights with N = 1 there (path.py's
         # rule; cont_ok: on mis, with no multiplier or shadow setting that rules it out).
-        cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
-        # The per-light estimators' uniforms: their own stream (plain scenes keep theirs as it was).
-        keys2 = (rng.integers(0, 2 ** 63, size=max_depth + 1, dtype=np.int64) if not np.all(cont_at[0])
-                 else np.zeros(max_depth + 1, dtype=np.int64))
+        cont_at = self.cont_at
         cv_tok = self.est_tok == TOKENS.index("controlVariate")
         one = ALPHAS.index("one")
         for bounce in range(max_depth + 1):
@@ -250,7 +352,7 @@ class FastPath:
                 break
             prim, b1, b2 = accel.intersect_prepared(o32, d32, t32)
             if self.cutouts:
-                self._through_cutouts(prim, b1, b2, t32, d32, S, rng)
+                self._through_cutouts(prim, b1, b2, t32, d32, S, rng, ckeys[bounce, 0])
             surf = self._surfaces(prim, b1, b2, S) if self.per_hit else self.surf
             # The kernel draws its uniforms from this key (a counter-based stream, _uniform_pass).
             key = np.uint64(keys[bounce])
@@ -284,10 +386,11 @@ class FastPath:
             v = np.zeros(0)
             traced = k_sh
             if k_sh and self.lux_shadows:
-                v, tint, traced = self._visibility(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], est_out[4][:k_sh], rng)
+                v, tint, traced = self._visibility(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], est_out[4][:k_sh], rng,
+                                                   ckeys[bounce, 1])
                 vk.add_visible_kernel(L, sh_path[:k_sh], sh_c[:k_sh], v, tint)
             elif k_sh:
-                blocked = self._blocked(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], rng)
+                blocked = self._blocked(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], rng, ckeys[bounce, 1])
                 vk.add_unblocked_kernel(L, sh_path[:k_sh], sh_c[:k_sh], blocked)
             if k_grp:
                 sh_x, sh_cov, g_int, g_f = est_out[:4]
@@ -313,14 +416,8 @@ class FastPath:
         integ = self.integ
         nl = integ.lights.count
         n = prim.shape[0]
-        N = self.est_samples if bounce == 0 else np.ones(nl, dtype=np.int64)
-        cont = cont_at[min(bounce, 1)]
-        cont_prev = cont_at[min(bounce - 1, 1)] if bounce > 0 else np.ones(nl, dtype=bool)
+        N, cont, cont_prev, cap, groups = self._bounce_plan(bounce)
         own = ~cont
-        # A light sample and a BSDF sample per sample on the estimator's lights, one light-half
-        # ray on the others: for every light, or for the one a picking service chose.
-        per_light = np.where(own, 2 * N, 1)
-        cap = max(1, int(per_light.max() if self.picks else per_light.sum()))
         want = own & self.needs_F if bounce < max_depth else np.zeros(nl, dtype=bool)
         E = np.zeros((n if want.any() else 0, nl, 3))
         exact = np.zeros((E.shape[0], nl), dtype=bool)
@@ -336,7 +433,7 @@ class FastPath:
                 ctx = ShadingContext(p, ng, ns)
                 for li in np.nonzero(want)[0]:
                     E[hit, li], exact[hit, li] = integ.lights.irradiance(np.full(hit.size, li, dtype=np.int64), ctx)
-        n_groups = n * (min(1, int(np.count_nonzero(want))) if self.picks else int(np.count_nonzero(want)))
+        n_groups = n * groups if bounce < max_depth else 0
         est = (self.est_tok, self.est_alpha, np.ascontiguousarray(N, dtype=np.int64), np.ascontiguousarray(cont),
                np.ascontiguousarray(cont_prev), E, exact, np.uint64(key2))
         est_out = (np.empty((n * cap, 3)), np.empty(n * cap), np.empty((n_groups, 5), dtype=np.int64),
@@ -385,7 +482,7 @@ class FastPath:
                  tri_mag),
                 np.ascontiguousarray(mats.cutout_materials), mats.presence_table(), scene.accel.epsilon_terms())
 
-    def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng) -> None:
+    def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng, key) -> None:
         """Camera and extension rays pass through absent cut-out surfaces, as in the general
         path (PathIntegrator.trace): each hit on a material that may be cut out is present with
         its presence (materials.presence_at) against one uniform; a ray whose surface is absent
@@ -396,8 +493,7 @@ class FastPath:
             self._through_cutouts_numpy(prim, b1, b2, t32, d32, S, rng)
             return
         fns, geo, cut, tab, eps = self.walk
-        key = np.uint64(rng.integers(0, 2 ** 63))
-        traced = ck.through_cutouts_kernel(fns, key, S, d32, prim, b1, b2, t32, geo, cut, tab, eps)
+        traced = ck.through_cutouts_kernel(fns, np.uint64(key), S, d32, prim, b1, b2, t32, geo, cut, tab, eps)
         self.integ.rays.add(extension=traced)
 
     def _through_cutouts_numpy(self, prim, b1, b2, t32, d32, S, rng) -> None:
@@ -430,7 +526,7 @@ class FastPath:
             t32[rows] = (t0 + t_far).astype(np.float32)
             rows = rows[hp >= 0]
 
-    def _visibility(self, sh_o, sh_d, sh_t, sh_l, rng):
+    def _visibility(self, sh_o, sh_d, sh_t, sh_l, rng, key):
         """(v (k,) float in [0, 1], tint (k, 3), plain rays traced) for the shadow rays sh_o, sh_d
         (k, 3), sh_t (k,) float32 of the lights sh_l (k,) (kernel order): each light's shadowLink
         BVH and ShadowAPI settings (scene.shadow_group, PathIntegrator.visible_from: what the
@@ -444,7 +540,7 @@ class FastPath:
         plain = np.nonzero(grp < 0)[0]
         traced = plain.size
         if plain.size:
-            v[plain] = ~self._blocked(sh_o[plain], sh_d[plain], sh_t[plain], rng)
+            v[plain] = ~self._blocked(sh_o[plain], sh_d[plain], sh_t[plain], rng, key)
         if traced < v.size:
             o, d, t = (a.astype(np.float64) for a in (sh_o, sh_d, sh_t))
             for g in np.unique(grp[grp >= 0]):
@@ -456,7 +552,7 @@ class FastPath:
                 else np.zeros((v.size, 3)))
         return v, tint, traced
 
-    def _blocked(self, sh_o, sh_d, sh_t, rng) -> np.ndarray:
+    def _blocked(self, sh_o, sh_d, sh_t, rng, key) -> np.ndarray:
         """(k,) bool, True where the shadow rays sh_o, sh_d (k, 3), sh_t (k,) float32 (as the
         kernel wrote them, origins offset) are blocked; through cut-outs as the general path's
         PathIntegrator._visible_through_cutouts sees them."""
@@ -465,8 +561,7 @@ class FastPath:
         if self.walk is not None:
             fns, geo, cut, tab, eps = self.walk
             blocked = np.empty(sh_o.shape[0], dtype=bool)
-            ck.shadow_cutouts_kernel(fns, np.uint64(rng.integers(0, 2 ** 63)), sh_o, sh_d, sh_t, geo, cut, tab, eps,
-                                     blocked)
+            ck.shadow_cutouts_kernel(fns, np.uint64(key), sh_o, sh_d, sh_t, geo, cut, tab, eps, blocked)
             return blocked
         return ~self.integ._visible_through_cutouts(sh_o.astype(np.float64), sh_d.astype(np.float64),
                                                     sh_t.astype(np.float64), rng)

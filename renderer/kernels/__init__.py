@@ -52,12 +52,29 @@ def module_dispatchers(namespace: dict) -> list:
     return [v for v in namespace.values() if isinstance(v, CPUDispatcher) and v.py_func.__module__ == name]
 
 
+# The sources each guard_cache call named, by module: a module whose kernels call another
+# module's kernels (their code is linked into the caller's cache) guards on those too.
+GUARDED: dict[str, list[str]] = {}
+
+
+def guarded_sources(*modules: str) -> list[str]:
+    """The files the kernels of ``modules`` (dotted names of modules that called guard_cache)
+    depend on: each module's own file and the sources its guard_cache named."""
+    out: list[str] = []
+    for m in modules:
+        for rel in [m.replace(".", "/") + ".py", *GUARDED[m]]:
+            if rel not in out:
+                out.append(rel)
+    return out
+
+
 def guard_cache(module: str, dispatchers: list, sources: list[str]) -> None:
     """Let the kernels of ``module`` inline numba functions from the files ``sources`` (paths
     relative to the repository root) safely: numba keys a kernel's on-disk cache on its own
     file only, so when any of ``sources`` changed since the cache was written (a digest of
     their contents, stored next to the cache), the dispatchers' cached code is flushed and
     compiles afresh. Call it at the end of the module, after the kernels are defined."""
+    GUARDED[module] = list(sources)
     h = hashlib.sha256()
     for rel in sources:
         with open(os.path.join(_ROOT, rel), "rb") as fh:
