@@ -60,6 +60,8 @@ from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
+from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
+from renderer.preconvolve import packed_row
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
@@ -595,6 +597,39 @@ def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
+    """Light g's unshadowed irradiance E (3-tuple) at p (3-tuple) about the shading normal ns,
+    the control variate's F = c(wo) E: lights/irradiance.py's rule per kind, by the same compiled
+    rows (lights/analytic.py's rect_F, sphere_F, disk_F on the radius s1, distant_F and
+    dome_constant_F; a textured dome's preconvolved table by preconvolve.irradiance_row at
+    R^T ns). fcalc: FastPath.fcalc (exact flags, the distant lights' theta_max, the quadrature
+    switches, the domes' packed tables); E means something only where fcalc[0][g] is set."""
+    _exact, theta, far_ratio, kappa_max, PK = fcalc
+    kind = LP[g, LP_KIND]
+    Le = _lp(LP, g, LP_L)
+    if kind == K_RECT:
+        G = rect_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_N), far_ratio,
+                   kappa_max)
+    elif kind == K_SPHERE:
+        G = sphere_F(p, ns, _lp(LP, g, LP_C), LP[g, LP_P0])
+    elif kind == K_DISK:
+        G = disk_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_N), LP[g, LP_P0], far_ratio, kappa_max)
+    elif kind == K_DISTANT:
+        G = distant_F(ns, _lp(LP, g, LP_A), theta[g])
+    elif LP[g, LP_TEX] < 0:
+        G = dome_constant_F()
+    else:
+        j = int(LP[g, LP_J])
+        R = IMG[0][j]
+        # The normal in the dome's frame (R^T ns; R local -> world), as DomeLight.irradiance_lookup.
+        e = packed_row(PK, j, ns[0] * R[0, 0] + ns[1] * R[1, 0] + ns[2] * R[2, 0],
+                       ns[0] * R[0, 1] + ns[1] * R[1, 1] + ns[2] * R[2, 1],
+                       ns[0] * R[0, 2] + ns[1] * R[1, 2] + ns[2] * R[2, 2], tbuf)
+        return (e[0] * Le[0], e[1] * Le[1], e[2] * Le[2])
+    return (G * Le[0], G * Le[1], G * Le[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _split_at(V, Pm, wx, wy, wz, Le):
     """The integrand of the vertex V's BSDF at world direction (wx, wy, wz) for radiance Le,
     split as estimators.base.split_integrand does (light samples and BSDF samples alike):
@@ -676,17 +711,17 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH, GR, k_sh,
-                 k_grp, scratch):
+def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH, GR,
+                 k_sh, k_grp, scratch):
     """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
-    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact, E: whether
-    its F = c(wo) E is exact and E (3-tuple)): the samples (_draw_pair), the estimator's
+    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact: whether
+    its F = c(wo) E is exact, E then taken here by _light_F from fcalc): the samples (_draw_pair), the estimator's
     coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:] (sh_o, sh_d, sh_t,
     sh_path, sh_c, sh_x, sh_cov: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
     and covered flag) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
     rays, N, mode), g_f (F, beta)), which resolve_groups_kernel adds once the rays are traced.
     Returns the new (k_sh, k_grp)."""
-    ls, bs, cl, cb = scratch
+    ls, bs, cl, cb, tbuf = scratch
     need_l, need_b = ec.needs(tok)
     _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs)
     mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
@@ -723,8 +758,10 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key,
         g_int[k_grp, 2] = k_sh - first
         g_int[k_grp, 3] = N
         g_int[k_grp, 4] = mode
-        _p, _ng, _sf, _tf, _ns, wo, ao, bo, _pd, _eps, m = V
+        _p, _ng, _sf, _tf, ns, wo, ao, bo, _pd, _eps, m = V
         a, j0, fy, kd, f0, f90 = _mat(Pm, m)
+        # F only for the pairs whose estimate uses it (this light's own, not every light's).
+        E = _light_F(LP, g, p, ns, fcalc, IMG, tbuf)
         for c in range(3):
             # F = c(wo) E (estimators.control_variates.diffuse_cv_inputs).
             g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] if wo[2] > 0.0 else 0.0
@@ -743,7 +780,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, fcalc,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -768,7 +805,8 @@ def vertex_kernel(
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
     its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
     light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
-    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables). L (m, 3)
+    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); fcalc: the
+    analytic integrals' record (FastPath.fcalc, read by _light_F). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -832,15 +870,15 @@ def vertex_kernel(
     glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
     # The per-light estimators (FastPath.trace's record): token, alpha and N per light at this
     # bounce's vertices; whether each light is on continuation MIS there (cont) and was at the
-    # vertex the rays left (cont_prev); F's irradiance E (n, lights, 3) and its exactness; the
-    # key of their uniforms. Outputs: each shadow ray's X and covered flag, and the groups.
-    e_tok, e_alpha, e_N, cont, cont_prev, e_E, e_exact, e_key = est
+    # vertex the rays left (cont_prev); the key of their uniforms (F is taken per pair, _light_F).
+    # Outputs: each shadow ray's X and covered flag, and the groups.
+    e_tok, e_alpha, e_N, cont, cont_prev, e_key = est
     sh_x, sh_cov, g_int, g_f = est_out
     SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov)
     GR = (g_int, g_f)
     n_max = max(1, e_N.max()) if nl else 1
     scratch = (np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NC)),
-               np.empty((n_max, ec.NC)))
+               np.empty((n_max, ec.NC)), np.empty(fcalc[4][-1]))
     k_grp = 0
     for lo in range(0, n, BLK):
         hi = min(n, lo + BLK)
@@ -966,9 +1004,7 @@ def vertex_kernel(
                     V = ((px, py, pz), _w3(W, W_G, i), _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
                          _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], eps,
                          int(W[W_M * BLK + i]))
-                    exact = e_exact.shape[0] > 0 and e_exact[r, gl]
-                    E = (e_E[r, gl, 0], e_E[r, gl, 1], e_E[r, gl, 2]) if e_E.shape[0] > 0 else (0.0, 0.0, 0.0)
-                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], exact, E, V, Pm,
+                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], fcalc[0][g], fcalc, V, Pm,
                                                (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
                                                np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
                                                scratch)
@@ -1090,4 +1126,5 @@ guard_cache(__name__, module_dispatchers(globals()),
             ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/kernels/direct.py",
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
-             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py"])
+             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/lights/analytic.py",
+             "renderer/preconvolve.py"])

@@ -21,9 +21,9 @@ A scene qualifies when it has
   the kernel weighted with pmf p_l, the BSDF half on the extension ray); every other picked
   (vertex, light) pair gets its whole contribution from its estimator (estimators/compiled.py on
   the samples _vertex_kernels._direct_pair draws) divided by the pmf, and the extension ray adds
-  nothing for that light. The control variate's and ratio's F (the analytic irradiance,
-  lights/irradiance.py, numpy) is computed per bounce before the kernel for the hits that need it
-  (for every such light: with a picking service, n x lights irradiances per bounce);
+  nothing for that light. The control variate's and ratio's F (the analytic irradiance) is taken
+  in the kernel for each (vertex, light) pair whose estimate uses it (_vertex_kernels._light_F:
+  lights/irradiance.py's rule by the same compiled rows, about the bent shading normal);
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
@@ -54,7 +54,6 @@ import numpy as np
 
 from ..estimators import ALPHAS, TOKENS
 from ..geometry import dot, offset_origin, surface_interaction
-from ..lights.base import ShadingContext
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
@@ -173,6 +172,7 @@ class FastPath:
         order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
         fast_of[order] = np.arange(order.size)
         rl, sl, dl = self.rect, self.sphere, self.disk
+        self.fcalc = self._f_record(order, dome, dist)
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
         self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
@@ -186,7 +186,8 @@ class FastPath:
             rl.ex_dual, rl.ey_dual, self.rect_light, sl.center, sl.radius, sl.L, sl.delta, self.sphere_light,
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
-            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp)
+            power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
+            self.fcalc)
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
@@ -238,7 +239,7 @@ class FastPath:
             n_o32 = np.empty((n, 3), dtype=np.float32)
             n_d32 = np.empty((n, 3), dtype=np.float32)
             n_t32 = np.empty(n, dtype=np.float32)
-            est, est_out, cap = self._estimators(bounce, max_depth, cont_at, keys2[bounce], prim, b1, b2, S, surf)
+            est, est_out, cap = self._estimators(bounce, max_depth, cont_at, keys2[bounce], n)
             sh_o = np.empty((n * cap, 3), dtype=np.float32)
             sh_d = np.empty((n * cap, 3), dtype=np.float32)
             sh_t = np.empty(n * cap, dtype=np.float32)
@@ -272,16 +273,37 @@ class FastPath:
         integ.rule_counts["continuation_mis"] += pairs
         return L
 
-    def _estimators(self, bounce, max_depth, cont_at, key2, prim, b1, b2, S, surf):
+    def _f_record(self, order, dome, dist):
+        """The analytic integrals' record for _vertex_kernels._light_F, lights in the kernel's
+        order (``order``: their global indices): (exact (lights,) bool: irradiance.py's rule,
+        has_exact_integral, and for a textured dome its table; theta_max (lights,) of the
+        distant lights (0 elsewhere); the quadrature switches FAR_RATIO and KAPPA_MAX as the
+        numpy API passes them; the domes' preconvolved tables, preconvolve.pack_tables, table j
+        for dome j (empty for a constant dome))."""
+        from ..lights import analytic
+        from ..lights.irradiance import has_exact_integral
+        from ..preconvolve import pack_tables
+
+        lights = self.integ.lights
+        tables = list(getattr(dome, "irradiance", [None] * dome.count))
+        exact = has_exact_integral(lights)
+        for gl in np.nonzero(lights.kind_of == KIND_NAMES.index("dome"))[0]:
+            # A textured dome without a table has no exact F (DomeLight.irradiance_lookup's ok).
+            j = lights.local_of[gl]
+            exact[gl] &= bool(dome.tex[j] < 0 or tables[j] is not None)
+        theta = np.zeros(lights.count)
+        theta[np.nonzero(lights.kind_of == KIND_NAMES.index("distant"))[0]] = np.reshape(dist.theta_max, dist.count)
+        return (np.ascontiguousarray(exact[order]), np.ascontiguousarray(theta[order], dtype=np.float64),
+                float(analytic.FAR_RATIO), float(analytic.KAPPA_MAX), pack_tables(tables))
+
+    def _estimators(self, bounce, max_depth, cont_at, key2, n):
         """The vertex kernel's per-light estimator records for a bounce whose vertices have depth
         ``bounce`` (every row of a fast-path bounce has): est (tokens, alphas, N per light, on
-        continuation MIS here, was at the vertex the rays left, E (n, lights, 3), exact (n,
-        lights), the uniforms' key), est_out (each shadow ray's X (cap n, 3) and covered flag,
-        the groups' (g, 5) int64 and (g, 6) records), and cap: shadow rays per row at most.
-        surf: the kernel's surface record (its bent shading normals, about which F is taken)."""
+        continuation MIS here, was at the vertex the rays left, the uniforms' key), est_out (each
+        shadow ray's X (cap n, 3) and covered flag, the groups' (g, 5) int64 and (g, 6) records),
+        and cap: shadow rays per row at most. (F is taken in the kernel, _vertex_kernels._light_F.)"""
         integ = self.integ
         nl = integ.lights.count
-        n = prim.shape[0]
         N = self.est_samples if bounce == 0 else np.ones(nl, dtype=np.int64)
         cont = cont_at[min(bounce, 1)]
         cont_prev = cont_at[min(bounce - 1, 1)] if bounce > 0 else np.ones(nl, dtype=bool)
@@ -291,23 +313,9 @@ class FastPath:
         per_light = np.where(own, 2 * N, 1)
         cap = max(1, int(per_light.max() if self.picks else per_light.sum()))
         want = own & self.needs_F if bounce < max_depth else np.zeros(nl, dtype=bool)
-        E = np.zeros((n if want.any() else 0, nl, 3))
-        exact = np.zeros((E.shape[0], nl), dtype=bool)
-        if want.any():
-            hit = np.nonzero(prim >= 0)[0]
-            if hit.size:
-                g = integ.scene.geometry
-                p, ng, ns, _ = surface_interaction(g.vertices, g.face_normal, g.normals, g.st,
-                                                   prim[hit].astype(np.int64), b1[hit], b2[hit],
-                                                   np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
-                if surf[3].shape[0]:
-                    ns = surf[3]  # normal-mapped shading normals, as the general path's ctx.ns
-                ctx = ShadingContext(p, ng, ns)
-                for li in np.nonzero(want)[0]:
-                    E[hit, li], exact[hit, li] = integ.lights.irradiance(np.full(hit.size, li, dtype=np.int64), ctx)
         n_groups = n * (min(1, int(np.count_nonzero(want))) if self.picks else int(np.count_nonzero(want)))
         est = (self.est_tok, self.est_alpha, np.ascontiguousarray(N, dtype=np.int64), np.ascontiguousarray(cont),
-               np.ascontiguousarray(cont_prev), E, exact, np.uint64(key2))
+               np.ascontiguousarray(cont_prev), np.uint64(key2))
         est_out = (np.empty((n * cap, 3)), np.empty(n * cap), np.empty((n_groups, 5), dtype=np.int64),
                    np.empty((n_groups, 6)))
         return est, est_out, cap
