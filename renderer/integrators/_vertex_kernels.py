@@ -149,9 +149,17 @@ def _f(kd, f0, f90, ao, bo, ai, bi, fw, dv):
     """f(wo, wi) of a material in one channel from its diffuse colour kd, Fresnel F0 and F90,
     the wo terms (ao, bo), the wi terms (ai, bi), the Schlick weight fw and D V of _specular
     (the formula of _preview_kernels.eval_kernel)."""
+    return _f_d(kd, f0, f90, ao, bo, ai, bi) + (f0 + (f90 - f0) * fw) * dv
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _f_d(kd, f0, f90, ao, bo, ai, bi):
+    """The diffuse lobe of _f (the rest is the specular lobe, (f0 + (f90 - f0) fw) D V)."""
     c_o = 1.0 - (f0 * ao + f90 * bo)
     c_i = 1.0 - (f0 * ai + f90 * bi)
-    return kd * c_o * c_i + (f0 + (f90 - f0) * fw) * dv
+    return kd * c_o * c_i
+
+
 
 
 # Helpers that read arrays are plain njit functions LLVM inlines (numba-inlining them would not
@@ -630,14 +638,15 @@ def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _split_at(V, Pm, wx, wy, wz, Le):
+def _split_at(V, Pm, wx, wy, wz, Le, sd, ss):
     """The integrand of the vertex V's BSDF at world direction (wx, wy, wz) for radiance Le,
-    split as estimators.base.split_integrand does (light samples and BSDF samples alike):
-    (fd, fs, p_b, wl_z, cos_g): fd = g |cos| Le the control lobe, fs = (f - g) |cos| Le the
-    residual (3-tuples), p_b the BSDF pdf, wl_z the direction's shading-frame cosine and cos_g
-    its geometric one. f is _preview_kernels.eval_kernel's (0 unless the specular factors are
-    defined), g the control lobe c(wo) (0 unless both directions are above the shading normal).
-    V: (p, ng, fs, ft, ns, wo, ao, bo, p_d, eps, m), its vectors 3-tuples."""
+    split as estimators.base.split_integrand does (light samples and BSDF samples alike), with
+    the light's diffuse and specular multipliers sd, ss (kernels.direct.split_kernel's rule):
+    (fd, fs, p_b, wl_z, cos_g): fd = g sd |cos| Le the control lobe, fs = ((f_d - g) sd + f_s ss)
+    |cos| Le the residual (3-tuples), p_b the BSDF pdf, wl_z the direction's shading-frame cosine
+    and cos_g its geometric one. f = f_d + f_s is _preview_kernels.eval_kernel's (0 unless the
+    specular factors are defined), g the control lobe c(wo) (0 unless both directions are above
+    the shading normal). V: (p, ng, fs, ft, ns, wo, ao, bo, p_d, eps, m), its vectors 3-tuples."""
     _p, ng, sf, tf, ns, wo, ao, bo, p_d, _eps, m = V
     a, j0, fy, kd, f0, f90 = _mat(Pm, m)
     lx = wx * sf[0] + wy * sf[1] + wz * sf[2]
@@ -649,14 +658,22 @@ def _split_at(V, Pm, wx, wy, wz, Le):
     p_b = p_d * lz * _INV_PI + (1.0 - p_d) * pdf_s if oks else 0.0
     up = lz > 0.0 and wo[2] > 0.0
     cos = abs(lz)
-    fd0 = _diffuse_constant(Pm[m, RHO], f0[0], f90[0], ao, bo) if up else 0.0
-    fd1 = _diffuse_constant(Pm[m, RHO + 1], f0[1], f90[1], ao, bo) if up else 0.0
-    fd2 = _diffuse_constant(Pm[m, RHO + 2], f0[2], f90[2], ao, bo) if up else 0.0
-    f_0 = _f(kd[0], f0[0], f90[0], ao, bo, ai, bi, fw, dv) if oks else 0.0
-    f_1 = _f(kd[1], f0[1], f90[1], ao, bo, ai, bi, fw, dv) if oks else 0.0
-    f_2 = _f(kd[2], f0[2], f90[2], ao, bo, ai, bi, fw, dv) if oks else 0.0
-    return ((fd0 * cos * Le[0], fd1 * cos * Le[1], fd2 * cos * Le[2]),
-            ((f_0 - fd0) * cos * Le[0], (f_1 - fd1) * cos * Le[1], (f_2 - fd2) * cos * Le[2]), p_b, lz, cos_g)
+    fd = (0.0, 0.0, 0.0)
+    fs = (0.0, 0.0, 0.0)
+    for c in range(3):
+        g = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) if up else 0.0
+        f_d = _f_d(kd[c], f0[c], f90[c], ao, bo, ai, bi) if oks else 0.0
+        f_s = (f0[c] + (f90[c] - f0[c]) * fw) * dv if oks else 0.0
+        k = cos * Le[c]
+        fd = _set3(fd, c, g * sd * k)
+        fs = _set3(fs, c, ((f_d - g) * sd + f_s * ss) * k)
+    return fd, fs, p_b, lz, cos_g
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _set3(t, c, x):
+    """The 3-tuple t with component c (0, 1 or 2) replaced by x."""
+    return (x if c == 0 else t[0], x if c == 1 else t[1], x if c == 2 else t[2])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -675,16 +692,17 @@ def _record(smp, i, wi, dist, p_l, p_b, fd, fs, usable):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
+def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls, bs):
     """Light g's N light samples into ls and N BSDF samples into bs (those its estimator needs)
     at the vertex V, as estimators.base.light_samples and bsdf_samples draw them: uniforms
-    splitmix_u01(key, ctr + 1 ...), five per sample."""
+    splitmix_u01(key, ctr + 1 ...), five per sample; sd, ss: the light's diffuse and specular
+    multipliers (_split_at)."""
     p, ng, sf, tf, ns, wo, ao, bo, p_d, eps, m = V
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
         wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
                                                  IMG, lcon[0], lcon[1], lcon[2])
-        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le)
+        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le, sd, ss)
         above = lz > 0.0 and cos_g > 0.0
         if not above:
             fd = (0.0, 0.0, 0.0)
@@ -702,7 +720,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
         # Lights are intersected from p itself (estimators.base.bsdf_samples).
         t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
-        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le)
+        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le, sd, ss)
         hit = p_b > 0.0 and cos_g > 0.0 and wl[2] > 0.0 and (Le[0] > 0.0 or Le[1] > 0.0 or Le[2] > 0.0)
         if not hit:
             fd = (0.0, 0.0, 0.0)
@@ -711,11 +729,12 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH, GR,
-                 k_sh, k_grp, scratch):
+def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, mult, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH,
+                 GR, k_sh, k_grp, scratch):
     """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
     estimator (token index tok, α index alpha, N samples, heuristic power_g; exact: whether
-    its F = c(wo) E is exact, E then taken here by _light_F from fcalc): the samples (_draw_pair), the estimator's
+    its F = c(wo) E is exact, E then taken here by _light_F from fcalc; mult: the lights'
+    diffuse and specular multipliers, FastPath.mult): the samples (_draw_pair), the estimator's
     coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:] (sh_o, sh_d, sh_t,
     sh_path, sh_c, sh_x, sh_cov: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
     and covered flag) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
@@ -723,7 +742,8 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, V, Pm, beta, pr_path, 
     Returns the new (k_sh, k_grp)."""
     ls, bs, cl, cb, tbuf = scratch
     need_l, need_b = ec.needs(tok)
-    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs)
+    sd = mult[0][g]
+    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, mult[1][g], ls, bs)
     mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
     sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov = SH
     p, ng, eps = V[0], V[1], V[9]
@@ -763,8 +783,8 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, V, Pm, beta, pr_path, 
         # F only for the pairs whose estimate uses it (this light's own, not every light's).
         E = _light_F(LP, g, p, ns, fcalc, IMG, tbuf)
         for c in range(3):
-            # F = c(wo) E (estimators.control_variates.diffuse_cv_inputs).
-            g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] if wo[2] > 0.0 else 0.0
+            # F = c(wo) E sd (estimators.control_variates.diffuse_cv_inputs).
+            g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] * sd if wo[2] > 0.0 else 0.0
             g_f[k_grp, 3 + c] = beta[c]
         k_grp += 1
     return k_sh, k_grp
@@ -780,7 +800,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, fcalc,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, fcalc, mult,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -806,7 +826,9 @@ def vertex_kernel(
     its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
     light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
     lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); fcalc: the
-    analytic integrals' record (FastPath.fcalc, read by _light_F). L (m, 3)
+    analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
+    specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
+    continuation MIS: their estimators apply them, _split_at). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -1004,8 +1026,8 @@ def vertex_kernel(
                     V = ((px, py, pz), _w3(W, W_G, i), _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
                          _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], eps,
                          int(W[W_M * BLK + i]))
-                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], fcalc[0][g], fcalc, V, Pm,
-                                               (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
+                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], fcalc[0][g], fcalc,
+                                               mult, V, Pm, (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
                                                np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
                                                scratch)
                     continue

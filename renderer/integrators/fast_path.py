@@ -9,7 +9,7 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
-  light linking, with unit diffuse/specular multipliers, under any lighting service: exhaustive
+  light linking, under any lighting service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
   (renderer/kernels/light_pick.py: one pick per vertex, and the pmf replayed at the previous
   vertex for the MIS weight of a light the continuation ray reaches, as the general path's
@@ -21,7 +21,9 @@ A scene qualifies when it has
   the kernel weighted with pmf p_l, the BSDF half on the extension ray); every other picked
   (vertex, light) pair gets its whole contribution from its estimator (estimators/compiled.py on
   the samples _vertex_kernels._direct_pair draws) divided by the pmf, and the extension ray adds
-  nothing for that light. The control variate's and ratio's F (the analytic irradiance) is taken
+  nothing for that light. A light with a diffuse or specular multiplier other than 1 is never on
+  continuation MIS (path.py's cont_ok): its estimator scales the BSDF's lobes by them
+  (_vertex_kernels._split_at, kernels.direct.split_kernel's rule). The control variate's and ratio's F (the analytic irradiance) is taken
   in the kernel for each (vertex, light) pair whose estimate uses it (_vertex_kernels._light_F:
   lights/irradiance.py's rule by the same compiled rows, about the bent shading normal);
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
@@ -85,11 +87,10 @@ def fast_path_reason(integ) -> str:
         return "dome portals"
     if lights.shaping is not None or scene.shadow_group is not None or scene.illuminates is not None:
         return "ShapingAPI, ShadowAPI or light linking"
-    plain = ((lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
-             & getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
+    plain = (getattr(lights, "plain_shadows", np.ones(lights.count, dtype=bool))
              & getattr(lights, "transparent", np.ones(lights.count, dtype=bool)))
     if not np.all(plain):
-        return "a light with a diffuse or specular multiplier or a ShadowAPI shadow"
+        return "a light with a ShadowAPI shadow"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if opt.max_depth <= 1:
@@ -173,6 +174,9 @@ class FastPath:
         fast_of[order] = np.arange(order.size)
         rl, sl, dl = self.rect, self.sphere, self.disk
         self.fcalc = self._f_record(order, dome, dist)
+        # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
+        self.mult = (np.ascontiguousarray(lights.diffuse_scale[order], dtype=np.float64),
+                     np.ascontiguousarray(lights.specular_scale[order], dtype=np.float64))
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
         self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
@@ -187,7 +191,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.fcalc)
+            self.fcalc, self.mult)
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:

@@ -199,3 +199,26 @@ def test_kernel_F_is_the_irradiance_of_the_numpy_api(tmp_path, monkeypatch):
             np.testing.assert_allclose(E[exact], E_ref[exact], rtol=1e-12, atol=1e-300)
     # Inexact: the point, the ellipse, the delta and the too-wide distant lights.
     assert exact_seen.count(False) == 4, exact_seen
+
+
+@pytest.mark.parametrize("estimator,alpha,N", [
+    ("mis", "one", 1),
+    ("controlVariate", "averageVisibilityUnbiased", 3),
+])
+def test_diffuse_and_specular_multipliers_match_the_general_path(tmp_path, estimator, alpha, N):
+    """UsdLux inputs:diffuse / inputs:specular on the compiled path: such a light leaves
+    continuation MIS (path.py cont_ok) and its estimator scales the BSDF's lobes
+    (_vertex_kernels._split_at, kernels.direct.split_kernel's rule; F by the diffuse one)."""
+    stage_path = tmp_path / "room.usda"
+    _room(stage_path, more_kinds=True)
+    stage = Usd.Stage.Open(str(stage_path))
+    for path, diffuse, specular in (("/World/Big", 0.4, 1.8), ("/World/Bulb", 1.5, 0.0), ("/World/Back", 0.0, 2.0)):
+        light = UsdLux.LightAPI(stage.GetPrimAtPath(path))
+        light.CreateDiffuseAttr(diffuse)
+        light.CreateSpecularAttr(specular)
+    stage.GetRootLayer().Save()
+    fast, slow = _pair(stage_path, estimator, alpha, N, spp=64, res=(48, 36))
+    _check(fast, slow)
+    # Continuation MIS still serves the plain mis lights.
+    assert (fast.stats["direct_rule"]["continuation_mis"] > 0) == (estimator == "mis")
+
