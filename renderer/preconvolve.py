@@ -575,16 +575,33 @@ class _ExactAccumulator:
 
 
 # Real SH basis, l ≤ 2 (R&H 2001 order: 00, 1-1, 10, 11, 2-2, 2-1, 20, 21, 22).
-def _sh_basis(d: np.ndarray) -> np.ndarray:
-    """(..., 9) real SH basis at unit directions d (..., 3)."""
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+@njit(cache=True, nogil=True, inline="always")
+def _sh_row(x, y, z):
+    """The real SH basis (9-tuple, l <= 2, R&H order) at the unit direction (x, y, z)."""
     c0 = 0.5 * math.sqrt(1.0 / math.pi)
     c1 = math.sqrt(3.0 / (4.0 * math.pi))
     c2 = 0.5 * math.sqrt(15.0 / math.pi)
     c3 = 0.25 * math.sqrt(5.0 / math.pi)
     c4 = 0.25 * math.sqrt(15.0 / math.pi)
-    return np.stack([np.full_like(x, c0), c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z,
-                     c3 * (3.0 * z * z - 1.0), c2 * x * z, c4 * (x * x - y * y)], axis=-1)
+    return (c0, c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z, c3 * (3.0 * z * z - 1.0), c2 * x * z,
+            c4 * (x * x - y * y))
+
+
+@njit(cache=True, nogil=True)
+def _sh_basis_rows(d, out):
+    for i in range(d.shape[0]):
+        b = _sh_row(d[i, 0], d[i, 1], d[i, 2])
+        for k in range(9):
+            out[i, k] = b[k]
+
+
+def _sh_basis(d: np.ndarray) -> np.ndarray:
+    """(..., 9) real SH basis at unit directions d (..., 3) (_sh_row per direction)."""
+    d = np.asarray(d, dtype=np.float64)
+    flat = np.ascontiguousarray(d.reshape(-1, 3))
+    out = np.empty((flat.shape[0], 9))
+    _sh_basis_rows(flat, out)
+    return out.reshape(d.shape[:-1] + (9,))
 
 
 @njit(cache=True, nogil=True)
@@ -1003,30 +1020,8 @@ def irradiance_row(nx, ny, nz, grid, h, w, sh, sun_rows, sun_cols, sun_rad, sun_
     cz ... sinb) and column centres slon, clon (W,) with src_w = W; tbuf scratch (>= max K)."""
     ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
     nx, ny, nz = nx / ln, ny / ln, nz / ln
-    # A(n): the order-2 SH irradiance (_sh_basis @ sh) plus the sun texels (_texel_list).
-    c0 = 0.5 * math.sqrt(1.0 / math.pi)
-    c1 = math.sqrt(3.0 / (4.0 * math.pi))
-    c2 = 0.5 * math.sqrt(15.0 / math.pi)
-    c3 = 0.25 * math.sqrt(5.0 / math.pi)
-    c4 = 0.25 * math.sqrt(15.0 / math.pi)
-    yk = (c0, c1 * ny, c1 * nz, c1 * nx, c2 * nx * ny, c2 * ny * nz, c3 * (3.0 * nz * nz - 1.0), c2 * nx * nz,
-          c4 * (nx * nx - ny * ny))
-    a0 = 0.0
-    a1 = 0.0
-    a2 = 0.0
-    for k in range(9):
-        a0 += yk[k] * sh[k, 0]
-        a1 += yk[k] * sh[k, 1]
-        a2 += yk[k] * sh[k, 2]
-    dlon = 2.0 * math.pi / src_w
-    for t in range(sun_rows.shape[0]):
-        i = sun_rows[t]
-        c = sun_cols[t]
-        wgt = _texel_weight(ny, nx * slon[c] + nz * clon[c], cz[i], sz[i], zt[i], zb[i], omega[i], S[i], Y[i],
-                            sinb[i], dlon, sun_K[t], nx, nz, slon[c], clon[c], tbuf)
-        a0 += wgt * sun_rad[t, 0]
-        a1 += wgt * sun_rad[t, 1]
-        a2 += wgt * sun_rad[t, 2]
+    a0, a1, a2 = analytic_row(nx, ny, nz, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb,
+                              slon, clon, src_w, tbuf)
     # The residual grid, bilinear (longitude wraps; the pole rows 0 and h + 1 close the caps).
     theta = math.atan2(math.hypot(nx, nz), ny)
     u = (math.pi - math.atan2(nx, nz)) / (2.0 * math.pi)
@@ -1049,6 +1044,43 @@ def irradiance_row(nx, ny, nz, grid, h, w, sh, sun_rows, sun_cols, sun_rad, sun_
     i00, i01, i10, i11 = e0 * w + col0, e0 * w + col1, e1 * w + col0, e1 * w + col1
     return (_bilinear(a0, grid, 0, i00, i01, i10, i11, tx, ty), _bilinear(a1, grid, 1, i00, i01, i10, i11, tx, ty),
             _bilinear(a2, grid, 2, i00, i01, i10, i11, tx, ty))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def analytic_row(nx, ny, nz, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon, clon,
+                 src_w, tbuf):
+    """IrradianceTable.analytic at one unit dome-local normal: A(n) as a 3-tuple, the order-2 SH
+    irradiance (sh (9, 3) on _sh_row) plus the sun texels' exact ∫ max(0, n·ω) dω (_texel_weight);
+    arguments as irradiance_row."""
+    yk = _sh_row(nx, ny, nz)
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    for k in range(9):
+        a0 += yk[k] * sh[k, 0]
+        a1 += yk[k] * sh[k, 1]
+        a2 += yk[k] * sh[k, 2]
+    dlon = 2.0 * math.pi / src_w
+    for t in range(sun_rows.shape[0]):
+        i = sun_rows[t]
+        c = sun_cols[t]
+        wgt = _texel_weight(ny, nx * slon[c] + nz * clon[c], cz[i], sz[i], zt[i], zb[i], omega[i], S[i], Y[i],
+                            sinb[i], dlon, sun_K[t], nx, nz, slon[c], clon[c], tbuf)
+        a0 += wgt * sun_rad[t, 0]
+        a1 += wgt * sun_rad[t, 1]
+        a2 += wgt * sun_rad[t, 2]
+    return a0, a1, a2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _analytic_rows(n, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon, clon, src_w,
+                   out):
+    """out (m, 3) = analytic_row at each unit dome-local normal n (m, 3)."""
+    tbuf = np.empty(max(K_MAX, sun_K.max() if sun_K.shape[0] else 0))
+    for r in range(n.shape[0]):
+        out[r, 0], out[r, 1], out[r, 2] = analytic_row(n[r, 0], n[r, 1], n[r, 2], sh, sun_rows, sun_cols, sun_rad,
+                                                       sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon, clon, src_w,
+                                                       tbuf)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -1161,16 +1193,11 @@ class IrradianceTable:
         return self.grid.shape[0] - 2, self.grid.shape[1]
 
     def analytic(self, n: np.ndarray) -> np.ndarray:
-        """A(n) (m, 3) at unit dome-local normals n (m, 3)."""
-        A = _sh_basis(n) @ self.sh
-        if self.sun_rows.size:
-            rp = self.src_rows
-            if self._cols is None:
-                self._cols = _col_params(self.src_w)
-            slon, clon = self._cols
-            _texel_list(np.ascontiguousarray(n), self.sun_rows, self.sun_cols, self.sun_rad, self.sun_K,
-                        rp.cz, rp.sz, rp.zt, rp.zb, rp.omega, rp.S, rp.Y, rp.sinb, slon, clon, self.src_w,
-                        K_MAX, A)
+        """A(n) (m, 3) at unit dome-local normals n (m, 3): analytic_row per normal."""
+        n = np.ascontiguousarray(np.asarray(n, dtype=np.float64).reshape(-1, 3))
+        A = np.empty((n.shape[0], 3))
+        arrs = _table_arrays(self)
+        _analytic_rows(n, *arrs[3:], A)
         return A
 
     def lookup(self, n: np.ndarray) -> np.ndarray:
