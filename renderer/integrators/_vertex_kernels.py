@@ -64,7 +64,7 @@ from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F,
 from renderer.preconvolve import packed_row
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
-    _rect_sample_row, _rect_texel_pdf_row, _rect_texel_row, _rect_texel_sample_row, _row, _sphere_hit_row, _texel_flat, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
+    _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
 )
 
 _INV_PI = 1.0 / math.pi
@@ -158,6 +158,8 @@ def _f_d(kd, f0, f90, ao, bo, ai, bi):
     c_o = 1.0 - (f0 * ao + f90 * bo)
     c_i = 1.0 - (f0 * ai + f90 * bi)
     return kd * c_o * c_i
+
+
 
 
 # Helpers that read arrays are plain njit functions LLVM inlines (numba-inlining them would not
@@ -493,10 +495,9 @@ def _lp(LP, g, c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _finite_seen(LP, g, o, d, IMG):
+def _finite_seen(LP, g, o, d):
     """Finite light g seen from o along unit d: (t, Le (3-tuple), seen): seen where the ray hits
-    the light's emitting side (the back of a one-sided light and a sphere's inside emit nothing);
-    a textured rect's Le takes the colour of the texel hit (IMG[11], its images)."""
+    the light's emitting side (the back of a one-sided light and a sphere's inside emit nothing)."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
     if kind == K_SPHERE:
@@ -509,13 +510,7 @@ def _finite_seen(LP, g, o, d, IMG):
         return tl, Le, hit and front
     n = _lp(LP, g, LP_N)
     if kind == K_RECT:
-        tl, a, b, hit = _rect_hit(o, d, _lp(LP, g, LP_C), n, _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD))
-        tex = int(LP[g, LP_TEX])
-        if tex >= 0 and hit:
-            texels, offset, height, width = IMG[11][:4]
-            row, col = _rect_texel_row(a, b, tex, height, width)
-            k = _texel_flat(tex, row, col, offset, height, width)
-            Le = (Le[0] * texels[k, 0], Le[1] * texels[k, 1], Le[2] * texels[k, 2])
+        tl, _a, _b, hit = _rect_hit(o, d, _lp(LP, g, LP_C), n, _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD))
     else:
         tl, hit = _disk_hit(o, d, _lp(LP, g, LP_C), n, _lp(LP, g, LP_A), _lp(LP, g, LP_B), LP[g, LP_P0],
                             LP[g, LP_P1])
@@ -525,21 +520,13 @@ def _finite_seen(LP, g, o, d, IMG):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _finite_pdf(LP, g, p, d, close_ratio, min_sa, graz, IMG):
-    """The solid-angle pdf with which finite light g's sampler, at p, picks direction d (a
-    textured rect's: its texel sampling's, at the texel d meets)."""
+def _finite_pdf(LP, g, p, d, close_ratio, min_sa, graz):
+    """The solid-angle pdf with which finite light g's sampler, at p, picks direction d."""
     kind = LP[g, LP_KIND]
     if kind == K_RECT:
-        tex = int(LP[g, LP_TEX])
-        tex_pdf = 0.0
-        if tex >= 0:
-            _t, a, b, _hit = _rect_hit(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_EXD),
-                                       _lp(LP, g, LP_EYD))
-            _texels, offset, height, width, weight, total = IMG[11][:6]
-            tex_pdf, _k = _rect_texel_pdf_row(a, b, tex, LP[g, LP_AREA], height, width, weight, total, offset)
         return _rect_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD),
                              _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0],
-                             LP[g, LP_P1], LP[g, LP_AREA], tex >= 0, LP[g, LP_FLAG] != 0.0, tex_pdf, min_sa, graz)
+                             LP[g, LP_P1], LP[g, LP_AREA], False, LP[g, LP_FLAG] != 0.0, 0.0, min_sa, graz)
     if kind == K_DISK:
         return _disk_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_A), _lp(LP, g, LP_B),
                              _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1], LP[g, LP_AREA],
@@ -575,27 +562,10 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     Le = _lp(LP, g, LP_L)
     delta = LP[g, LP_FLAG] != 0.0 and kind != K_RECT
     if kind == K_RECT:
-        tex = int(LP[g, LP_TEX])
-        ta = tb = t_pdf = 0.0
-        texels, offset, height, width, weight, total, row_cdf, row_cdf_start, col_cdf, col_cdf_start = IMG[11]
-        if tex >= 0:
-            # Texel importance sampling (RectLight._texel_samples), then the texel's colour at
-            # the sampled point (RectLight.sample_li).
-            ta, tb, t_pdf = _rect_texel_sample_row(u0, u1, tex, LP[g, LP_AREA], height, width, row_cdf,
-                                                   row_cdf_start, col_cdf, col_cdf_start, weight, total, offset)
-        wi, dist, pdf, pl, ok = _rect_sample_row(p, u0, u1, _lp(LP, g, LP_C), _lp(LP, g, LP_A), _lp(LP, g, LP_B),
-                                                 _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1],
-                                                 _lp(LP, g, LP_N), LP[g, LP_AREA], tex >= 0, LP[g, LP_FLAG] != 0.0,
-                                                 ta, tb, t_pdf, min_sa, graz)
-        if tex >= 0:
-            c = _lp(LP, g, LP_C)
-            q = (pl[0] - c[0], pl[1] - c[1], pl[2] - c[2])
-            exd = _lp(LP, g, LP_EXD)
-            eyd = _lp(LP, g, LP_EYD)
-            row, col = _rect_texel_row(q[0] * exd[0] + q[1] * exd[1] + q[2] * exd[2],
-                                       q[0] * eyd[0] + q[1] * eyd[1] + q[2] * eyd[2], tex, height, width)
-            k = _texel_flat(tex, row, col, offset, height, width)
-            Le = (Le[0] * texels[k, 0], Le[1] * texels[k, 1], Le[2] * texels[k, 2])
+        wi, dist, pdf, _pl, ok = _rect_sample_row(p, u0, u1, _lp(LP, g, LP_C), _lp(LP, g, LP_A), _lp(LP, g, LP_B),
+                                                  _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1],
+                                                  _lp(LP, g, LP_N), LP[g, LP_AREA], False, LP[g, LP_FLAG] != 0.0,
+                                                  0.0, 0.0, 0.0, min_sa, graz)
         return wi, dist, (pdf if ok else 0.0), Le, False
     if kind == K_SPHERE:
         wi, dist, pdf, _pl, ok, sc = _sphere_sample_row(p, u0, u1, _lp(LP, g, LP_C), LP[g, LP_P0], delta)
@@ -609,7 +579,7 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     tex = int(LP[g, LP_TEX])
     if kind == K_DOME and tex >= 0:
         (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-         im_col_cdf, im_col_cdf_start) = IMG[:11]
+         im_col_cdf, im_col_cdf_start) = IMG
         wi, pdf, kt = _dome_sample_row(u0, u1, tex, i_rot[int(LP[g, LP_J])], im_height, im_width, im_row_cdf,
                                        im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
         Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
@@ -628,10 +598,10 @@ def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
     if LP[g, LP_KIND] >= K_DOME:
         p_l, Le = _infinite_seen(LP, g, wi, IMG)
         return math.inf, Le, p_l
-    tl, Le, seen = _finite_seen(LP, g, p, wi, IMG)
+    tl, Le, seen = _finite_seen(LP, g, p, wi)
     if not seen:
         return math.inf, (0.0, 0.0, 0.0), 0.0
-    return tl, Le, _finite_pdf(LP, g, p, wi, close_ratio, min_sa, graz, IMG)
+    return tl, Le, _finite_pdf(LP, g, p, wi, close_ratio, min_sa, graz)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -830,7 +800,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, fcalc, mult, rtex,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, fcalc, mult,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -858,8 +828,7 @@ def vertex_kernel(
     lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); fcalc: the
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
-    continuation MIS: their estimators apply them, _split_at); rtex: the RectLights' textures
-    (FastPath.rtex: each rect's image or -1, then their ImageSet's arrays). L (m, 3)
+    continuation MIS: their estimators apply them, _split_at). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -916,12 +885,8 @@ def vertex_kernel(
     LP = _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, s_center,
                       s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
                       d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex)
-    # The rects' images (-1: untextured), and their ImageSet after the domes' one as IMG[11].
-    r_tex = rtex[0]
-    for j in range(n_rect):
-        LP[j, LP_TEX] = r_tex[j]
     IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-           im_col_cdf, im_col_cdf_start, rtex[1:])
+           im_col_cdf, im_col_cdf_start)
     lcon = (close_ratio, min_sa, graz)
     # The global index of each light in the kernel's order.
     glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
@@ -949,8 +914,8 @@ def vertex_kernel(
                 sampled = sampled or (hit_prim[r] >= 0 and depth[r] < max_depth)
             if sampled and not picks:
                 for j in range(n_rect):
-                    if not cont[rect_light[j]] or r_tex[j] >= 0:
-                        continue  # its estimator samples it in the scalar pass, or _light_sample (textured)
+                    if not cont[rect_light[j]]:
+                        continue  # its estimator samples it in the scalar pass
                     rect_sample_batch_kernel(W2, UB, U_LIGHT + 2 * rect_light[j], 0, hi - lo, _row(center, j),
                                              _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
                                              edge_len[j, 1], _row(nrm, j), area[j], is_rect[j], min_sa, graz, R[j])
@@ -992,7 +957,7 @@ def vertex_kernel(
                 # A light whose estimator covered it at the vertex the ray left adds nothing here.
                 if not (unsampled[r] or cont_prev[gl]):
                     continue
-                tl, Le, seen = _finite_seen(LP, g, o, d, IMG)
+                tl, Le, seen = _finite_seen(LP, g, o, d)
                 if not (seen and tl < t_geo):
                     continue
                 if unsampled[r]:
@@ -1001,7 +966,7 @@ def vertex_kernel(
                     # h(p_b, pmf p_l): p_l and the service's pmf from the vertex the ray left, as
                     # the light half there used.
                     pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
-                    p_l = _finite_pdf(LP, g, pv, d, close_ratio, min_sa, graz, IMG)
+                    p_l = _finite_pdf(LP, g, pv, d, close_ratio, min_sa, graz)
                     pmf = pick_pmf_row(sp, gl, pv[0], pv[1], pv[2], S[r, PN], S[r, PN + 1], S[r, PN + 2])
                     w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
                 L[pr_path, 0] += b0 * Le[0] * w
@@ -1066,7 +1031,7 @@ def vertex_kernel(
                                                np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
                                                scratch)
                     continue
-                if g < n_batch and not (g < n_rect and r_tex[g] >= 0):
+                if g < n_batch:
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
                     wi = (R[g, 0, i], R[g, 1, i], R[g, 2, i])
                     dist = R[g, 3, i]

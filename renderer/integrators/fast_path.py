@@ -7,7 +7,7 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
-* only RectLights (texel-sampled where textured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), without ShapingAPI, ShadowAPI or
   light linking, under any lighting service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
@@ -76,8 +76,12 @@ def fast_path_reason(integ) -> str:
         return "disabled (--no-fast-path)"
     if not integ.has_lights:
         return "no lights"
+    rect = KIND_NAMES.index("rect")
     if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
         return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
+    rl = lights.kinds[rect]
+    if np.any(rl.tex >= 0):
+        return "a textured RectLight"
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
@@ -170,13 +174,6 @@ class FastPath:
         fast_of[order] = np.arange(order.size)
         rl, sl, dl = self.rect, self.sphere, self.disk
         self.fcalc = self._f_record(order, dome, dist)
-        # The RectLights' textures: each rect's image (-1 untextured) and their ImageSet's arrays.
-        rim = rl.images
-        self.rtex = (np.ascontiguousarray(rl.tex, dtype=np.int64),) + tuple(
-            np.ascontiguousarray(a, dtype=t) for a, t in (
-                (np.reshape(rim.texels, (-1, 3)), f64), (rim.offset, i64), (rim.height, i64), (rim.width, i64),
-                (rim.weight, f64), (rim.total, f64), (rim.row_cdf, f64), (rim.row_cdf_start, i64),
-                (rim.col_cdf, f64), (rim.col_cdf_start, i64)))
         # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
         self.mult = (np.ascontiguousarray(lights.diffuse_scale[order], dtype=np.float64),
                      np.ascontiguousarray(lights.specular_scale[order], dtype=np.float64))
@@ -194,7 +191,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.fcalc, self.mult, self.rtex)
+            self.fcalc, self.mult)
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:

@@ -880,41 +880,6 @@ def _dome_texel_row(wi, img, rot, height, width, weight, total, offset):
     return (pmf / omega if omega > 0.0 else 0.0), k
 
 
-@njit(cache=True, nogil=True)
-def _rect_texel_row(a, b, img, height, width):
-    """RectLight._texel_rc for one row: the (row, col) of image img under the rect's edge
-    coordinates (a, b) (uv = (1/2 - a, 1/2 - b), rect.ab_to_uv)."""
-    h = height[img]
-    w = width[img]
-    col = min(max(int(math.floor((0.5 - a) * w)), 0), w - 1)
-    row = min(max(int(math.floor((1.0 - (0.5 - b)) * h)), 0), h - 1)
-    return row, col
-
-
-@njit(cache=True, nogil=True)
-def _rect_texel_sample_row(u0, u1, img, area_i, height, width, row_cdf, row_cdf_start, col_cdf, col_cdf_start,
-                           weight, total, offset):
-    """RectLight._texel_samples for one textured row: the edge coordinates (a, b) of a texel
-    importance sample and its area pdf (pmf h w / area), for _rect_sample_row."""
-    h = height[img]
-    w = width[img]
-    row, col, s, t = _image_sample_row(img, u0, u1, height, width, row_cdf, row_cdf_start, col_cdf,
-                                       col_cdf_start)
-    pmf = weight[_texel_flat(img, row, col, offset, height, width)] / total[img]
-    return 0.5 - (col + s) / w, 0.5 - (1.0 - (row + t) / h), (pmf * (h * w) / area_i if area_i > 0.0 else 0.0)
-
-
-@njit(cache=True, nogil=True)
-def _rect_texel_pdf_row(a, b, img, area_i, height, width, weight, total, offset):
-    """RectLight.pdf_li's area pdf of a textured row at edge coordinates (a, b): the texel's
-    pmf h w / area, and the texel's flat index (its colour)."""
-    row, col = _rect_texel_row(a, b, img, height, width)
-    k = _texel_flat(img, row, col, offset, height, width)
-    pmf = weight[k] / total[img]
-    hw = height[img] * width[img]
-    return (pmf * hw / area_i if area_i > 0.0 else 0.0), k
-
-
 # The spherical rectangle and the cone inline vmath's sin, cos and atan: flush this file's cached
 # kernels when vmath.py changes.
 guard_cache(__name__, module_dispatchers(globals()), ["renderer/kernels/vmath.py"])

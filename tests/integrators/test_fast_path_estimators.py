@@ -14,7 +14,6 @@ control variate's diffuse combination must fail the same comparison.
 """
 
 import inspect
-import os
 
 import numpy as np
 import pytest
@@ -223,29 +222,3 @@ def test_diffuse_and_specular_multipliers_match_the_general_path(tmp_path, estim
     # Continuation MIS still serves the plain mis lights.
     assert (fast.stats["direct_rule"]["continuation_mis"] > 0) == (estimator == "mis")
 
-
-@pytest.mark.parametrize("sampler,estimator,alpha,N", [
-    ("exhaustive", "mis", "one", 1),
-    ("exhaustive", "controlVariate", "averageVisibilityUnbiased", 3),
-    ("bvh", "mis", "one", 2),
-])
-def test_textured_rect_lights_match_the_general_path(tmp_path, sampler, estimator, alpha, N):
-    """Textured RectLights on the compiled path: texel importance sampling, the texel's colour
-    at the sample, on the emission the rays see and in the MIS pdfs (kernels/lights.py's
-    _rect_texel_* rows), continuation MIS included; no exact F (the control variate falls back
-    to MIS). The big light and the sheared one (area sampling) carry a checker."""
-    stage_path = tmp_path / "room.usda"
-    _room(stage_path, more_kinds=True)
-    stage = Usd.Stage.Open(str(stage_path))
-    for path in ("/World/Big", "/World/Sheared"):
-        UsdLux.RectLight(stage.GetPrimAtPath(path)).CreateTextureFileAttr(
-            os.path.abspath("stages/textures/checker.png"))
-    stage.GetRootLayer().Save()
-    common = dict(max_depth=3, rr_depth=1, threads=1, estimator={"": estimator}, cv_alpha={"": alpha},
-                  light_samples={"": N}, spp=64, resolution=(48, 36), pixel_filter_mode="importance",
-                  light_sampler=sampler)
-    fast = render(str(stage_path), RenderOptions(seed=4, **common))
-    slow = render(str(stage_path), RenderOptions(seed=11, fast_path=False, **common))
-    assert fast.stats["fast_path"] == "on"
-    assert slow.stats["fast_path"].startswith("disabled")
-    _check(fast, slow)
