@@ -575,16 +575,33 @@ class _ExactAccumulator:
 
 
 # Real SH basis, l ≤ 2 (R&H 2001 order: 00, 1-1, 10, 11, 2-2, 2-1, 20, 21, 22).
-def _sh_basis(d: np.ndarray) -> np.ndarray:
-    """(..., 9) real SH basis at unit directions d (..., 3)."""
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+@njit(cache=True, nogil=True, inline="always")
+def _sh_row(x, y, z):
+    """The real SH basis (9-tuple, l <= 2, R&H order) at the unit direction (x, y, z)."""
     c0 = 0.5 * math.sqrt(1.0 / math.pi)
     c1 = math.sqrt(3.0 / (4.0 * math.pi))
     c2 = 0.5 * math.sqrt(15.0 / math.pi)
     c3 = 0.25 * math.sqrt(5.0 / math.pi)
     c4 = 0.25 * math.sqrt(15.0 / math.pi)
-    return np.stack([np.full_like(x, c0), c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z,
-                     c3 * (3.0 * z * z - 1.0), c2 * x * z, c4 * (x * x - y * y)], axis=-1)
+    return (c0, c1 * y, c1 * z, c1 * x, c2 * x * y, c2 * y * z, c3 * (3.0 * z * z - 1.0), c2 * x * z,
+            c4 * (x * x - y * y))
+
+
+@njit(cache=True, nogil=True)
+def _sh_basis_rows(d, out):
+    for i in range(d.shape[0]):
+        b = _sh_row(d[i, 0], d[i, 1], d[i, 2])
+        for k in range(9):
+            out[i, k] = b[k]
+
+
+def _sh_basis(d: np.ndarray) -> np.ndarray:
+    """(..., 9) real SH basis at unit directions d (..., 3) (_sh_row per direction)."""
+    d = np.asarray(d, dtype=np.float64)
+    flat = np.ascontiguousarray(d.reshape(-1, 3))
+    out = np.empty((flat.shape[0], 9))
+    _sh_basis_rows(flat, out)
+    return out.reshape(d.shape[:-1] + (9,))
 
 
 @njit(cache=True, nogil=True)
@@ -991,6 +1008,158 @@ def preconvolve(src: str, out: str, size: int = 128, method: str = "exact", sani
 # --------------------------------------------------------------------------------------
 # Renderer hook: interpolation table
 # --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True, error_model="numpy")
+def irradiance_row(nx, ny, nz, grid, h, w, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y,
+                   sinb, slon, clon, src_w, tbuf):
+    """IrradianceTable.lookup at one dome-local normal (nx, ny, nz) (normalised here): E as a
+    3-tuple, per unit light radiance multiplier. The one formula of the lookup, which the numpy
+    API (IrradianceTable.lookup, a loop over rows) and the fast path's vertex kernel both call.
+
+    grid ((h + 2) w, 3): the table's residual grid, row-major; sh (9, 3); the sun texels (T,)
+    sun_rows, sun_cols, sun_K, sun_rad (T, 3); the source map's full-row constants (H,) (_Rows
+    cz ... sinb) and column centres slon, clon (W,) with src_w = W; tbuf scratch (>= max K)."""
+    ln = max(math.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+    nx, ny, nz = nx / ln, ny / ln, nz / ln
+    a0, a1, a2 = analytic_row(nx, ny, nz, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb,
+                              slon, clon, src_w, tbuf)
+    # The residual grid, bilinear (longitude wraps; the pole rows 0 and h + 1 close the caps).
+    theta = math.atan2(math.hypot(nx, nz), ny)
+    u = (math.pi - math.atan2(nx, nz)) / (2.0 * math.pi)
+    fx = u * w - 0.5
+    fc = math.floor(fx)
+    tx = fx - fc
+    col0 = int(fc) % w
+    col1 = (col0 + 1) % w
+    fy = theta / math.pi * h - 0.5
+    r0 = min(max(math.floor(fy), 0.0), float(h - 2))
+    ty = fy - r0
+    e0 = int(r0) + 1
+    if fy < 0.0:
+        ty = (fy + 0.5) / 0.5
+        e0 = 0
+    elif fy > h - 1:
+        ty = (fy - (h - 1)) / 0.5
+        e0 = h
+    e1 = e0 + 1
+    i00, i01, i10, i11 = e0 * w + col0, e0 * w + col1, e1 * w + col0, e1 * w + col1
+    return (_bilinear(a0, grid, 0, i00, i01, i10, i11, tx, ty), _bilinear(a1, grid, 1, i00, i01, i10, i11, tx, ty),
+            _bilinear(a2, grid, 2, i00, i01, i10, i11, tx, ty))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def analytic_row(nx, ny, nz, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon, clon,
+                 src_w, tbuf):
+    """IrradianceTable.analytic at one unit dome-local normal: A(n) as a 3-tuple, the order-2 SH
+    irradiance (sh (9, 3) on _sh_row) plus the sun texels' exact ∫ max(0, n·ω) dω (_texel_weight);
+    arguments as irradiance_row."""
+    yk = _sh_row(nx, ny, nz)
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    for k in range(9):
+        a0 += yk[k] * sh[k, 0]
+        a1 += yk[k] * sh[k, 1]
+        a2 += yk[k] * sh[k, 2]
+    dlon = 2.0 * math.pi / src_w
+    for t in range(sun_rows.shape[0]):
+        i = sun_rows[t]
+        c = sun_cols[t]
+        wgt = _texel_weight(ny, nx * slon[c] + nz * clon[c], cz[i], sz[i], zt[i], zb[i], omega[i], S[i], Y[i],
+                            sinb[i], dlon, sun_K[t], nx, nz, slon[c], clon[c], tbuf)
+        a0 += wgt * sun_rad[t, 0]
+        a1 += wgt * sun_rad[t, 1]
+        a2 += wgt * sun_rad[t, 2]
+    return a0, a1, a2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _analytic_rows(n, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon, clon, src_w,
+                   out):
+    """out (m, 3) = analytic_row at each unit dome-local normal n (m, 3)."""
+    tbuf = np.empty(max(K_MAX, sun_K.max() if sun_K.shape[0] else 0))
+    for r in range(n.shape[0]):
+        out[r, 0], out[r, 1], out[r, 2] = analytic_row(n[r, 0], n[r, 1], n[r, 2], sh, sun_rows, sun_cols, sun_rad,
+                                                       sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon, clon, src_w,
+                                                       tbuf)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _bilinear(a, grid, ch, i00, i01, i10, i11, tx, ty):
+    """a + the grid's channel ch interpolated between rows i00, i01 (top) and i10, i11 (bottom)."""
+    top = grid[i00, ch] * (1.0 - tx) + grid[i01, ch] * tx
+    bot = grid[i10, ch] * (1.0 - tx) + grid[i11, ch] * tx
+    return a + top * (1.0 - ty) + bot * ty
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lookup_rows(n, grid, h, w, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz, zt, zb, omega, S, Y, sinb, slon,
+                 clon, src_w, out):
+    """out (m, 3) = irradiance_row at each dome-local normal n (m, 3)."""
+    tbuf = np.empty(max(K_MAX, sun_K.max() if sun_K.shape[0] else 0))
+    for r in range(n.shape[0]):
+        e = irradiance_row(n[r, 0], n[r, 1], n[r, 2], grid, h, w, sh, sun_rows, sun_cols, sun_rad, sun_K, cz, sz,
+                           zt, zb, omega, S, Y, sinb, slon, clon, src_w, tbuf)
+        out[r, 0] = e[0]
+        out[r, 1] = e[1]
+        out[r, 2] = e[2]
+
+
+def _table_arrays(t: "IrradianceTable") -> tuple:
+    """The arrays irradiance_row takes for table t, in its order from grid to src_w."""
+    rp = t.src_rows
+    if t._cols is None:
+        t._cols = _col_params(t.src_w)
+    h, w = t.shape
+    f64, i64 = np.float64, np.int64
+    c = np.ascontiguousarray
+    return (c(t.grid.reshape(-1, 3), f64), h, w, c(t.sh, f64), c(t.sun_rows, i64), c(t.sun_cols, i64),
+            c(np.reshape(t.sun_rad, (-1, 3)), f64), c(t.sun_K, i64),
+            *(c(getattr(rp, k), f64) for k in ("cz", "sz", "zt", "zb", "omega", "S", "Y", "sinb")),
+            c(t._cols[0], f64), c(t._cols[1], f64), int(t.src_w))
+
+
+def pack_tables(tables) -> tuple:
+    """Several IrradianceTables (a list; None entries give nothing) as one record for compiled
+    code, table j looked up by ``packed_row``: (grid (G, 3), g_off (k + 1,), hw (k, 2) int64,
+    sh (k, 9, 3), s_off (k + 1,), sun_rows, sun_cols, sun_rad (T, 3), sun_K, r_off (k + 1,), the
+    eight row-constant arrays concatenated, c_off (k + 1,), slon, clon, src_w (k,), kmax), k the
+    number of tables (None ones included, empty)."""
+    arrs = [_table_arrays(t) if t is not None else None for t in tables]
+    k = len(arrs)
+    f64, i64 = np.float64, np.int64
+
+    def cat(i, shape, dtype):
+        parts = [a[i] for a in arrs if a is not None]
+        return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros(shape), dtype=dtype)
+
+    def off(i):
+        return np.ascontiguousarray(np.concatenate([[0], np.cumsum([0 if a is None else a[i].shape[0]
+                                                                     for a in arrs])]), dtype=i64)
+
+    hw = np.array([[a[1], a[2]] if a is not None else [0, 0] for a in arrs], dtype=i64).reshape(k, 2)
+    sh = np.array([a[3] if a is not None else np.zeros((9, 3)) for a in arrs], dtype=f64).reshape(k, 9, 3)
+    rows = tuple(cat(i, (0,), f64) for i in range(8, 16))
+    src_w = np.array([a[18] if a is not None else 1 for a in arrs], dtype=i64)
+    sun_K = cat(7, (0,), i64)
+    kmax = int(max(K_MAX, sun_K.max() if sun_K.size else 0))
+    return (cat(0, (0, 3), f64), off(0), hw, sh, off(4), cat(4, (0,), i64), cat(5, (0,), i64), cat(6, (0, 3), f64),
+            sun_K, off(8), *rows, off(16), cat(16, (0,), f64), cat(17, (0,), f64), src_w, kmax)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def packed_row(PK, j, nx, ny, nz, tbuf):
+    """irradiance_row of table j of a pack_tables record at dome-local normal (nx, ny, nz)."""
+    (grid, g_off, hw, sh, s_off, sun_rows, sun_cols, sun_rad, sun_K, r_off, cz, sz, zt, zb, omega, S, Y, sinb,
+     c_off, slon, clon, src_w, _kmax) = PK
+    g0, g1 = g_off[j], g_off[j + 1]
+    s0, s1 = s_off[j], s_off[j + 1]
+    r0, r1 = r_off[j], r_off[j + 1]
+    q0, q1 = c_off[j], c_off[j + 1]
+    return irradiance_row(nx, ny, nz, grid[g0:g1], hw[j, 0], hw[j, 1], sh[j], sun_rows[s0:s1], sun_cols[s0:s1],
+                          sun_rad[s0:s1], sun_K[s0:s1], cz[r0:r1], sz[r0:r1], zt[r0:r1], zb[r0:r1], omega[r0:r1],
+                          S[r0:r1], Y[r0:r1], sinb[r0:r1], slon[q0:q1], clon[q0:q1], src_w[j], tbuf)
+
+
 @dataclass
 class IrradianceTable:
     """Interpolated unshadowed irradiance of one dome texture (per unit of the light's L).
@@ -1024,45 +1193,20 @@ class IrradianceTable:
         return self.grid.shape[0] - 2, self.grid.shape[1]
 
     def analytic(self, n: np.ndarray) -> np.ndarray:
-        """A(n) (m, 3) at unit dome-local normals n (m, 3)."""
-        A = _sh_basis(n) @ self.sh
-        if self.sun_rows.size:
-            rp = self.src_rows
-            if self._cols is None:
-                self._cols = _col_params(self.src_w)
-            slon, clon = self._cols
-            _texel_list(np.ascontiguousarray(n), self.sun_rows, self.sun_cols, self.sun_rad, self.sun_K,
-                        rp.cz, rp.sz, rp.zt, rp.zb, rp.omega, rp.S, rp.Y, rp.sinb, slon, clon, self.src_w,
-                        K_MAX, A)
+        """A(n) (m, 3) at unit dome-local normals n (m, 3): analytic_row per normal."""
+        n = np.ascontiguousarray(np.asarray(n, dtype=np.float64).reshape(-1, 3))
+        A = np.empty((n.shape[0], 3))
+        arrs = _table_arrays(self)
+        _analytic_rows(n, *arrs[3:], A)
         return A
 
     def lookup(self, n: np.ndarray) -> np.ndarray:
-        """E (m, 3) at unit dome-local normals n (m, 3) (per unit light radiance multiplier)."""
-        n = np.asarray(n, dtype=np.float64).reshape(-1, 3)
-        n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-        h, w = self.shape
-        theta = np.arctan2(np.hypot(n[:, 0], n[:, 2]), n[:, 1])
-        u = (np.pi - np.arctan2(n[:, 0], n[:, 2])) / (2.0 * np.pi)
-        fx = u * w - 0.5
-        c0 = np.floor(fx)
-        tx = fx - c0
-        c0 = c0.astype(np.int64) % w
-        c1 = (c0 + 1) % w
-        fy = theta / np.pi * h - 0.5  # row coordinate, poles at -0.5 and h - 0.5
-        north = fy < 0.0
-        south = fy > h - 1
-        r0 = np.clip(np.floor(fy), 0, h - 2).astype(np.int64)
-        ty = fy - r0
-        e0 = r0 + 1
-        ty = np.where(north, (fy + 0.5) / 0.5, np.where(south, (fy - (h - 1)) / 0.5, ty))
-        e0 = np.where(north, 0, np.where(south, h, e0))
-        e1 = e0 + 1
-        g = self.grid
-        tx = tx[:, None]
-        ty = ty[:, None]
-        top = g[e0, c0] * (1.0 - tx) + g[e0, c1] * tx
-        bot = g[e1, c0] * (1.0 - tx) + g[e1, c1] * tx
-        return self.analytic(n) + top * (1.0 - ty) + bot * ty
+        """E (m, 3) at unit dome-local normals n (m, 3) (per unit light radiance multiplier):
+        irradiance_row per normal."""
+        n = np.ascontiguousarray(np.asarray(n, dtype=np.float64).reshape(-1, 3))
+        out = np.empty((n.shape[0], 3))
+        _lookup_rows(n, *_table_arrays(self), out)
+        return out
 
 
 def _sun_texels(m: np.ndarray, p: np.ndarray, rp: _Rows):

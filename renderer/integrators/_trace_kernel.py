@@ -99,9 +99,6 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
     g_f = np.empty((m * grp, 6))
     blocked = np.empty(m * cap, dtype=np.bool_)
     counts = np.empty(4 + nl, dtype=np.int64)
-    # F's irradiance is not taken here (FastPath.kernel_reason): the vertex kernel reads none.
-    E = np.zeros((0, nl, 3))
-    exact = np.zeros((0, nl), dtype=np.bool_)
     n = m
     for bounce in range(max_depth + 1):
         if n == 0:
@@ -117,7 +114,7 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
         cont = cont_at[1 + j]
         c = cap_at[j]
         g = grp_at[j] if bounce < max_depth else 0
-        est = (tok, alpha, N_at[j], cont, cont_at[min(bounce, 2)], E, exact, np.uint64(keys2[bounce]))
+        est = (tok, alpha, N_at[j], cont, cont_at[min(bounce, 2)], np.uint64(keys2[bounce]))
         est_out = (sh_x[:n * c], sh_cov[:n * c], g_int[:n * g], g_f[:n * g], sh_l[:n * c])
         counts[:] = 0
         vertex_kernel(path[:n], depth[:n], unsampled[:n], S[:n], t32[:n], prim[:n], b1[:n], b2[:n],

@@ -61,6 +61,8 @@ from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.shaping import shaping_factor_row
+from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
+from renderer.preconvolve import packed_row
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
@@ -149,9 +151,17 @@ def _f(kd, f0, f90, ao, bo, ai, bi, fw, dv):
     """f(wo, wi) of a material in one channel from its diffuse colour kd, Fresnel F0 and F90,
     the wo terms (ao, bo), the wi terms (ai, bi), the Schlick weight fw and D V of _specular
     (the formula of _preview_kernels.eval_kernel)."""
+    return _f_d(kd, f0, f90, ao, bo, ai, bi) + (f0 + (f90 - f0) * fw) * dv
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _f_d(kd, f0, f90, ao, bo, ai, bi):
+    """The diffuse lobe of _f (the rest is the specular lobe, (f0 + (f90 - f0) fw) D V)."""
     c_o = 1.0 - (f0 * ao + f90 * bo)
     c_i = 1.0 - (f0 * ai + f90 * bi)
-    return kd * c_o * c_i + (f0 + (f90 - f0) * fw) * dv
+    return kd * c_o * c_i
+
+
 
 
 # Helpers that read arrays are plain njit functions LLVM inlines (numba-inlining them would not
@@ -611,14 +621,48 @@ def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _split_at(V, Pm, wx, wy, wz, Le):
+def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
+    """Light g's unshadowed irradiance E (3-tuple) at p (3-tuple) about the shading normal ns,
+    the control variate's F = c(wo) E: lights/irradiance.py's rule per kind, by the same compiled
+    rows (lights/analytic.py's rect_F, sphere_F, disk_F on the radius s1, distant_F and
+    dome_constant_F; a textured dome's preconvolved table by preconvolve.irradiance_row at
+    R^T ns). fcalc: FastPath.fcalc (exact flags, the distant lights' theta_max, the quadrature
+    switches, the domes' packed tables); E means something only where fcalc[0][g] is set."""
+    _exact, theta, far_ratio, kappa_max, PK = fcalc
+    kind = LP[g, LP_KIND]
+    Le = _lp(LP, g, LP_L)
+    if kind == K_RECT:
+        G = rect_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_N), far_ratio,
+                   kappa_max)
+    elif kind == K_SPHERE:
+        G = sphere_F(p, ns, _lp(LP, g, LP_C), LP[g, LP_P0])
+    elif kind == K_DISK:
+        G = disk_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_N), LP[g, LP_P0], far_ratio, kappa_max)
+    elif kind == K_DISTANT:
+        G = distant_F(ns, _lp(LP, g, LP_A), theta[g])
+    elif LP[g, LP_TEX] < 0:
+        G = dome_constant_F()
+    else:
+        j = int(LP[g, LP_J])
+        R = IMG[0][j]
+        # The normal in the dome's frame (R^T ns; R local -> world), as DomeLight.irradiance_lookup.
+        e = packed_row(PK, j, ns[0] * R[0, 0] + ns[1] * R[1, 0] + ns[2] * R[2, 0],
+                       ns[0] * R[0, 1] + ns[1] * R[1, 1] + ns[2] * R[2, 1],
+                       ns[0] * R[0, 2] + ns[1] * R[1, 2] + ns[2] * R[2, 2], tbuf)
+        return (e[0] * Le[0], e[1] * Le[1], e[2] * Le[2])
+    return (G * Le[0], G * Le[1], G * Le[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _split_at(V, Pm, wx, wy, wz, Le, sd, ss):
     """The integrand of the vertex V's BSDF at world direction (wx, wy, wz) for radiance Le,
-    split as estimators.base.split_integrand does (light samples and BSDF samples alike):
-    (fd, fs, p_b, wl_z, cos_g): fd = g |cos| Le the control lobe, fs = (f - g) |cos| Le the
-    residual (3-tuples), p_b the BSDF pdf, wl_z the direction's shading-frame cosine and cos_g
-    its geometric one. f is _preview_kernels.eval_kernel's (0 unless the specular factors are
-    defined), g the control lobe c(wo) (0 unless both directions are above the shading normal).
-    V: (p, ng, fs, ft, ns, wo, ao, bo, p_d, eps, m), its vectors 3-tuples."""
+    split as estimators.base.split_integrand does (light samples and BSDF samples alike), with
+    the light's diffuse and specular multipliers sd, ss (kernels.direct.split_kernel's rule):
+    (fd, fs, p_b, wl_z, cos_g): fd = g sd |cos| Le the control lobe, fs = ((f_d - g) sd + f_s ss)
+    |cos| Le the residual (3-tuples), p_b the BSDF pdf, wl_z the direction's shading-frame cosine
+    and cos_g its geometric one. f = f_d + f_s is _preview_kernels.eval_kernel's (0 unless the
+    specular factors are defined), g the control lobe c(wo) (0 unless both directions are above
+    the shading normal). V: (p, ng, fs, ft, ns, wo, ao, bo, p_d, eps, m), its vectors 3-tuples."""
     _p, ng, sf, tf, ns, wo, ao, bo, p_d, _eps, m = V
     a, j0, fy, kd, f0, f90 = _mat(Pm, m)
     lx = wx * sf[0] + wy * sf[1] + wz * sf[2]
@@ -630,14 +674,22 @@ def _split_at(V, Pm, wx, wy, wz, Le):
     p_b = p_d * lz * _INV_PI + (1.0 - p_d) * pdf_s if oks else 0.0
     up = lz > 0.0 and wo[2] > 0.0
     cos = abs(lz)
-    fd0 = _diffuse_constant(Pm[m, RHO], f0[0], f90[0], ao, bo) if up else 0.0
-    fd1 = _diffuse_constant(Pm[m, RHO + 1], f0[1], f90[1], ao, bo) if up else 0.0
-    fd2 = _diffuse_constant(Pm[m, RHO + 2], f0[2], f90[2], ao, bo) if up else 0.0
-    f_0 = _f(kd[0], f0[0], f90[0], ao, bo, ai, bi, fw, dv) if oks else 0.0
-    f_1 = _f(kd[1], f0[1], f90[1], ao, bo, ai, bi, fw, dv) if oks else 0.0
-    f_2 = _f(kd[2], f0[2], f90[2], ao, bo, ai, bi, fw, dv) if oks else 0.0
-    return ((fd0 * cos * Le[0], fd1 * cos * Le[1], fd2 * cos * Le[2]),
-            ((f_0 - fd0) * cos * Le[0], (f_1 - fd1) * cos * Le[1], (f_2 - fd2) * cos * Le[2]), p_b, lz, cos_g)
+    fd = (0.0, 0.0, 0.0)
+    fs = (0.0, 0.0, 0.0)
+    for c in range(3):
+        g = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) if up else 0.0
+        f_d = _f_d(kd[c], f0[c], f90[c], ao, bo, ai, bi) if oks else 0.0
+        f_s = (f0[c] + (f90[c] - f0[c]) * fw) * dv if oks else 0.0
+        k = cos * Le[c]
+        fd = _set3(fd, c, g * sd * k)
+        fs = _set3(fs, c, ((f_d - g) * sd + f_s * ss) * k)
+    return fd, fs, p_b, lz, cos_g
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _set3(t, c, x):
+    """The 3-tuple t with component c (0, 1 or 2) replaced by x."""
+    return (x if c == 0 else t[0], x if c == 1 else t[1], x if c == 2 else t[2])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -656,17 +708,18 @@ def _record(smp, i, wi, dist, p_l, p_b, fd, fs, usable):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs, SHP):
+def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls, bs, SHP):
     """Light g's N light samples into ls and N BSDF samples into bs (those its estimator needs)
     at the vertex V, as estimators.base.light_samples and bsdf_samples draw them: uniforms
-    splitmix_u01(key, ctr + 1 ...), five per sample. SHP: the ShapingAPI record (_shaped)."""
+    splitmix_u01(key, ctr + 1 ...), five per sample; sd, ss: the light's diffuse and specular
+    multipliers (_split_at). SHP: the ShapingAPI record (_shaped)."""
     p, ng, sf, tf, ns, wo, ao, bo, p_d, eps, m = V
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
         wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
                                                  IMG, lcon[0], lcon[1], lcon[2])
         Le = _shaped(LP, g, SHP, wi, Le)
-        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le)
+        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le, sd, ss)
         above = lz > 0.0 and cos_g > 0.0
         if not above:
             fd = (0.0, 0.0, 0.0)
@@ -685,7 +738,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs, SHP
         # Lights are intersected from p itself (estimators.base.bsdf_samples).
         t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
         Le = _shaped(LP, g, SHP, (wx, wy, wz), Le)
-        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le)
+        fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le, sd, ss)
         hit = p_b > 0.0 and cos_g > 0.0 and wl[2] > 0.0 and (Le[0] > 0.0 or Le[1] > 0.0 or Le[2] > 0.0)
         if not hit:
             fd = (0.0, 0.0, 0.0)
@@ -694,19 +747,21 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs, SHP
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH, GR, k_sh,
-                 k_grp, scratch, SHP):
+def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, mult, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH,
+                 GR, k_sh, k_grp, scratch, SHP):
     """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
-    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact, E: whether
-    its F = c(wo) E is exact and E (3-tuple)): the samples (_draw_pair), the estimator's
+    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact: whether
+    its F = c(wo) E is exact, E then taken here by _light_F from fcalc; mult: the lights'
+    diffuse and specular multipliers, FastPath.mult): the samples (_draw_pair), the estimator's
     coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:] (sh_o, sh_d, sh_t,
     sh_path, sh_c, sh_x, sh_cov, sh_l: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
     and covered flag, sh_l the light g) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
     rays, N, mode), g_f (F, beta)), which resolve_groups_kernel adds once the rays are traced.
     Returns the new (k_sh, k_grp). SHP: the ShapingAPI record (_shaped)."""
-    ls, bs, cl, cb = scratch
+    ls, bs, cl, cb, tbuf = scratch
     need_l, need_b = ec.needs(tok)
-    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, ls, bs, SHP)
+    sd = mult[0][g]
+    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, mult[1][g], ls, bs, SHP)
     mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
     sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov, sh_l = SH
     p, ng, eps = V[0], V[1], V[9]
@@ -742,11 +797,13 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, E, V, Pm, beta, pr_path, key,
         g_int[k_grp, 2] = k_sh - first
         g_int[k_grp, 3] = N
         g_int[k_grp, 4] = mode
-        _p, _ng, _sf, _tf, _ns, wo, ao, bo, _pd, _eps, m = V
+        _p, _ng, _sf, _tf, ns, wo, ao, bo, _pd, _eps, m = V
         a, j0, fy, kd, f0, f90 = _mat(Pm, m)
+        # F only for the pairs whose estimate uses it (this light's own, not every light's).
+        E = _light_F(LP, g, p, ns, fcalc, IMG, tbuf)
         for c in range(3):
-            # F = c(wo) E (estimators.control_variates.diffuse_cv_inputs).
-            g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] if wo[2] > 0.0 else 0.0
+            # F = c(wo) E sd (estimators.control_variates.diffuse_cv_inputs).
+            g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] * sd if wo[2] > 0.0 else 0.0
             g_f[k_grp, 3 + c] = beta[c]
         k_grp += 1
     return k_sh, k_grp
@@ -762,7 +819,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -790,7 +847,10 @@ def vertex_kernel(
     lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); lux: the UsdLux
     record (FastPath.lux: each global light's ShapingAPI row, -1 unshaped, and
     ShapingTable.kernel_record(); lightLink: each triangle's mesh (T,) int64 and illum (lights,
-    meshes) bool, or (0, 0) without light linking). L (m, 3)
+    meshes) bool, or (0, 0) without light linking); fcalc: the
+    analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
+    specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
+    continuation MIS: their estimators apply them, _split_at). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -865,15 +925,15 @@ def vertex_kernel(
         LP[g, LP_SHAPE] = shp_row[glob[g]]
     # The per-light estimators (FastPath.trace's record): token, alpha and N per light at this
     # bounce's vertices; whether each light is on continuation MIS there (cont) and was at the
-    # vertex the rays left (cont_prev); F's irradiance E (n, lights, 3) and its exactness; the
-    # key of their uniforms. Outputs: each shadow ray's X and covered flag, and the groups.
-    e_tok, e_alpha, e_N, cont, cont_prev, e_E, e_exact, e_key = est
+    # vertex the rays left (cont_prev); the key of their uniforms (F is taken per pair, _light_F).
+    # Outputs: each shadow ray's X and covered flag, the groups, and each shadow ray's light.
+    e_tok, e_alpha, e_N, cont, cont_prev, e_key = est
     sh_x, sh_cov, g_int, g_f, sh_l = est_out
     SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov, sh_l)
     GR = (g_int, g_f)
     n_max = max(1, e_N.max()) if nl else 1
     scratch = (np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NC)),
-               np.empty((n_max, ec.NC)))
+               np.empty((n_max, ec.NC)), np.empty(fcalc[4][-1]))
     k_grp = 0
     for lo in range(0, n, BLK):
         hi = min(n, lo + BLK)
@@ -1007,10 +1067,8 @@ def vertex_kernel(
                     V = ((px, py, pz), _w3(W, W_G, i), _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
                          _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], eps,
                          int(W[W_M * BLK + i]))
-                    exact = e_exact.shape[0] > 0 and e_exact[r, gl]
-                    E = (e_E[r, gl, 0], e_E[r, gl, 1], e_E[r, gl, 2]) if e_E.shape[0] > 0 else (0.0, 0.0, 0.0)
-                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], exact, E, V, Pm,
-                                               (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
+                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], fcalc[0][g], fcalc,
+                                               mult, V, Pm, (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
                                                np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
                                                scratch, SHP)
                     continue
@@ -1158,4 +1216,5 @@ guard_cache(__name__, module_dispatchers(globals()),
             ["renderer/bsdfs/_preview_kernels.py", "renderer/kernels/lights.py", "renderer/kernels/direct.py",
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
-             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py"])
+             "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
+             "renderer/lights/analytic.py", "renderer/preconvolve.py"])

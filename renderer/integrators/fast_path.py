@@ -16,7 +16,8 @@ A scene qualifies when it has
   _visibility), and ShadowAPI (lights with shadow:enable off, a shadow distance or falloff get
   their own shadow group like a shadowLink, traced by shadow_api.visibility, and the blocked
   fraction of a shadow:color light's ray shows the colour: _vertex_kernels.add_visible_kernel),
-  with unit diffuse/specular multipliers, under any lighting service: exhaustive
+  and any diffuse/specular multipliers (their lights' estimators apply them), under any lighting
+  service: exhaustive
   (every light at every vertex, pmf 1), or uniform, power and bvh, which the kernel runs per row
   (renderer/kernels/light_pick.py: one pick per vertex, and the pmf replayed at the previous
   vertex for the MIS weight of a light the continuation ray reaches, as the general path's
@@ -28,9 +29,11 @@ A scene qualifies when it has
   the kernel weighted with pmf p_l, the BSDF half on the extension ray); every other picked
   (vertex, light) pair gets its whole contribution from its estimator (estimators/compiled.py on
   the samples _vertex_kernels._direct_pair draws) divided by the pmf, and the extension ray adds
-  nothing for that light. The control variate's and ratio's F (the analytic irradiance,
-  lights/irradiance.py, numpy) is computed per bounce before the kernel for the hits that need it
-  (for every such light: with a picking service, n x lights irradiances per bounce);
+  nothing for that light. A light with a diffuse or specular multiplier other than 1 is never on
+  continuation MIS (path.py's cont_ok): its estimator scales the BSDF's lobes by them
+  (_vertex_kernels._split_at, kernels.direct.split_kernel's rule). The control variate's and ratio's F (the analytic irradiance) is taken
+  in the kernel for each (vertex, light) pair whose estimate uses it (_vertex_kernels._light_F:
+  lights/irradiance.py's rule by the same compiled rows, about the bent shading normal);
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
@@ -67,7 +70,6 @@ import numpy as np
 
 from ..estimators import ALPHAS, TOKENS
 from ..geometry import dot, offset_origin, surface_interaction
-from ..lights.base import ShadingContext
 from ..lights.disk import CLOSE_RATIO as DISK_CLOSE_RATIO
 from ..lights.light_set import KIND_NAMES
 from ..lights.shaping import empty_kernel_record
@@ -101,9 +103,6 @@ def fast_path_reason(integ) -> str:
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
-    plain = (lights.diffuse_scale == 1.0) & (lights.specular_scale == 1.0)
-    if not np.all(plain):
-        return "a light with a diffuse or specular multiplier"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if opt.max_depth <= 1:
@@ -205,6 +204,10 @@ class FastPath:
         self.shadow_tint = lights.shadow_tint
         self.lux_shadows = scene.shadow_group is not None or lights.shadow_tint is not None
         rl, sl, dl = self.rect, self.sphere, self.disk
+        self.fcalc = self._f_record(order, dome, dist)
+        # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
+        self.mult = (np.ascontiguousarray(lights.diffuse_scale[order], dtype=np.float64),
+                     np.ascontiguousarray(lights.specular_scale[order], dtype=np.float64))
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
         self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
@@ -219,7 +222,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux)
+            self.lux, self.fcalc, self.mult)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
@@ -260,8 +263,6 @@ class FastPath:
         scene keeps the Python bounce loop (numpy work between the compiled calls)."""
         if self.per_hit:
             return "per-hit surfaces (textured inputs, emission or normal maps) are evaluated in numpy"
-        if self.needs_F.any():
-            return "F of the control variate or ratio is a numpy pass per bounce"
         if self.lux_shadows:
             return "shadow links, ShadowAPI settings or shadow colours are traced per group from Python"
         if self.integ.scene.accel.backend != "native":
@@ -362,7 +363,7 @@ class FastPath:
             n_o32 = np.empty((n, 3), dtype=np.float32)
             n_d32 = np.empty((n, 3), dtype=np.float32)
             n_t32 = np.empty(n, dtype=np.float32)
-            est, est_out, cap = self._estimators(bounce, max_depth, cont_at, keys2[bounce], prim, b1, b2, S, surf)
+            est, est_out, cap = self._estimators(bounce, max_depth, cont_at, keys2[bounce], n)
             sh_o = np.empty((n * cap, 3), dtype=np.float32)
             sh_d = np.empty((n * cap, 3), dtype=np.float32)
             sh_t = np.empty(n * cap, dtype=np.float32)
@@ -405,37 +406,40 @@ class FastPath:
         integ.rule_counts["continuation_mis"] += pairs
         return L
 
-    def _estimators(self, bounce, max_depth, cont_at, key2, prim, b1, b2, S, surf):
+    def _f_record(self, order, dome, dist):
+        """The analytic integrals' record for _vertex_kernels._light_F, lights in the kernel's
+        order (``order``: their global indices): (exact (lights,) bool: irradiance.py's rule,
+        has_exact_integral, and for a textured dome its table; theta_max (lights,) of the
+        distant lights (0 elsewhere); the quadrature switches FAR_RATIO and KAPPA_MAX as the
+        numpy API passes them; the domes' preconvolved tables, preconvolve.pack_tables, table j
+        for dome j (empty for a constant dome))."""
+        from ..lights import analytic
+        from ..lights.irradiance import has_exact_integral
+        from ..preconvolve import pack_tables
+
+        lights = self.integ.lights
+        tables = list(getattr(dome, "irradiance", [None] * dome.count))
+        exact = has_exact_integral(lights)
+        for gl in np.nonzero(lights.kind_of == KIND_NAMES.index("dome"))[0]:
+            # A textured dome without a table has no exact F (DomeLight.irradiance_lookup's ok).
+            j = lights.local_of[gl]
+            exact[gl] &= bool(dome.tex[j] < 0 or tables[j] is not None)
+        theta = np.zeros(lights.count)
+        theta[np.nonzero(lights.kind_of == KIND_NAMES.index("distant"))[0]] = np.reshape(dist.theta_max, dist.count)
+        return (np.ascontiguousarray(exact[order]), np.ascontiguousarray(theta[order], dtype=np.float64),
+                float(analytic.FAR_RATIO), float(analytic.KAPPA_MAX), pack_tables(tables))
+
+    def _estimators(self, bounce, max_depth, cont_at, key2, n):
         """The vertex kernel's per-light estimator records for a bounce whose vertices have depth
         ``bounce`` (every row of a fast-path bounce has): est (tokens, alphas, N per light, on
-        continuation MIS here, was at the vertex the rays left, E (n, lights, 3), exact (n,
-        lights), the uniforms' key), est_out (each shadow ray's X (cap n, 3) and covered flag,
-        the groups' (g, 5) int64 and (g, 6) records, each shadow ray's light (cap n,) int64 in
-        the kernel's order), and cap: shadow rays per row at most.
-        surf: the kernel's surface record (its bent shading normals, about which F is taken)."""
-        integ = self.integ
-        nl = integ.lights.count
-        n = prim.shape[0]
+        continuation MIS here, was at the vertex the rays left, the uniforms' key), est_out (each
+        shadow ray's X (cap n, 3) and covered flag, the groups' (g, 5) int64 and (g, 6) records,
+        each shadow ray's light (cap n,) int64 in the kernel's order), and cap: shadow rays per
+        row at most. (F is taken in the kernel, _vertex_kernels._light_F.)"""
         N, cont, cont_prev, cap, groups = self._bounce_plan(bounce)
-        own = ~cont
-        want = own & self.needs_F if bounce < max_depth else np.zeros(nl, dtype=bool)
-        E = np.zeros((n if want.any() else 0, nl, 3))
-        exact = np.zeros((E.shape[0], nl), dtype=bool)
-        if want.any():
-            hit = np.nonzero(prim >= 0)[0]
-            if hit.size:
-                g = integ.scene.geometry
-                p, ng, ns, _ = surface_interaction(g.vertices, g.face_normal, g.normals, g.st,
-                                                   prim[hit].astype(np.int64), b1[hit], b2[hit],
-                                                   np.ascontiguousarray(S[hit, vk.D:vk.D + 3]))
-                if surf[3].shape[0]:
-                    ns = surf[3]  # normal-mapped shading normals, as the general path's ctx.ns
-                ctx = ShadingContext(p, ng, ns)
-                for li in np.nonzero(want)[0]:
-                    E[hit, li], exact[hit, li] = integ.lights.irradiance(np.full(hit.size, li, dtype=np.int64), ctx)
         n_groups = n * groups if bounce < max_depth else 0
         est = (self.est_tok, self.est_alpha, np.ascontiguousarray(N, dtype=np.int64), np.ascontiguousarray(cont),
-               np.ascontiguousarray(cont_prev), E, exact, np.uint64(key2))
+               np.ascontiguousarray(cont_prev), np.uint64(key2))
         est_out = (np.empty((n * cap, 3)), np.empty(n * cap), np.empty((n_groups, 5), dtype=np.int64),
                    np.empty((n_groups, 6)), np.empty(n * cap, dtype=np.int64))
         return est, est_out, cap

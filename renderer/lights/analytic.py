@@ -102,6 +102,8 @@ __all__ = [
     "disk_F",
     "ellipse_F",
     "dome_constant_F",
+    "distant_F",
+    "projected_solid_angle_distant",
 ]
 
 # Light diameter / distance below which the far-field quadrature replaces the boundary sums,
@@ -609,6 +611,18 @@ def sphere_F(p, nrm, center, radius):
     else:
         g = s2 * phi0 * cz + beta - a * b / (d * d)
     return max(g, 0.0)
+
+
+@_jit
+def distant_F(nrm, axis, theta_max):
+    """Projected solid angle G [sr] of a DistantLight's cone: the directions within theta_max
+    of the unit axis (towards the light), horizon-clipped about nrm (3-tuples; nrm normalised
+    here). The cone is what a sphere of radius sin θmax at unit distance subtends, so this is
+    sphere_F of that sphere; the point itself does not matter. theta_max outside (0, π/2)
+    gives 0 (a delta light has no cone, a wider one no such sphere: irradiance.py's rule)."""
+    if not (theta_max > 0.0 and theta_max < 0.5 * _PI):
+        return 0.0
+    return sphere_F((0.0, 0.0, 0.0), nrm, axis, math.sin(theta_max))
 
 
 # ----------------------------------------------------------------------------------------
@@ -1172,6 +1186,12 @@ def _sphere_rows(p, nrm, center, radius, out):
 
 
 @_jit
+def _distant_rows(p, nrm, axis, theta_max, out):
+    for i in range(p.shape[0]):
+        out[i] = distant_F(_row(nrm, i), _row(axis, i), theta_max[i])
+
+
+@_jit
 def _disk_rows(p, nrm, center, e_n, radius, far_ratio, kappa_max, out):
     for i in range(p.shape[0]):
         out[i] = disk_F(_row(p, i), _row(nrm, i), _row(center, i), _row(e_n, i), radius[i], far_ratio,
@@ -1253,6 +1273,15 @@ def projected_solid_angle_sphere(p, nrm, center, radius) -> np.ndarray:
     Points on or inside the sphere get 0.
     """
     return _over_rows(_sphere_rows, p, ((nrm, 3), (center, 3), (radius, None)))
+
+
+def projected_solid_angle_distant(nrm, axis, theta_max) -> np.ndarray:
+    """Projected solid angle (n,) [sr] of DistantLight cones (distant_F per row).
+
+    nrm: (n, 3) unit normals; axis: (n, 3) or (3,) unit directions towards the light;
+    theta_max: (n,) or scalar half-angles (rad), 0 outside (0, π/2).
+    """
+    return _over_rows(_distant_rows, nrm, ((nrm, 3), (axis, 3), (theta_max, None)))
 
 
 def projected_solid_angle_disk(p, nrm, center, e_n, radius) -> np.ndarray:

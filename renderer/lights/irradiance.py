@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .analytic import (projected_solid_angle_disk, projected_solid_angle_rect,
+from .analytic import (projected_solid_angle_disk, projected_solid_angle_distant,
+                       projected_solid_angle_dome_constant, projected_solid_angle_rect,
                        projected_solid_angle_sphere)
 from .base import ShadingContext
 
@@ -43,20 +44,18 @@ def _sphere(obj, idx, ctx):
 
 
 def _distant(obj, idx, ctx):
-    # A cone of half-angle θmax about the light's axis is what a sphere of radius sin θmax at
-    # unit distance subtends, so the sphere's exact formula applies.
+    # A cone of half-angle θmax about the light's axis (analytic.distant_F: the sphere's exact
+    # formula); exact for 0 < θmax < π/2.
     th = obj.theta_max[idx]
-    ok = (th > 0.0) & (th < 0.5 * np.pi)
-    r = np.where(ok, np.sin(np.clip(th, 0.0, 0.5 * np.pi)), 0.5)
-    G = projected_solid_angle_sphere(ctx.p, ctx.ns, ctx.p + obj.axis[idx], r)
-    return G[:, None] * obj.L[idx], ok
+    G = projected_solid_angle_distant(ctx.ns, obj.axis[idx], th)
+    return G[:, None] * obj.L[idx], (th > 0.0) & (th < 0.5 * np.pi)
 
 
 def _dome(obj, idx, ctx):
     E = np.zeros((idx.size, 3))
     const = obj.tex[idx] < 0
     # A constant dome over the whole upper hemisphere: ∫ cos dω = π.
-    E[const] = np.pi * obj.L[idx[const]]
+    E[const] = projected_solid_angle_dome_constant() * obj.L[idx[const]]
     exact = const.copy()
     irr = getattr(obj, "irradiance_lookup", None)
     if irr is not None:

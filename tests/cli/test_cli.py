@@ -14,6 +14,15 @@ from tests.stage_builders import quad_light_stage
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 STAGES = sorted(f for f in os.listdir(os.path.join(ROOT, "stages")) if f.endswith(".usda"))
+# Every stage in stages/, subdirectories included, as a path relative to stages/.
+ALL_STAGES = sorted(os.path.relpath(os.path.join(d, f), os.path.join(ROOT, "stages"))
+                    for d, _, files in os.walk(os.path.join(ROOT, "stages")) for f in files if f.endswith(".usda"))
+# Stages whose per-bounce work is not compiled yet (the one-integrator issue): each is an expected
+# failure that must start failing as an xfail (strict) the day its light kind is compiled.
+GENERAL_ROUTE = {
+    "lux_extra/mesh_light_room.usda": "mesh lights",
+    "lux_extra/window_portal.usda": "dome portals",
+}
 
 
 # What must run in its own process: commands that start servers or compile in a fresh cache,
@@ -57,8 +66,10 @@ def illum(*args, cwd=None, subprocess_only=False):
     return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
 
 
-@pytest.mark.parametrize("stage", STAGES)
-def test_every_stage_renders(tmp_path, stage):
+@pytest.mark.parametrize("stage", [pytest.param(st, marks=pytest.mark.xfail(
+    reason=f"{GENERAL_ROUTE[st]}: the general path's numpy bounces", strict=True)) if st in GENERAL_ROUTE else st
+    for st in ALL_STAGES])
+def test_every_stage_renders_on_the_compiled_route(tmp_path, stage):
     out = tmp_path / "o.exr"
     stats = tmp_path / "s.json"
     r = illum("render", os.path.join(ROOT, "stages", stage), "-o", out, "--res", 48, 32, "--spp", 2,
@@ -77,6 +88,8 @@ def test_every_stage_renders(tmp_path, stage):
     for phase in ("load", "build", "render", "write"):
         assert phase in s["seconds"]
     assert (tmp_path / "o.png").exists()
+    # Every stage's per-bounce work is compiled (the vertex kernel), never the numpy general path.
+    assert s["fast_path"] == "on", f"{stage}: {s['fast_path']}"
 
 
 def test_progress_lines_when_not_a_tty(tmp_path):

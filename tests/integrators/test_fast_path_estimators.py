@@ -13,11 +13,16 @@ sky, a sun and a delta distant light covers the other light kinds. A 5 % error i
 control variate's diffuse combination must fail the same comparison.
 """
 
+import inspect
+
 import numpy as np
 import pytest
-from pxr import Sdf, Usd
+from numba import njit
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 import renderer.integrators._vertex_kernels as vk
+from renderer.integrators import fast_path as fp_mod
+from renderer.lights.base import ShadingContext
 from renderer.render import RenderOptions, render
 from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _room
 
@@ -129,3 +134,91 @@ def test_picking_service_with_per_light_estimators(tmp_path, sampler, estimator,
     # them for all nine lights.
     n_max = 2 * max(N.values())
     assert fast.stats["rays"]["shadow"] <= n_max * (fast.stats["rays"]["camera"] + fast.stats["rays"]["extension"])
+
+
+@njit(cache=True)
+def _kernel_F(LP, g, p, ns, fcalc, IMG, E):
+    """E[i] = _vertex_kernels._light_F of light g[i] at p[i] about ns[i] (the kernel's F)."""
+    tbuf = np.empty(fcalc[4][-1])
+    for i in range(p.shape[0]):
+        e = vk._light_F(LP, g[i], (p[i, 0], p[i, 1], p[i, 2]), (ns[i, 0], ns[i, 1], ns[i, 2]), fcalc, IMG, tbuf)
+        E[i, 0], E[i, 1], E[i, 2] = e
+
+
+def test_kernel_F_is_the_irradiance_of_the_numpy_api(tmp_path, monkeypatch):
+    """The F the vertex kernel takes per (vertex, light) pair (_light_F, from FastPath's tables)
+    is LightSet.irradiance's E, and its exact flag irradiance's exact, for every light kind the
+    fast path serves, at random points and shading normals: rects (a sheared one), a sphere, a
+    point, a circular and an elliptical disk, a rotated textured dome (its preconvolved table), a
+    5-degree sun, a delta and a too-wide distant light."""
+    stage_path = tmp_path / "room.usda"
+    _room(stage_path, more_kinds=True, infinite=True, sky_texture=True)
+    stage = Usd.Stage.Open(str(stage_path))
+    disk = UsdLux.DiskLight.Define(stage, "/World/Round")
+    disk.CreateRadiusAttr(0.4)
+    disk.CreateIntensityAttr(3.0)
+    UsdGeom.Xformable(disk).AddTranslateOp().Set(Gf.Vec3d(-1.5, 2.5, -0.5))
+    UsdGeom.Xformable(disk).AddRotateXOp().Set(-80.0)
+    wide = UsdLux.DistantLight.Define(stage, "/World/Wide")
+    wide.CreateAngleAttr(200.0)
+    wide.CreateIntensityAttr(0.1)
+    stage.GetRootLayer().Save()
+    made = []
+    init = fp_mod.FastPath.__init__
+
+    def keep(self, integ):
+        init(self, integ)
+        made.append(self)
+
+    monkeypatch.setattr(fp_mod.FastPath, "__init__", keep)
+    r = render(str(stage_path), RenderOptions(spp=1, resolution=(8, 6), threads=1, estimator={"": "controlVariate"}))
+    assert r.stats["fast_path"] == "on" and made
+    fast = made[0]
+    lights = fast.integ.lights
+    names = [p for p in inspect.signature(vk.vertex_kernel.py_func).parameters]
+    tab = dict(zip(names[names.index("vertices"):], fast.tables))
+    LP = vk._light_table(*(tab[a] for a in inspect.signature(vk._light_table.py_func).parameters))
+    IMG = (tab["i_rot"], *(tab[a] for a in names if a.startswith("im_")))
+    order = np.concatenate([fast.rect_light, fast.sphere_light, fast.disk_light, fast.inf_light])
+    assert sorted(order) == list(range(lights.count)) and lights.count == 11
+    rng = np.random.default_rng(5)
+    n = 400
+    lo, hi = fast.geo[0].reshape(-1, 3).min(axis=0), fast.geo[0].reshape(-1, 3).max(axis=0)
+    exact_seen = []
+    for g, gl in enumerate(order):
+        p = lo + (hi - lo) * rng.random((n, 3))
+        ns = rng.normal(size=(n, 3))
+        ns /= np.linalg.norm(ns, axis=1, keepdims=True)
+        E = np.empty((n, 3))
+        _kernel_F(LP, np.full(n, g, dtype=np.int64), p, ns, fast.fcalc, IMG, E)
+        E_ref, exact = lights.irradiance(np.full(n, gl, dtype=np.int64), ShadingContext(p, ns, ns))
+        assert np.all(exact == fast.fcalc[0][g]), lights.paths[gl] if hasattr(lights, "paths") else gl
+        exact_seen.append(bool(fast.fcalc[0][g]))
+        if exact.any():
+            assert np.count_nonzero(E_ref[exact] > 0.0) > n // 10
+            np.testing.assert_allclose(E[exact], E_ref[exact], rtol=1e-12, atol=1e-300)
+    # Inexact: the point, the ellipse, the delta and the too-wide distant lights.
+    assert exact_seen.count(False) == 4, exact_seen
+
+
+@pytest.mark.parametrize("estimator,alpha,N", [
+    ("mis", "one", 1),
+    ("controlVariate", "averageVisibilityUnbiased", 3),
+])
+def test_diffuse_and_specular_multipliers_match_the_general_path(tmp_path, estimator, alpha, N):
+    """UsdLux inputs:diffuse / inputs:specular on the compiled path: such a light leaves
+    continuation MIS (path.py cont_ok) and its estimator scales the BSDF's lobes
+    (_vertex_kernels._split_at, kernels.direct.split_kernel's rule; F by the diffuse one)."""
+    stage_path = tmp_path / "room.usda"
+    _room(stage_path, more_kinds=True)
+    stage = Usd.Stage.Open(str(stage_path))
+    for path, diffuse, specular in (("/World/Big", 0.4, 1.8), ("/World/Bulb", 1.5, 0.0), ("/World/Back", 0.0, 2.0)):
+        light = UsdLux.LightAPI(stage.GetPrimAtPath(path))
+        light.CreateDiffuseAttr(diffuse)
+        light.CreateSpecularAttr(specular)
+    stage.GetRootLayer().Save()
+    fast, slow = _pair(stage_path, estimator, alpha, N, spp=64, res=(48, 36))
+    _check(fast, slow)
+    # Continuation MIS still serves the plain mis lights.
+    assert (fast.stats["direct_rule"]["continuation_mis"] > 0) == (estimator == "mis")
+
