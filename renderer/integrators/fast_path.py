@@ -51,7 +51,7 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
-Where no bounce needs numpy work (no per-hit surface rows, no F pre-pass: ``kernel_reason``),
+Where no bounce needs numpy work (no per-hit surface rows, no shadow groups: ``kernel_reason``),
 the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
 inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
 so render threads running chunks side by side scale; it makes the Python loop's calls with the
