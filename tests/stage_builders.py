@@ -62,6 +62,27 @@ def textured_quad(stage, path: str) -> UsdGeom.Mesh:
     return quad
 
 
+def uv_texture(stage, material_path: str, name: str, file: str, fallback=None, wrap=None) -> UsdShade.Shader:
+    """A UsdUVTexture ``material_path/name`` reading ``file`` at the st primvar (through the
+    UsdPrimvarReader_float2 ``material_path/UV``, made once per material); ``fallback`` (4,) and
+    ``wrap`` (wrapS = wrapT) when given. Connect its outputs yourself."""
+    tex = UsdShade.Shader.Define(stage, f"{material_path}/{name}")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(file)
+    if fallback is not None:
+        tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*fallback))
+    if wrap is not None:
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap)
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap)
+    reader = UsdShade.Shader.Get(stage, f"{material_path}/UV")
+    if not reader:
+        reader = UsdShade.Shader.Define(stage, f"{material_path}/UV")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    return tex
+
+
 def bind(prim, mat):
     api = UsdShade.MaterialBindingAPI.Apply(prim)
     api.Bind(mat)

@@ -14,7 +14,7 @@ from pxr import Gf, Sdf, UsdGeom, UsdShade
 from renderer.render import RenderOptions, render
 from renderer.textures import TextureCache
 from renderer.usd import load_stage
-from tests.stage_builders import add_camera, add_settings, bind, new_stage
+from tests.stage_builders import add_camera, add_settings, bind, new_stage, uv_texture
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 FALLBACK = (1.0, 0.0, 1.0, 1.0)
@@ -45,16 +45,7 @@ def _emissive_quad_stage(path, file, st, wrap="repeat", res=(40, 20), extent=(2.
     pbr = UsdShade.Shader.Define(stage, "/World/Looks/Glow/PBR")
     pbr.CreateIdAttr("UsdPreviewSurface")
     pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
-    tex = UsdShade.Shader.Define(stage, "/World/Looks/Glow/Tex")
-    tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(file)
-    tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*FALLBACK))
-    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap)
-    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap)
-    reader = UsdShade.Shader.Define(stage, "/World/Looks/Glow/UV")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    tex = uv_texture(stage, "/World/Looks/Glow", "Tex", file, FALLBACK, wrap)
     pbr.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
     mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
     bind(quad.GetPrim(), mat)

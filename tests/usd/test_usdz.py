@@ -16,7 +16,7 @@ from renderer.lights.texture import load_texture_rgb
 from renderer.render import RenderOptions, render
 from renderer.textures import TextureCache
 from renderer.usd import load_stage
-from tests.stage_builders import add_camera, add_settings, bind, new_stage, textured_quad
+from tests.stage_builders import add_camera, add_settings, bind, new_stage, textured_quad, uv_texture
 
 IES = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "stages", "ies", "narrow_spot.ies"))
 
@@ -46,14 +46,7 @@ def _textured_stage(src) -> str:
     mat = UsdShade.Material.Define(stage, "/World/Looks/Tex")
     pbr = UsdShade.Shader.Define(stage, "/World/Looks/Tex/PBR")
     pbr.CreateIdAttr("UsdPreviewSurface")
-    tex = UsdShade.Shader.Define(stage, "/World/Looks/Tex/Albedo")
-    tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./maps/albedo.png")
-    tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(1, 0, 1, 1))
-    reader = UsdShade.Shader.Define(stage, "/World/Looks/Tex/UV")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    tex = uv_texture(stage, "/World/Looks/Tex", "Albedo", "./maps/albedo.png", (1, 0, 1, 1))
     pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
     mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
     bind(quad.GetPrim(), mat)
