@@ -62,7 +62,9 @@ def _pair(stage, max_depth, spp, **opt):
 
 @pytest.mark.parametrize("opt", [
     {"estimator": {"": "mis"}},                                # continuation MIS, batched samplers
-    {"estimator": {"": "mis"}, "light_samples": {"": 3}},      # the estimators' own samples at depth 0
+    # the estimators' own samples at depth 0 (heavy: the N-sample rows run in the linking and
+    # ShadowAPI tests by default)
+    pytest.param({"estimator": {"": "mis"}, "light_samples": {"": 3}}, marks=pytest.mark.heavy),
     {"estimator": {"": "lightSampling"}},
     {"estimator": {"": "bsdfSampling"}},
     {"estimator": {"": "mis"}, "light_sampler": "bvh"},        # one picked light per vertex
@@ -132,8 +134,9 @@ LINKS = dict(light_link=(("Big", "Ball"), ("Disk", "Floor"), ("Bulb", "Wall")),
 
 @pytest.mark.parametrize("opt", [
     {"estimator": {"": "mis"}},
-    {"estimator": {"": "mis"}, "light_samples": {"": 3}},
-    {"estimator": {"": "controlVariate"}, "light_samples": {"": 4}},
+    # Heavy: the control variate's groups over shadow groups run in the ShadowAPI test by default.
+    pytest.param({"estimator": {"": "mis"}, "light_samples": {"": 3}}, marks=pytest.mark.heavy),
+    pytest.param({"estimator": {"": "controlVariate"}, "light_samples": {"": 4}}, marks=pytest.mark.heavy),
     {"estimator": {"": "mis"}, "light_sampler": "power"},
 ])
 def test_light_linking_on_the_compiled_path_matches_the_general_path(tmp_path, opt):
