@@ -15,6 +15,11 @@ from renderer.errors import SpecialFileError, StageError
 from renderer.memory import TEXEL_BYTES, TEXEL_DECODE_BYTES, MemoryBudget
 from renderer.textures import probe_image
 
+# UDIM tiles looked for: 1001 + u + 10 v for u, v in 0..9 (the 10 x 10 tiles Mari, Substance
+# and Houdini lay out by default).
+UDIM_FIRST = 1001
+UDIM_TILES = 100
+
 
 _KINDS = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"),
           (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
@@ -280,6 +285,34 @@ class ReadContext:
             self.memory.need(texels * TEXEL_DECODE_BYTES, f"decoding {what}", transient=True, **where)
             self.memory.need(texels * TEXEL_BYTES, what, **where)
         return asset
+
+    def udim_tiles(self, where: Usd.Prim, where_name: str, authored: str,
+                    consequence: str) -> tuple[str, tuple, tuple] | None:
+        """The tiles of a UDIM path (``<UDIM>`` replaced by 1001 + u + 10 v, u in 0..9, v in
+        0..9) authored on ``where``.``where_name``: (the anchored pattern, ((tile, file), ...),
+        (bytes or None, ...)), or None when no tile resolves (the missing-asset policy applied).
+        Each tile is resolved through Ar like any asset, so tiles inside a .usdz work too."""
+        ctx = self
+        # A .mtlx document's file input names no USD attribute: its path is anchored already.
+        attr = where.GetAttribute(where_name)
+        stack = attr.GetPropertyStack(ctx.time) if attr else []
+        anchor = (lambda p: stack[0].layer.ComputeAbsolutePath(p)) if stack else (lambda p: p)
+        resolver = Ar.GetResolver()
+        tiles, data = [], []
+        for tile in range(UDIM_FIRST, UDIM_FIRST + UDIM_TILES):
+            path = authored.replace("<UDIM>", str(tile))
+            resolved = str(resolver.Resolve(anchor(path)))
+            if not resolved:
+                continue
+            asset = ctx.read_image_asset(where, where_name, Sdf.AssetPath(path, resolved), consequence)
+            if asset is not None:
+                tiles.append((tile, asset[0]))
+                data.append(asset[1])
+        if not tiles:
+            ctx.asset_unusable(where, where_name, authored,
+                               f"no UDIM tile found ({UDIM_FIRST}-{UDIM_FIRST + UDIM_TILES - 1})", consequence)
+            return None
+        return anchor(authored), tuple(tiles), tuple(data)
 
     def resolve_asset(self, prim: Usd.Prim, name: str, value, consequence: str = "") -> str:
         """Resolved path of an asset-valued attribute ('' when unauthored or empty).

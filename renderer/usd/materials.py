@@ -32,11 +32,6 @@ from renderer.description import MaterialDesc, MaterialInput, PrimvarReaderDesc,
 from .common import ReadContext
 from .mtlx import is_mtlx_id, mtlx_reference, read_mtlx_material, read_usd_network
 
-# UDIM tiles looked for: 1001 + u + 10 v for u, v in 0..9 (the 10 x 10 tiles Mari, Substance
-# and Houdini lay out by default).
-UDIM_FIRST = 1001
-UDIM_TILES = 100
-
 __all__ = ["MaterialTable"]
 
 _SURFACE_ID = "UsdPreviewSurface"
@@ -432,33 +427,6 @@ class MaterialTable:
         # The attribute that holds the path (a Material interface input, when connected).
         return self._texture_desc(tex, output, file_attr.GetPrim(), file_attr.GetName(), raw)
 
-    def _udim_tiles(self, where: Usd.Prim, where_name: str, authored: str,
-                    consequence: str) -> tuple[str, tuple, tuple] | None:
-        """The tiles of a UDIM path (``<UDIM>`` replaced by 1001 + u + 10 v, u in 0..9, v in
-        0..9) authored on ``where``.``where_name``: (the anchored pattern, ((tile, file), ...),
-        (bytes or None, ...)), or None when no tile resolves (the missing-asset policy applied).
-        Each tile is resolved through Ar like any asset, so tiles inside a .usdz work too."""
-        ctx = self.ctx
-        attr = where.GetAttribute(where_name)
-        stack = attr.GetPropertyStack(ctx.time) if attr else []
-        anchor = (lambda p: stack[0].layer.ComputeAbsolutePath(p)) if stack else (lambda p: p)
-        resolver = Ar.GetResolver()
-        tiles, data = [], []
-        for tile in range(UDIM_FIRST, UDIM_FIRST + UDIM_TILES):
-            path = authored.replace("<UDIM>", str(tile))
-            resolved = str(resolver.Resolve(anchor(path)))
-            if not resolved:
-                continue
-            asset = ctx.read_image_asset(where, where_name, Sdf.AssetPath(path, resolved), consequence)
-            if asset is not None:
-                tiles.append((tile, asset[0]))
-                data.append(asset[1])
-        if not tiles:
-            ctx.asset_unusable(where, where_name, authored,
-                               f"no UDIM tile found ({UDIM_FIRST}-{UDIM_FIRST + UDIM_TILES - 1})", consequence)
-            return None
-        return anchor(authored), tuple(tiles), tuple(data)
-
     def _texture_from_gprim(self, tex: UsdShade.Shader, file_attr, output: str) -> TextureDesc | None:
         """UsdUVTexture.file fed by a UsdPrimvarReader_string: the gprim's string primvar, a path
         anchored to the layer that authored the primvar (one material per distinct file)."""
@@ -489,7 +457,7 @@ class MaterialTable:
         authored = getattr(raw, "path", raw) or ""
         tiles, tile_data = (), ()
         if "<UDIM>" in authored:
-            udim = self._udim_tiles(where, where_name, authored, fallback_note)
+            udim = ctx.udim_tiles(where, where_name, authored, fallback_note)
             if udim is None:
                 return None
             (path, tiles, tile_data), data = udim, None

@@ -109,6 +109,8 @@ class _Image:
     st_transform: tuple
     default: tuple
     node: str = field(default="", compare=False)  # the image node's label, for warnings
+    udim_tiles: tuple = ()  # a <UDIM> file's ((tile, file), ...), as TextureDesc.udim_tiles
+    udim_data: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -620,7 +622,7 @@ class _Network:
         asset = self._asset(node, "file")
         if asset is None:
             return _Lin.const(default.b)
-        (path, data), space = asset
+        (path, data), space, tiles, tile_data = asset
         A = uv.A if not uv.is_const else np.zeros((2, 2))
         st_transform = () if (np.array_equal(A, np.eye(2)) and not np.any(uv.b)) else (
             float(A[0, 0]), float(A[0, 1]), float(A[1, 0]), float(A[1, 1]), float(uv.b[0]), float(uv.b[1]))
@@ -635,12 +637,13 @@ class _Network:
         if n == 3:
             default4[3] = 1.0
         image = _Image(path, data, space, wraps[0], wraps[1], uv.source.primvar if not uv.is_const else "st",
-                       st_transform, tuple(float(x) for x in default4), node.label)
+                       st_transform, tuple(float(x) for x in default4), node.label, tiles, tile_data)
         return _Lin(np.eye(4)[:n], np.zeros(n), image)
 
     def _asset(self, node, name: str):
-        """((path, bytes or None), colour space) of a filename input, or None where it is
-        unauthored or the missing-asset policy gives the image's default."""
+        """((path, bytes or None), colour space, UDIM tiles, their bytes) of a filename input
+        (tiles () unless the path holds ``<UDIM>``), or None where it is unauthored or the
+        missing-asset policy gives the image's default."""
         src = node.source(name)
         if src is not None and src[0] == "input":
             return self._asset(src[1], src[2])
@@ -652,9 +655,18 @@ class _Network:
         prim, attr_name, value, space = found
         if not getattr(value, "path", value):
             return None
-        asset = self.ctx.read_image_asset(prim, attr_name, value, f"{node.label} uses its default")
-        if asset is None:
-            return None
+        consequence = f"{node.label} uses its default"
+        tiles, tile_data = (), ()
+        if "<UDIM>" in getattr(value, "path", value):
+            udim = self.ctx.udim_tiles(prim, attr_name, getattr(value, "path", value), consequence)
+            if udim is None:
+                return None
+            pattern, tiles, tile_data = udim
+            asset = (pattern, None)
+        else:
+            asset = self.ctx.read_image_asset(prim, attr_name, value, consequence)
+            if asset is None:
+                return None
         key = str(space or "").lower()
         if key == "auto":
             mode = "auto"
@@ -666,7 +678,7 @@ class _Network:
             self.ctx.warn(f"mtlx-colorspace-{space}", f"{node.label}: colour space '{space}' is not supported "
                                                       "(illum reads srgb_texture and linear Rec.709); read as linear")
             mode = "raw"
-        return asset, mode
+        return asset, mode, tiles, tile_data
 
     # ---- to the description ------------------------------------------------------------
     def material_input(self, lin: _Lin, k: int, node, name: str) -> MaterialInput:
@@ -705,7 +717,8 @@ class _Network:
         tex = TextureDesc(file=img.file, source_color_space=img.space, wrap_s=img.wrap_s, wrap_t=img.wrap_t,
                           scale=tuple(float(x) for x in scale4), bias=tuple(float(x) for x in bias4),
                           fallback=tuple(float(x) for x in fb4), output=output, st_primvar=img.st_primvar,
-                          st_transform=img.st_transform, data=img.data)
+                          st_transform=img.st_transform, data=img.data, udim_tiles=img.udim_tiles,
+                          udim_data=img.udim_data)
         return MaterialInput(value[0] if k == 1 else value, tex)
 
     def _primvar_input(self, lin: _Lin, k: int, node, name: str) -> MaterialInput:

@@ -126,3 +126,60 @@ def test_use_metadata_without_metadata_warns_once_when_st_leaves_the_unit_square
     # The spec's black, as warned: the right two thirds of the quad are black.
     img = res.film.image()
     assert img[:, -1, :3].max() == 0.0 and img[:, 0, :3].min() > 0.0
+
+
+_MTLX = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <image name="paint" type="color3">
+    <input name="file" type="filename" value="maps/paint.&lt;UDIM&gt;.exr" colorspace="lin_rec709" />
+  </image>
+  <standard_surface name="surf" type="surfaceshader">
+    <input name="base_color" type="color3" nodename="paint" />
+  </standard_surface>
+  <surfacematerial name="Paint" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="surf" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+@pytest.mark.parametrize("where", ["document", "inline"])
+def test_materialx_image_nodes_read_udim_tiles(udim_dir, where):
+    """A MaterialX image node whose file holds <UDIM> (in a referenced .mtlx document, or as an
+    inline ND_image_color3 shader) reads the same tiles as UsdUVTexture, and looks up the same."""
+    stage = new_stage(str(udim_dir / "m.usda"))
+    quad = UsdGeom.Mesh.Define(stage, "/World/Quad")
+    quad.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+    quad.CreateFaceVertexCountsAttr([4])
+    quad.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    if where == "document":
+        (udim_dir / "looks.mtlx").write_text(_MTLX)
+        stage.DefinePrim("/MaterialX").GetReferences().AddReference("./looks.mtlx", "/MaterialX")
+        material = "/MaterialX/Materials/Paint"
+    else:
+        mat = UsdShade.Material.Define(stage, "/World/Looks/Paint")
+        img = UsdShade.Shader.Define(stage, "/World/Looks/Paint/Image")
+        img.CreateIdAttr("ND_image_color3")
+        img.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./maps/paint.<UDIM>.exr")
+        surf = UsdShade.Shader.Define(stage, "/World/Looks/Paint/Surf")
+        surf.CreateIdAttr("ND_standard_surface_surfaceshader")
+        surf.CreateInput("base_color", Sdf.ValueTypeNames.Color3f).ConnectToSource(img.ConnectableAPI(), "out")
+        mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.ConnectableAPI(), "out")
+        material = "/World/Looks/Paint"
+    UsdShade.MaterialBindingAPI.Apply(quad.GetPrim())
+    quad.GetPrim().CreateRelationship("material:binding").SetTargets([Sdf.Path(material)])
+    stage.GetRootLayer().Save()
+    desc = load_stage(str(udim_dir / "m.usda"))
+    (mat,) = [m for m in desc.materials if m.path == material]
+    tex = mat.diffuse_color.texture
+    assert tex is not None, desc.warnings
+    assert tex.file.endswith("paint.<UDIM>.exr")
+    assert [t for t, _ in tex.udim_tiles] == sorted(TILES)
+    assert not any("UDIM" in w for w in desc.warnings), desc.warnings
+    cache = TextureCache()
+    cache.add(tex)
+    st = np.array([[0.5, 0.5], [1.5, 0.5], [1.25, 1.75], [10.5, 0.5]])
+    out = cache.lookup(tex, st)[:, :3]
+    np.testing.assert_allclose(out[:3], [TILES[1001], TILES[1002], TILES[1012]], rtol=1e-6)
+    # Off the tiles: the image node's default (black), not a tile.
+    assert np.all(out[3] == 0.0)
