@@ -40,9 +40,11 @@ demo: $(STAMP)
 
 # Byte-compile illum's own modules first: with PYTHONDONTWRITEBYTECODE set (as on many CI
 # machines) every `illum` process would otherwise recompile them from source (~0.3 s each).
+# Two test processes: most tests render on one thread, so the suite is one core's work
+# otherwise. The Ray cluster tests share one process (xdist_group "ray", --dist loadgroup).
 test: $(STAMP)
 	$(BIN)/python -m compileall -q renderer service usd_schemas > /dev/null
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 stress: $(STAMP)
 	ILLUM_HYPOTHESIS_PROFILE=long ILLUM_SLOW=1 $(BIN)/python -m pytest -q -m 'slow or heavy'

@@ -15,6 +15,10 @@ from .conftest import STAGES, make_stage_root, read_exr_bytes, start_server, wai
 
 ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'illum[ray]')")
 
+# One test process runs every test of the module (make test's --dist loadgroup): a second local
+# cluster started beside this one by the other process competes for the same two CPUs.
+pytestmark = pytest.mark.xdist_group("ray")
+
 CORNELL = os.path.join(STAGES, "cornell_box.usda")
 
 
