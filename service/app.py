@@ -30,12 +30,14 @@ from . import API_VERSION
 from .assets import AssetChecker, CheckQueue
 from .config import ServiceConfig
 from .metrics import Metrics
-from .models import JobCreate, JobPatch, JobRequeue, check_stage_search, request_hash, validate_settings
+from .models import (JobCreate, JobPatch, JobRequeue, check_stage_search, job_frames, request_hash,
+                     validate_settings)
 from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
                     resolve_upload, upload_name)
-from .store import IdempotencyConflict, Job, JobStore
+from .store import STATES, IdempotencyConflict, Job, JobStore
 from .supervisor import Supervisor, append_job_log
-from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON, THUMB_PNG, THUMB_SIZE
+from .worker import (FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON, THUMB_PNG, THUMB_SIZE,
+                     frame_dir)
 
 __all__ = ["create_app"]
 
@@ -222,8 +224,14 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             os.makedirs(d, exist_ok=True)
         append_job_log(d, f"[api] {message}")
 
-    def job_json(job: Job) -> dict:
+    def job_json(job: Job, task_counts: Optional[dict] = None, tasks: Optional[list] = None) -> dict:
+        """The API form of a job. A frame-range job also has ``frame_counts`` ({state: frames});
+        ``tasks`` (its task rows) adds ``frames``, each frame's state, attempts and images."""
         out = job.public()
+        out["frame_counts"] = task_counts
+        if tasks is not None:
+            out["frame_counts"] = {st: sum(t["state"] == st for t in tasks) for st in STATES} if tasks else None
+            out["frames"] = [frame_json(job, t) for t in tasks] if tasks else None
         # One directory read instead of a stat per file: the job list builds this for every row.
         try:
             files = set(os.listdir(config.job_dir(job.id)))
@@ -240,6 +248,23 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
                         "image_exr": f"/jobs/{job.id}/image?format=exr" if has["exr"] else None,
                         "thumbnail": f"/jobs/{job.id}/thumbnail" if thumb else None}
         return out
+
+    def frame_json(job: Job, t: dict) -> dict:
+        d = os.path.join(config.job_dir(job.id), frame_dir(t["idx"]))
+        try:
+            files = set(os.listdir(d))
+        except OSError:
+            files = set()
+        base = f"/jobs/{job.id}/frames/{t['idx']}/image"
+        return {"index": t["idx"], "frame": t["frame"], "state": t["state"], "attempts": t["attempts"],
+                "progress": t["progress"], "spp_done": t["spp_done"], "render_seconds": t["render_seconds"],
+                "started_at": t["started_at"], "finished_at": t["finished_at"], "error": t["error"],
+                "links": {"image_png": f"{base}?format=png" if FINAL_PNG in files else None,
+                          "image_exr": f"{base}?format=exr" if FINAL_EXR in files else None}}
+
+    def full_json(job: Job) -> dict:
+        """One job as GET /jobs/{id} gives it: with its frames."""
+        return job_json(job, tasks=store.tasks(job.id))
 
     # ---------------------------------------------------------------- pages
     @app.get("/", include_in_schema=False)
@@ -369,13 +394,14 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             exts = STAGE_EXTENSIONS if body.kind == "render" else IMAGE_EXTENSIONS
             path, name = resolve_in_root(config.stage_root, body.stage, exts)
         settings = validate_settings(body.kind, body.settings, config.limits)
+        frames = job_frames(settings) if body.kind == "render" else None
         max_attempts = body.max_attempts or config.max_attempts
         digest = request_hash(body.kind, name, settings, body.priority, max_attempts)
         try:
             job, created = store.create(kind=body.kind, stage=path, stage_name=name, settings=settings,
                                         priority=body.priority, max_attempts=max_attempts,
                                         idempotency_key=key, request_hash=digest,
-                                        check_pending=body.kind == "render")
+                                        check_pending=body.kind == "render", frames=frames)
         except IdempotencyConflict as e:
             raise HTTPException(409, str(e)) from None
         if created and body.kind == "render":
@@ -387,7 +413,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if not created:
             response.status_code = 200
             response.headers["Idempotent-Replayed"] = "true"
-        return job_json(job)
+        return full_json(job)
 
     @app.get("/jobs", dependencies=auth, summary="List jobs, newest first",
              description="Filter by one or more `state`s and by `stage`: text the stage name contains (plain "
@@ -398,12 +424,37 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         jobs, total = store.list_jobs(states=state, limit=limit, offset=offset, stage=check_stage_search(stage))
         # Already JSON types: a JSONResponse skips FastAPI's generic encoder, which walked every
         # value of every job and was half of this endpoint's time (#21 item 3).
-        return JSONResponse({"jobs": [job_json(j) for j in jobs], "count": len(jobs), "total": total})
+        counts = store.task_counts([j.id for j in jobs])
+        return JSONResponse({"jobs": [job_json(j, counts.get(j.id)) for j in jobs], "count": len(jobs),
+                             "total": total})
 
     @app.get("/jobs/{job_id}", dependencies=auth,
              summary="One job: state, progress %, spp, samples/s, ETA, error, attempts")
     def get_job(job_id: str = Path(..., pattern=JOB_ID)):
-        return job_json(job_or_404(job_id))
+        return full_json(job_or_404(job_id))
+
+    @app.get("/jobs/{job_id}/frames/{index}/image", dependencies=auth,
+             summary="One frame of a frame-range job: its final image",
+             responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
+                        404: {"description": "no such frame, or not rendered yet"}})
+    def frame_image(job_id: str = Path(..., pattern=JOB_ID), index: int = Path(..., ge=0, le=10**9),
+                    format: Literal["png", "exr"] = "png",
+                    t: Optional[str] = Query(None, description="ignored; lets pages defeat caches")):
+        job = job_or_404(job_id)
+        tasks = store.tasks(job.id)
+        if index >= len(tasks):
+            raise HTTPException(404, f"job {job.id} has no frame index {index} ({len(tasks)} frames)")
+        path = os.path.join(config.job_dir(job.id), frame_dir(index), FINAL_EXR if format == "exr" else FINAL_PNG)
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read()
+        except FileNotFoundError:
+            raise HTTPException(404, f"frame {tasks[index]['frame']:g} of job {job.id} has no image yet "
+                                     f"(state {tasks[index]['state']})") from None
+        return Response(data, media_type=MEDIA[format], headers={
+            "Cache-Control": "no-store", "X-Illum-Frame": f"{tasks[index]['frame']:g}",
+            "X-Illum-Spp": str(tasks[index]["spp_done"]), "X-Illum-State": tasks[index]["state"],
+            "Content-Disposition": f'inline; filename="{job.id}.{index:04d}.{format}"'})
 
     @app.get("/jobs/{job_id}/image", dependencies=auth, summary="The final image, else the latest progressive snapshot",
              responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
@@ -480,7 +531,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if job.state in ("succeeded", "failed"):
             raise HTTPException(409, f"job {job_id} already {job.state}")
         api_log(job, f"canceled by request (attempts so far: {job.attempts})")
-        return job_json(job)
+        return full_json(job)
 
     @app.patch("/jobs/{job_id}", dependencies=auth, summary="Change a queued or running job's priority",
                description="The queue takes the new priority into account at once: workers claim the highest "
@@ -494,7 +545,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(409, f"job {job_id} already {job.state}: only queued or running jobs take a new "
                                      "priority (requeue it with one)")
         api_log(job, f"priority set to {body.priority}")
-        return job_json(job)
+        return full_json(job)
 
     @app.post("/jobs/{job_id}/requeue", dependencies=auth, summary="Run a failed or canceled job again",
               description=("The job goes back to `queued` with a fresh allowance of `max_attempts` attempts, "
@@ -515,7 +566,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             api_log(job, f"requeued by request (requeue {job.row['requeues']}, {job.attempts} attempts "
                               f"so far; a fresh {job.max_attempts} attempts"
                               + (f", priority {job.priority}" if priority is not None else "") + ")")
-        return job_json(job)
+        return full_json(job)
 
     @app.delete("/jobs/{job_id}", status_code=204, dependencies=auth,
                 summary="Delete a job and its files (a running job is canceled first)")
