@@ -452,7 +452,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(404, f"frame {tasks[index]['frame']:g} of job {job.id} has no image yet "
                                      f"(state {tasks[index]['state']})") from None
         return Response(data, media_type=MEDIA[format], headers={
-            "Cache-Control": "no-store", "X-Illum-Frame": f"{tasks[index]['frame']:g}",
+            "Cache-Control": "no-store", "X-Illum-Image": "frame", "X-Illum-Frame": f"{tasks[index]['frame']:g}",
             "X-Illum-Spp": str(tasks[index]["spp_done"]), "X-Illum-State": tasks[index]["state"],
             "Content-Disposition": f'inline; filename="{job.id}.{index:04d}.{format}"'})
 
