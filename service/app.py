@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import hmac
+import json
 import os
 import tempfile
 import time
@@ -249,6 +250,8 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
                         "thumbnail": f"/jobs/{job.id}/thumbnail" if thumb else None}
         return out
 
+    listed = _ListCache(job_json)
+
     def frame_json(job: Job, t: dict) -> dict:
         d = os.path.join(config.job_dir(job.id), frame_dir(t["idx"]))
         try:
@@ -421,12 +424,14 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     def list_jobs(state: Optional[list[Literal["queued", "running", "succeeded", "failed", "canceled"]]] = Query(None),
                   stage: Optional[str] = Query(None, description="text the stage name contains"),
                   limit: int = Query(200, ge=1, le=1000), offset: int = Query(0, ge=0, le=2**62)):
-        jobs, total = store.list_jobs(states=state, limit=limit, offset=offset, stage=check_stage_search(stage))
-        # Already JSON types: a JSONResponse skips FastAPI's generic encoder, which walked every
-        # value of every job and was half of this endpoint's time (#21 item 3).
-        counts = store.task_counts([j.id for j in jobs])
-        return JSONResponse({"jobs": [job_json(j, counts.get(j.id)) for j in jobs], "count": len(jobs),
-                             "total": total})
+        rows, total = store.list_rows(states=state, limit=limit, offset=offset, stage=check_stage_search(stage))
+        counts = store.task_counts([r["id"] for r in rows])
+        texts = [listed.text(r, counts.get(r["id"])) for r in rows]
+        listed.trim()
+        # The body is assembled from each job's JSON text (FastAPI's generic encoder, which walked
+        # every value of every job, was half of this endpoint's time; #21 item 3).
+        body = '{"jobs":[' + ",".join(texts) + f'],"count":{len(rows)},"total":{total}}}'
+        return Response(body.encode(), media_type="application/json")
 
     @app.get("/jobs/{job_id}", dependencies=auth,
              summary="One job: state, progress %, spp, samples/s, ETA, error, attempts")
@@ -576,6 +581,47 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         return Response(status_code=204)
 
     return app
+
+
+def _dumps(obj) -> str:
+    """JSON text as Starlette's JSONResponse writes it."""
+    return json.dumps(obj, ensure_ascii=False, allow_nan=False, separators=(",", ":"))
+
+
+class _ListCache:
+    """The JSON text of each job GET /jobs listed, reused while its row and frame counts are
+    unchanged: the page polls the list every second, and under load (#21 item 3) decoding each
+    row's settings, reading its directory and encoding it again was most of the endpoint's time.
+
+    A job's image links follow its files, which a worker writes between two writes of the row
+    (progress, heartbeat every ``--heartbeat-interval``): a running job's links are at most one
+    heartbeat late. A job with a start and no end (running) has its elapsed time computed anew on
+    each listing; only its decoding and its files are reused. Safe across request threads (a
+    race only encodes a job twice)."""
+
+    MAX = 10_000
+
+    def __init__(self, encode):
+        self.encode = encode            # (Job, frame counts) -> the API dict (job_json)
+        self.entries: dict = {}         # id -> (row values, frame counts, API dict, text or None)
+
+    def text(self, row, counts: Optional[dict]) -> str:
+        key = (tuple(row), None if counts is None else tuple(sorted(counts.items())))
+        hit = self.entries.get(row["id"])
+        if hit is None or hit[0] != key:
+            out = self.encode(Job.from_row(row), counts)
+            live = row["started_at"] is not None and row["finished_at"] is None
+            hit = (key, out, None if live else _dumps(out))
+            self.entries[row["id"]] = hit
+        if hit[2] is not None:
+            return hit[2]
+        out = dict(hit[1])
+        out["elapsed_seconds"] = max(0.0, time.time() - row["started_at"])
+        return _dumps(out)
+
+    def trim(self) -> None:
+        if len(self.entries) > self.MAX:   # deleted jobs and old pages: start afresh
+            self.entries.clear()
 
 
 def _swagger_dir() -> Optional[str]:

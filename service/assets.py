@@ -26,7 +26,6 @@ timed out) the job is accepted and the worker's check decides, as before for unr
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import os
@@ -45,10 +44,6 @@ MAX_PARALLEL = 2          # child processes at once (the machine's cores are for
 CACHE_TTL = 60.0          # seconds a verdict is reused, even when no file changed
 CACHE_SIZE = 512
 DEFAULT_MEMORY_MB = 4096  # address-space cap of the checking child
-# The checking child's CPU niceness: checks are background work, and on a busy server they must
-# not take the cores from the API's request threads (#21 item 3: /health and GET /jobs p99 under
-# 100 ms while uploads are checked). A check still gets every cycle the API leaves idle.
-CHECK_NICENESS = 10
 
 
 def allowed_roots(stage_root: str, uploads_dir: str, upload: bool) -> tuple[list[str], str]:
@@ -291,8 +286,6 @@ def main(argv: list[str] | None = None) -> int:
     from .procs import limit_resources
 
     limit_resources(a.memory_mb * 2**20, a.cpu_seconds)
-    with contextlib.suppress(OSError):  # before USD is imported: the whole check runs niced
-        os.nice(CHECK_NICENESS)
     from renderer.errors import IllumError, SpecialFileError, StageError
 
     try:

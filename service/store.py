@@ -387,6 +387,13 @@ class JobStore:
         """Newest first. ``stage``: only jobs whose stage name contains this text (case-blind
         for ASCII letters; matched as plain text, never as a pattern). Returns (jobs, total
         matching)."""
+        rows, total = self.list_rows(states, limit, offset, stage)
+        return [Job.from_row(r) for r in rows], total
+
+    def list_rows(self, states: list[str] | None = None, limit: int = 200, offset: int = 0,
+                  stage: str | None = None) -> tuple[list[sqlite3.Row], int]:
+        """``list_jobs`` as undecoded rows (``Job.from_row`` makes jobs of them): GET /jobs
+        decodes only the rows that changed since it last listed them."""
         where = "deleted_at IS NULL"
         args: list[Any] = []
         if states:
@@ -399,7 +406,7 @@ class JobStore:
             total = db.execute(f"SELECT COUNT(*) FROM jobs WHERE {where}", args).fetchone()[0]
             rows = db.execute(f"SELECT * FROM jobs WHERE {where} ORDER BY seq DESC LIMIT ? OFFSET ?",
                               args + [int(limit), int(offset)]).fetchall()
-        return [Job.from_row(r) for r in rows], int(total)
+        return rows, int(total)
 
     def queue_order(self) -> list[str]:
         """Ids of the claimable jobs in the order workers will take them."""
