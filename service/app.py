@@ -37,8 +37,8 @@ from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic,
                     resolve_upload, upload_name)
 from .store import STATES, IdempotencyConflict, Job, JobStore
 from .supervisor import Supervisor, append_job_log
-from .worker import (FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON, THUMB_PNG, THUMB_SIZE,
-                     frame_dir)
+from .worker import (FINAL_DENOISED_PNG, FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_DENOISED_PNG, PREVIEW_EXR, PREVIEW_PNG,
+                     STATS_JSON, THUMB_PNG, THUMB_SIZE, frame_dir)
 
 __all__ = ["create_app"]
 
@@ -246,6 +246,9 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         thumb = THUMB_PNG in files
         out["links"] = {"self": f"/jobs/{job.id}", "log": f"/jobs/{job.id}/log",
                         "image_png": f"/jobs/{job.id}/image?format=png" if has["png"] else None,
+                        "image_denoised_png": (f"/jobs/{job.id}/image?format=png&denoised=true"
+                                               if not files.isdisjoint((FINAL_DENOISED_PNG, PREVIEW_DENOISED_PNG))
+                                               else None),
                         "image_exr": f"/jobs/{job.id}/image?format=exr" if has["exr"] else None,
                         "thumbnail": f"/jobs/{job.id}/thumbnail" if thumb else None}
         return out
@@ -465,10 +468,18 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
              responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
                         404: {"description": "no image yet"}})
     def job_image(job_id: str = Path(..., pattern=JOB_ID), format: Literal["png", "exr"] = "png",
+                  denoised: bool = Query(False, description="the OIDN-denoised beauty (a job with settings.denoise; "
+                                                            "PNG only: the final EXR holds it as its 'denoised' layer)"),
                   t: Optional[str] = Query(None, description="ignored; lets pages defeat caches")):
         job = job_or_404(job_id)
         d = config.job_dir(job.id)
-        final, preview = (FINAL_PNG, PREVIEW_PNG) if format == "png" else (FINAL_EXR, PREVIEW_EXR)
+        if denoised and format != "png":
+            raise InputError(422, "query.denoised", "the denoised image is served as PNG; the final EXR holds it as "
+                                                    "its 'denoised' layer")
+        if denoised and not job.settings.get("denoise"):
+            raise HTTPException(404, f"job {job.id} does not denoise (settings.denoise is false)")
+        final, preview = ((FINAL_DENOISED_PNG, PREVIEW_DENOISED_PNG) if denoised
+                          else (FINAL_PNG, PREVIEW_PNG) if format == "png" else (FINAL_EXR, PREVIEW_EXR))
         for name, kind in ((final, "final"), (preview, "preview")):
             try:
                 fh = open(os.path.join(d, name), "rb")

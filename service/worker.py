@@ -53,6 +53,8 @@ log = logging.getLogger("illum.worker")
 PREVIEW_EXR, PREVIEW_PNG = "preview.exr", "preview.png"
 FINAL_EXR, FINAL_PNG, STATS_JSON = "final.exr", "final.png", "stats.json"
 THUMB_PNG = "thumb.png"     # a small sRGB PNG of the latest image, for the job list
+# With settings.denoise: the OIDN-denoised beauty as sRGB PNGs, of each snapshot and of the end
+PREVIEW_DENOISED_PNG, FINAL_DENOISED_PNG = "preview_denoised.png", "final_denoised.png"
 THUMB_SIZE = 64             # pixels on the longer side
 CHECKPOINT, CHECKPOINT_META = "checkpoint.npz", "checkpoint.json"
 JOB_LOG = "job.log"
@@ -201,7 +203,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
     if job.run_attempt == 1:
         # A new run (a new job, or one a user requeued): whatever a discarded run left as its
         # result is stale (a job running has no result yet); the checkpoint is kept to resume.
-        for name in (FINAL_EXR, FINAL_PNG, STATS_JSON):
+        for name in (FINAL_EXR, FINAL_PNG, FINAL_DENOISED_PNG, STATS_JSON):
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(os.path.join(jobdir, name))
     requeues = int(job.row.get("requeues") or 0)
@@ -343,6 +345,7 @@ class _Tracker:
         self.ckpt = _Checkpoint(task.dir if task is not None else jobdir)
         self.state_extra: dict = {}           # backend state saved with the checkpoint (Ray blocks)
         self.film = None
+        self.aovs = None
         self.done = start_spp
 
     # renderer callbacks -------------------------------------------------------------
@@ -355,9 +358,11 @@ class _Tracker:
     def progress(self, done: int, target, fraction: float) -> None:
         self.done = done
 
-    def snapshot(self, film, done: int, extra: dict | None = None) -> None:
-        """Called after every pass (snapshot_interval=0); throttles its own writes."""
+    def snapshot(self, film, done: int, extra: dict | None = None, aovs=None) -> None:
+        """Called after every pass (snapshot_interval=0); throttles its own writes. ``aovs``
+        (with settings.denoise): the render's passes, whose guides denoise the preview."""
         self.film = film
+        self.aovs = aovs
         self.done = done
         if extra is not None:
             self.state_extra = extra
@@ -372,6 +377,8 @@ class _Tracker:
             self.write_snapshot(film, done, now)
             # Keep snapshot I/O under ~10 % of the time: a 4K checkpoint is hundreds of MB.
             self.snap_cost = time.monotonic() - now
+
+    snapshot.takes_aovs = True   # render() passes its AOVs when the job denoises
 
     # helpers ------------------------------------------------------------------------
     def elapsed(self, now: float | None = None) -> float:
@@ -425,6 +432,10 @@ class _Tracker:
             return  # canceled: do not write into a directory that may be going away
         write_exr(os.path.join(self.jobdir, PREVIEW_EXR), film, {"illum:spp": int(done), "illum:jobId": self.job.id})
         write_png(os.path.join(self.jobdir, PREVIEW_PNG), film)
+        if self.aovs is not None and self.aovs.passes is not None:
+            from renderer.render import denoise_film
+
+            write_png(os.path.join(self.jobdir, PREVIEW_DENOISED_PNG), denoise_film(film, self.aovs, full=True)[0])
         write_thumbnail(os.path.join(self.jobdir, THUMB_PNG), film.image())
         self.ckpt.save(film, {"spp": int(done), "render_seconds": self.used + self.elapsed(now),
                               "attempt": self.job.attempts, **self.state_extra})
@@ -588,6 +599,11 @@ def _write_final(ctx: WorkerContext, job: Job, opts, result, outdir: str, render
     write_outputs(result, exr=os.path.join(outdir, FINAL_EXR), png=os.path.join(outdir, FINAL_PNG),
                   stats_json=os.path.join(outdir, STATS_JSON))
     write_thumbnail(os.path.join(outdir, THUMB_PNG), result.film.image())
+    if result.aovs is not None and result.aovs.denoised is not None:
+        from renderer.film import write_png
+        from renderer.render import full_image
+
+        write_png(os.path.join(outdir, FINAL_DENOISED_PNG), full_image(result.film, result.aovs.denoised))
     _Checkpoint(outdir).remove()
     for w in result.warnings:
         jlog(f"{head}warning: {_clean(w, job)}")

@@ -221,6 +221,7 @@ function showSelected() {
   $("delete-btn").disabled = !j;
   $("log-link").hidden = !j;
   $("exr-link").hidden = !(j && j.links && j.links.image_exr);
+  $("denoised-row").hidden = !(j && j.links && j.links.image_denoised_png);
   if (j) {
     $("log-link").href = "/jobs/" + j.id + "/log";
     $("exr-link").href = "/jobs/" + j.id + "/image?format=exr";
@@ -239,8 +240,12 @@ function showSelected() {
     if (c && c.dataset.png && key !== lastPreviewKey) refreshPreview(j, key, c.dataset.png);
     return;
   }
-  const key = j.id + ":" + j.state + ":" + j.spp_done + ":" + (j.links && j.links.image_png ? 1 : 0);
-  if (j.links && j.links.image_png && key !== lastPreviewKey) refreshPreview(j, key);
+  // The live preview, or (a job that denoises, the box ticked) its OIDN-denoised version.
+  const denoised = !!(j.links && j.links.image_denoised_png) && $("show-denoised").checked;
+  const key = j.id + ":" + j.state + ":" + j.spp_done + ":" + (j.links && j.links.image_png ? 1 : 0) + ":" + denoised;
+  if (j.links && j.links.image_png && key !== lastPreviewKey) {
+    refreshPreview(j, key, denoised ? j.links.image_denoised_png : null);
+  }
 }
 
 // A frame range's tasks: one cell per frame, filled to its progress and coloured by its state;
@@ -477,6 +482,8 @@ $("delete-confirm").addEventListener("click", async () => {
 let filterTimer = null;
 $("filter-state").addEventListener("change", () => poll());
 $("filter-stage").addEventListener("input", () => { clearTimeout(filterTimer); filterTimer = setTimeout(poll, 250); });
+
+$("show-denoised").addEventListener("change", () => { lastPreviewKey = null; showSelected(); });
 
 $("exr-link").addEventListener("click", (ev) => {
   ev.preventDefault();
