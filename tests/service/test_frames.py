@@ -89,6 +89,14 @@ def test_bad_ranges_are_refused_naming_the_setting(frames_server, settings, fiel
         assert r.json()["message"].startswith(field + ": ") and words in r.json()["message"], r.json()
 
 
+def _dead(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] == "Z"   # a zombie is dead
+    except FileNotFoundError:
+        return True
+
+
 def _worker_pid(server, job_id):
     return next((pid for pid, job in server.worker_pids().values() if job == job_id), None)
 
@@ -143,3 +151,37 @@ def test_a_frame_out_of_attempts_fails_alone(frames_server):
         assert r.status_code == 200 and [f["state"] for f in r.json()["frames"]] == ["succeeded", "queued", "succeeded"]
         again = wait_job(c, job["id"], timeout=120)
         assert again["state"] == "succeeded" and [f["attempts"] for f in again["frames"]] == [1, 2, 1], again
+
+
+def test_a_range_survives_kill9_of_the_server(tmp_path):
+    """kill -9 of the server while frame 2 of 3 renders: the workers die with it; the restarted
+    server puts frame 2 back in the queue and resumes it from its checkpoint, frame 1 stays
+    rendered, and the job ends with every frame."""
+    root = make_stage_root(tmp_path / "root")
+    os.makedirs(os.path.join(root, "anim"))
+    shutil.copy(ANIM, os.path.join(root, "anim", "turntable.usda"))
+    slow = {"resolution": [24, 14], "time_budget": 4.0, "seed": 3, "frames": "1-3"}
+    s = start_server(tmp_path, root, workers=1, name="first")
+    try:
+        with s.client() as c:
+            job = c.post("/jobs", json={"stage": "anim/turntable.usda", "settings": slow}).json()
+            ckpt = os.path.join(s.data, "jobs", job["id"], "frames", "0001", "checkpoint.json")
+            wait_for(lambda: os.path.exists(ckpt), 120, what="the second frame's first checkpoint")
+            first_exr = os.path.join(s.data, "jobs", job["id"], "frames", "0000", "final.exr")
+            first_mtime = os.stat(first_exr).st_mtime_ns
+            wpid = _worker_pid(s, job["id"])
+        s.proc.kill()   # kill -9 the server, not its worker
+        s.proc.wait()
+        wait_for(lambda: _dead(wpid), 10, what="the worker to die with its server")
+    finally:
+        s.stop(signal.SIGKILL)
+    s2 = start_server(tmp_path, root, workers=1, data=s.data, name="second")
+    try:
+        with s2.client() as c:
+            done = wait_job(c, job["id"], timeout=180)
+            assert done["state"] == "succeeded", done
+            assert [f["attempts"] for f in done["frames"]] == [1, 2, 1], done["frames"]
+            assert os.stat(first_exr).st_mtime_ns == first_mtime
+            assert "frame 2: resuming from checkpoint" in c.get(f"/jobs/{job['id']}/log").text
+    finally:
+        s2.stop()
