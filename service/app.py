@@ -233,11 +233,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if tasks is not None:
             out["frame_counts"] = {st: sum(t["state"] == st for t in tasks) for st in STATES} if tasks else None
             out["frames"] = [frame_json(job, t) for t in tasks] if tasks else None
-        # One directory read instead of a stat per file: the job list builds this for every row.
-        try:
-            files = set(os.listdir(config.job_dir(job.id)))
-        except OSError:  # no directory yet (nothing written), or removed with the job
-            files = set()
+        files = _listing(config.job_dir(job.id))
         has = {fmt: not files.isdisjoint(names)
                for fmt, names in (("png", (FINAL_PNG, PREVIEW_PNG)), ("exr", (FINAL_EXR, PREVIEW_EXR)))}
         started_at = job.row.get("started_at")
@@ -256,11 +252,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     listed = _ListCache(job_json)
 
     def frame_json(job: Job, t: dict) -> dict:
-        d = os.path.join(config.job_dir(job.id), frame_dir(t["idx"]))
-        try:
-            files = set(os.listdir(d))
-        except OSError:
-            files = set()
+        files = _listing(os.path.join(config.job_dir(job.id), frame_dir(t["idx"])))
         base = f"/jobs/{job.id}/frames/{t['idx']}/image"
         return {"index": t["idx"], "frame": t["frame"], "state": t["state"], "attempts": t["attempts"],
                 "progress": t["progress"], "spp_done": t["spp_done"], "render_seconds": t["render_seconds"],
@@ -592,6 +584,15 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         return Response(status_code=204)
 
     return app
+
+
+def _listing(directory: str) -> set:
+    """The names in a job's (or frame's) directory: one read instead of a stat per file, since
+    the job list builds links for every row. Empty before anything is written (or once removed)."""
+    try:
+        return set(os.listdir(directory))
+    except OSError:
+        return set()
 
 
 def _dumps(obj) -> str:

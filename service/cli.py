@@ -332,7 +332,11 @@ def cmd_jobs(a) -> int:
     for j in listing["jobs"]:
         tries = f"{j['attempts']}/{j['max_attempts']}" + (f" +{j['requeues']}rq" if j.get("requeues") else "")
         elapsed = j.get("elapsed_seconds")
-        rows.append((j["id"], j["state"], f"{j.get('progress') or 0:.0f}%", str(j.get("spp_done") or 0),
+        progress = f"{j.get('progress') or 0:.0f}%"
+        fc = j.get("frame_counts")
+        if fc:   # a frame range: frames ended / frames
+            progress += f" ({fc['succeeded'] + fc['failed']}/{sum(fc.values())} frames)"
+        rows.append((j["id"], j["state"], progress, str(j.get("spp_done") or 0),
                      str(j["priority"]), tries, "-" if elapsed is None else f"{elapsed:.1f}s",
                      format_size(j["peak_memory"]) if j.get("peak_memory") else "-", _age(j.get("created_at")),
                      j["stage"], (j.get("error") or "")[:60]))

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from .conftest import STAGES, make_stage_root, read_exr_bytes, start_server, wait_for, wait_job
+from .test_faults import _alive
 
 ANIM = os.path.join(STAGES, "anim", "turntable.usda")
 SMALL = {"resolution": [24, 14], "spp": 2, "seed": 4}
@@ -87,14 +88,6 @@ def test_bad_ranges_are_refused_naming_the_setting(frames_server, settings, fiel
         assert r.status_code == 422, r.text
         assert r.json()["detail"][0]["loc"] == ["body", *field.split(".")], r.json()
         assert r.json()["message"].startswith(field + ": ") and words in r.json()["message"], r.json()
-
-
-def _dead(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().split(")")[-1].split()[0] == "Z"   # a zombie is dead
-    except FileNotFoundError:
-        return True
 
 
 def _worker_pid(server, job_id):
@@ -172,7 +165,7 @@ def test_a_range_survives_kill9_of_the_server(tmp_path):
             wpid = _worker_pid(s, job["id"])
         s.proc.kill()   # kill -9 the server, not its worker
         s.proc.wait()
-        wait_for(lambda: _dead(wpid), 10, what="the worker to die with its server")
+        wait_for(lambda: not _alive(wpid), 10, what="the worker to die with its server")
     finally:
         s.stop(signal.SIGKILL)
     s2 = start_server(tmp_path, root, workers=1, data=s.data, name="second")
