@@ -346,6 +346,7 @@ class _Tracker:
         self.state_extra: dict = {}           # backend state saved with the checkpoint (Ray blocks)
         self.film = None
         self.aovs = None
+        self.denoise_failed = False
         self.done = start_spp
 
     # renderer callbacks -------------------------------------------------------------
@@ -432,10 +433,14 @@ class _Tracker:
             return  # canceled: do not write into a directory that may be going away
         write_exr(os.path.join(self.jobdir, PREVIEW_EXR), film, {"illum:spp": int(done), "illum:jobId": self.job.id})
         write_png(os.path.join(self.jobdir, PREVIEW_PNG), film)
-        if self.aovs is not None and self.aovs.passes is not None:
+        if self.aovs is not None and self.aovs.passes is not None and not self.denoise_failed:
             from renderer.render import denoise_film
 
-            write_png(os.path.join(self.jobdir, PREVIEW_DENOISED_PNG), denoise_film(film, self.aovs, full=True)[0])
+            try:
+                write_png(os.path.join(self.jobdir, PREVIEW_DENOISED_PNG), denoise_film(film, self.aovs, full=True)[0])
+            except RuntimeError as e:   # OIDN failed: the render goes on, without denoised previews
+                self.denoise_failed = True
+                self.jlog(f"warning: no denoised preview: {e}")
         write_thumbnail(os.path.join(self.jobdir, THUMB_PNG), film.image())
         self.ckpt.save(film, {"spp": int(done), "render_seconds": self.used + self.elapsed(now),
                               "attempt": self.job.attempts, **self.state_extra})
