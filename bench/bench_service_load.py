@@ -74,6 +74,8 @@ def main() -> int:
     ap.add_argument("--prims", type=int, default=300_000)
     ap.add_argument("--repo", default=ROOT, help="the checkout whose server runs (default: this one)")
     ap.add_argument("--check-timeout", type=float, default=600.0)
+    ap.add_argument("--idle-seconds", type=float, default=5.0,
+                    help="poll the server this long after the flood (the machine's own latency; 0: skip)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root = os.path.join(tmp, "root")
@@ -83,6 +85,7 @@ def main() -> int:
         bodies = [big_stage(a.prims, i) for i in range(a.clients)]
         proc, url = start(os.path.abspath(a.repo), data, root, a.check_timeout)
         lat: dict[str, list[float]] = {"/health": [], "/jobs": []}
+        idle: dict[str, list[float]] = {"/health": [], "/jobs": []}
         submit_s: list[float] = []
         ids: list[str] = []
         errors: list[str] = []
@@ -134,13 +137,25 @@ def main() -> int:
         t_checked = time.perf_counter() - t_start
         flooding.clear()
         poller.join()
+        # The same polls once the flood is over (the same jobs listed): on a shared machine this
+        # says how much of the latency under the flood is the machine's own load.
+        with httpx.Client(base_url=url, timeout=600) as c:
+            t_idle = time.perf_counter() + a.idle_seconds
+            while time.perf_counter() < t_idle:
+                for path in idle:
+                    t0 = time.perf_counter()
+                    c.get(path)
+                    idle[path].append(time.perf_counter() - t0)
+                time.sleep(0.01)
         proc.terminate()
         proc.wait(30)
     mb = len(bodies[0]) / 1e6
     print(f"{a.clients} clients x {a.prims} prims ({mb:.1f} MB each), server from {a.repo}")
-    for path, xs in lat.items():
-        print(f"  GET {path:8s} n={len(xs):5d}  p50 {1e3 * statistics.median(xs):8.1f} ms  "
-              f"p99 {1e3 * pct(xs, 0.99):8.1f} ms  max {1e3 * max(xs):8.1f} ms")
+    for label, table in (("idle", idle), ("flood", lat)):
+        for path, xs in table.items():
+            if xs:
+                print(f"  {label:5s} GET {path:8s} n={len(xs):5d}  p50 {1e3 * statistics.median(xs):8.1f} ms  "
+                      f"p99 {1e3 * pct(xs, 0.99):8.1f} ms  max {1e3 * max(xs):8.1f} ms")
     print(f"  slowest upload+submit {max(submit_s, default=float('nan')):.1f} s; all submitted after {t_submitted:.1f} s; "
           f"all checked after {t_checked:.1f} s; errors: {len(errors)}")
     for e in errors[:5]:

@@ -15,12 +15,13 @@ import time
 from .errors import IllumError
 
 
-def add_render_flags(p: argparse.ArgumentParser, route: str = "render") -> None:
+def add_render_flags(p: argparse.ArgumentParser, route: str = "render", ranges: bool = False) -> None:
     """The render flags of `illum render` (route "render") or `illum submit` (route "submit"):
-    every option renderer/options.py declares for that route."""
-    from .options import add_flags
+    every option renderer/options.py declares for that route; ``ranges``: the frame-range
+    options (RANGE_OPTIONS) instead."""
+    from .options import OPTIONS, RANGE_OPTIONS, add_flags
 
-    add_flags(p, route)
+    add_flags(p, route, RANGE_OPTIONS if ranges else OPTIONS)
 
 
 def options_from_args(a, route: str = "render") -> "RenderOptions":
@@ -104,22 +105,10 @@ def _check_outputs(a, paths: list[tuple[str, str, object]]) -> None:
 
 
 def _frames(a, opts) -> list:
-    """The frames to render: --frames SPEC, or --frame F with --frame-count N / --frame-inc I
-    (renderer/frames.py); [opts.frame] for one frame. A None start (no --frame) is the stage's
-    start time code, known once the first frame is read (``cmd_render``)."""
-    from .errors import SettingsError
-    from .frames import frame_range, parse_frames
+    """The frames to render (renderer/frames.py frame_list)."""
+    from .frames import frame_list
 
-    if a.frames is not None:
-        if opts.frame is not None or a.frame_count is not None or a.frame_inc is not None:
-            raise SettingsError("cannot be combined with --frame, --frame-count or --frame-inc", attribute="--frames")
-        return parse_frames(a.frames)
-    if a.frame_count is None and a.frame_inc is None:
-        return [opts.frame]
-    count = 1 if a.frame_count is None else a.frame_count
-    inc = 1.0 if a.frame_inc is None else a.frame_inc
-    frames = frame_range(0.0 if opts.frame is None else opts.frame, count, inc)
-    return frames if opts.frame is not None else [None] + [(k, inc) for k in range(1, count)]
+    return frame_list(opts.frame, a.frame_count, a.frame_inc, a.frames)
 
 
 class _Range:
@@ -271,10 +260,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", help="output image: .exr, or display-referred .png/.jpg/.tif; $F, $F4, #### "
                    "become the frame (default: the RenderProduct's productName, else STAGE.exr)")
     add_render_flags(r, "render")
-    r.add_argument("-n", "--frame-count", type=int, metavar="N", help="render N frames from --frame")
-    r.add_argument("-i", "--frame-inc", type=float, metavar="I", help="frame step of --frame-count (default 1)")
-    r.add_argument("--frames", metavar="SPEC", help="frames to render: A, A-B or A-BxSTEP, comma-separated "
-                   "(e.g. 1-100x2); the stage is loaded once")
+    add_render_flags(r, "render", ranges=True)
     r.add_argument("--preview", metavar="OUT.png", help="also write a display-referred preview (.png, .jpg, .tif)")
     r.add_argument("--stats", metavar="OUT.json", help="write render statistics as JSON")
     r.add_argument("--make-output-path", action="store_true",

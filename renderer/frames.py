@@ -17,7 +17,7 @@ import re
 
 from .errors import SettingsError
 
-__all__ = ["parse_frames", "frame_range", "has_frame_token", "frame_name", "MAX_FRAMES"]
+__all__ = ["frame_list", "parse_frames", "frame_range", "has_frame_token", "frame_name", "MAX_FRAMES"]
 
 MAX_FRAMES = 100_000
 _NUM = r"-?\d+(?:\.\d+)?"
@@ -57,6 +57,24 @@ def parse_frames(spec: str) -> list[float]:
             raise SettingsError(f"more than {MAX_FRAMES} frames", attribute="--frames")
         frames += frame_range(a, n, step, attribute="--frames")
     return frames
+
+
+def frame_list(frame: float | None, frame_count: int | None, frame_inc: float | None, frames: str | None) -> list:
+    """The frames a range renders, from the range options (renderer/options.py RANGE_OPTIONS):
+    ``frames`` SPEC, or ``frame`` with ``frame_count`` / ``frame_inc``; ``[frame]`` for one frame.
+    Without ``frame`` the start is the stage's start time code, known only once the stage is read:
+    the list is then ``[None, (1, inc), (2, inc), ...]``, offsets from that start. SettingsError
+    naming the flag for a bad combination or value."""
+    if frames is not None:
+        if frame is not None or frame_count is not None or frame_inc is not None:
+            raise SettingsError("cannot be combined with --frame, --frame-count or --frame-inc", attribute="--frames")
+        return parse_frames(frames)
+    if frame_count is None and frame_inc is None:
+        return [frame]
+    count = 1 if frame_count is None else frame_count
+    inc = 1.0 if frame_inc is None else frame_inc
+    listed = frame_range(0.0 if frame is None else frame, count, inc)
+    return listed if frame is not None else [None] + [(k, inc) for k in range(1, count)]
 
 
 def has_frame_token(template: str) -> bool:

@@ -35,9 +35,10 @@ from dataclasses import dataclass, field, make_dataclass
 from typing import Any, Callable, Optional
 
 from .errors import SettingsError
+from .frames import MAX_FRAMES
 from .pixel_filter import MAX_RADIUS, MIN_RADIUS
 
-__all__ = ["Option", "OPTIONS", "BY_NAME", "ROUTES", "make_options_class", "add_flags", "options_from_args",
+__all__ = ["Option", "OPTIONS", "RANGE_OPTIONS", "BY_NAME", "BY_API", "ROUTES", "make_options_class", "add_flags", "options_from_args",
            "check", "normalise", "to_json", "MAX_PER_LIGHT_ENTRIES"]
 
 # The three ways a render option reaches render(): `illum render` flags, `illum submit` flags, and
@@ -275,7 +276,32 @@ OPTIONS: tuple[Option, ...] = (
            example={"": 2}),
 )
 BY_NAME = {o.name: o for o in OPTIONS}
-BY_API = {o.api_name: o for o in OPTIONS if o.api_name}
+
+
+def _frames_spec(v) -> None:
+    """A --frames SPEC must parse (renderer/frames.py), with the parser's own words."""
+    from .frames import parse_frames
+
+    try:
+        parse_frames(v)
+    except SettingsError as e:
+        raise ValueError(e.message) from None
+
+
+# Which frames a command or a service job renders (renderer/frames.py). Not RenderOptions fields
+# (each frame's render gets its own ``frame``): ``illum render`` renders them in one process,
+# ``illum submit`` and the request body make them one job with a task per frame. Declared here
+# so that every route takes the same spellings, bounds and messages.
+RANGE_OPTIONS: tuple[Option, ...] = (
+    Option("frame_count", "int", None, "render N frames from --frame", flags=("--frame-count", "-n"), metavar="N",
+           lo=1, hi=MAX_FRAMES, example=3),
+    Option("frame_inc", "float", None, "frame step of --frame-count (default 1)", flags=("--frame-inc", "-i"),
+           metavar="I", lo=0, lo_open=True, hi=1e9, example=2.0),
+    Option("frames", "str", None, "frames to render: A, A-B or A-BxSTEP, comma-separated (e.g. 1-100x2); the stage "
+           "is loaded once", flags=("--frames",), metavar="SPEC", max_length=4096, extra_check=_frames_spec,
+           example="1-3"),
+)
+BY_API = {o.api_name: o for o in (*OPTIONS, *RANGE_OPTIONS) if o.api_name}
 
 
 # ---------------------------------------------------------------------------------- checks
@@ -453,10 +479,11 @@ def _help(o: Option) -> str:
     return h.replace("%", "%%")
 
 
-def add_flags(p: argparse.ArgumentParser, route: str) -> None:
-    """Add the flags of every option offered on ``route`` ("render" or "submit") to ``p``.
-    Each flag's dest is the option's name; a flag left out parses as None (see options_from_args)."""
-    for o in OPTIONS:
+def add_flags(p: argparse.ArgumentParser, route: str, declared: tuple[Option, ...] = OPTIONS) -> None:
+    """Add the flags of every option of ``declared`` (OPTIONS, or RANGE_OPTIONS) offered on
+    ``route`` ("render" or "submit") to ``p``. Each flag's dest is the option's name; a flag left
+    out parses as None (see options_from_args)."""
+    for o in declared:
         if route not in o.routes or not o.flags:
             continue
         kw: dict = {"dest": o.name, "default": None, "help": _help(o)}

@@ -245,7 +245,10 @@ def render(
                     fr.append(rendering(now) / opt.time_budget)
                 progress(done, target, min(1.0, max(fr) if fr else 0.0))
             if snapshot is not None and now - last_snapshot >= snapshot_interval:
-                snapshot(film, done)
+                if getattr(snapshot, "takes_aovs", False) and opt.denoise:
+                    snapshot(film, done, aovs=aovs)   # a denoised preview needs the guides (denoise_film)
+                else:
+                    snapshot(film, done)
                 last_snapshot = now
             if not active:
                 break   # every pixel has stopped
@@ -256,10 +259,7 @@ def render(
     phases["render"] = rendering(time.perf_counter())
     phases["compile"] = COMPILES.seconds() - c_start
     if opt.denoise:
-        from .denoise import denoise
-
-        aovs.denoised, aovs.denoise_seconds = denoise(aovs.beauty(film)[:, :, :3], first_hit.image("albedo", film.count),
-                                                      first_hit.image("normal", film.count))
+        aovs.denoised, aovs.denoise_seconds = denoise_film(film, aovs)
         phases["denoise"] = aovs.denoise_seconds
 
     rays = integrator.rays.as_dict()
@@ -502,15 +502,15 @@ def write_outputs(result: RenderResult, exr: str | None = None, png: str | None 
                 write_image(exr, pixels, result.metadata, files=files, origin=(x0, y0), channels=names,
                             full=(result.film.width, result.film.height), compression=compression, half=half)
             else:  # display formats hold the beauty (RGBA where asked); the denoised one is a file
-                write_png(exr, _full(result.film, aovs.beauty(result.film)), files=files)
+                write_png(exr, full_image(result.film, aovs.beauty(result.film)), files=files)
                 if aovs.denoised is not None:
                     den = aovs.denoised
                     if aovs.alpha:  # the beauty's alpha: the denoised RGB is premultiplied by it too
                         den = np.concatenate([den, aovs.passes.image("alpha", result.film.count)], axis=2)
-                    write_png(f"{base}_denoised{ext}", _full(result.film, den), files=files)
+                    write_png(f"{base}_denoised{ext}", full_image(result.film, den), files=files)
         if png:
             write_png(png, result.film if aovs is None or aovs.passes is None
-                      else _full(result.film, aovs.beauty(result.film)), files=files)
+                      else full_image(result.film, aovs.beauty(result.film)), files=files)
         write_s = time.perf_counter() - t0
         result.stats["seconds"]["write"] = write_s
         if stats_json:
@@ -518,7 +518,18 @@ def write_outputs(result: RenderResult, exr: str | None = None, png: str | None 
     return {"write": write_s}
 
 
-def _full(film: Film, window_pixels: np.ndarray) -> np.ndarray:
+def denoise_film(film: Film, aovs, full: bool = False) -> tuple[np.ndarray, float]:
+    """(denoised beauty RGB, seconds) of ``film`` so far: OIDN guided by the first-hit albedo
+    and normal of ``aovs`` (renderer/denoise.py). The data window (h, w, 3), or with ``full`` the
+    full image (H, W, 3). The final denoised layer and a service's denoised previews are this."""
+    from .denoise import denoise
+
+    den, seconds = denoise(aovs.beauty(film)[:, :, :3], aovs.passes.image("albedo", film.count),
+                           aovs.passes.image("normal", film.count))
+    return (full_image(film, den) if full else den), seconds
+
+
+def full_image(film: Film, window_pixels: np.ndarray) -> np.ndarray:
     """Data-window pixels (h, w, C) placed in the full image (zeros outside the window)."""
     x0, y0, x1, y1 = film.window
     full = np.zeros((film.height, film.width, window_pixels.shape[2]), dtype=np.float32)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import hmac
+import json
 import os
 import tempfile
 import time
@@ -30,12 +31,14 @@ from . import API_VERSION
 from .assets import AssetChecker, CheckQueue
 from .config import ServiceConfig
 from .metrics import Metrics
-from .models import JobCreate, JobPatch, JobRequeue, check_stage_search, request_hash, validate_settings
+from .models import (JobCreate, JobPatch, JobRequeue, check_stage_search, job_frames, request_hash,
+                     validate_settings)
 from .paths import (IMAGE_EXTENSIONS, STAGE_EXTENSIONS, InputError, check_magic, list_stages, resolve_in_root,
                     resolve_upload, upload_name)
-from .store import IdempotencyConflict, Job, JobStore
+from .store import STATES, IdempotencyConflict, Job, JobStore
 from .supervisor import Supervisor, append_job_log
-from .worker import FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_EXR, PREVIEW_PNG, STATS_JSON, THUMB_PNG, THUMB_SIZE
+from .worker import (FINAL_DENOISED_PNG, FINAL_EXR, FINAL_PNG, JOB_LOG, PREVIEW_DENOISED_PNG, PREVIEW_EXR, PREVIEW_PNG,
+                     STATS_JSON, THUMB_PNG, THUMB_SIZE, frame_dir)
 
 __all__ = ["create_app"]
 
@@ -222,20 +225,44 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             os.makedirs(d, exist_ok=True)
         append_job_log(d, f"[api] {message}")
 
-    def job_json(job: Job) -> dict:
+    def job_json(job: Job, task_counts: Optional[dict] = None, tasks: Optional[list] = None) -> dict:
+        """The API form of a job. A frame-range job also has ``frame_counts`` ({state: frames});
+        ``tasks`` (its task rows) adds ``frames``, each frame's state, attempts and images."""
         out = job.public()
-        d = config.job_dir(job.id)
-        has = {fmt: any(os.path.exists(os.path.join(d, n)) for n in names)
+        out["frame_counts"] = task_counts
+        if tasks is not None:
+            out["frame_counts"] = {st: sum(t["state"] == st for t in tasks) for st in STATES} if tasks else None
+            out["frames"] = [frame_json(job, t) for t in tasks] if tasks else None
+        files = _listing(config.job_dir(job.id))
+        has = {fmt: not files.isdisjoint(names)
                for fmt, names in (("png", (FINAL_PNG, PREVIEW_PNG)), ("exr", (FINAL_EXR, PREVIEW_EXR)))}
         started_at = job.row.get("started_at")
         out["elapsed_seconds"] = (None if started_at is None
                                   else max(0.0, (job.row.get("finished_at") or time.time()) - started_at))
-        thumb = os.path.exists(os.path.join(d, THUMB_PNG))
+        thumb = THUMB_PNG in files
         out["links"] = {"self": f"/jobs/{job.id}", "log": f"/jobs/{job.id}/log",
                         "image_png": f"/jobs/{job.id}/image?format=png" if has["png"] else None,
+                        "image_denoised_png": (f"/jobs/{job.id}/image?format=png&denoised=true"
+                                               if not files.isdisjoint((FINAL_DENOISED_PNG, PREVIEW_DENOISED_PNG))
+                                               else None),
                         "image_exr": f"/jobs/{job.id}/image?format=exr" if has["exr"] else None,
                         "thumbnail": f"/jobs/{job.id}/thumbnail" if thumb else None}
         return out
+
+    listed = _ListCache(job_json)
+
+    def frame_json(job: Job, t: dict) -> dict:
+        files = _listing(os.path.join(config.job_dir(job.id), frame_dir(t["idx"])))
+        base = f"/jobs/{job.id}/frames/{t['idx']}/image"
+        return {"index": t["idx"], "frame": t["frame"], "state": t["state"], "attempts": t["attempts"],
+                "progress": t["progress"], "spp_done": t["spp_done"], "render_seconds": t["render_seconds"],
+                "started_at": t["started_at"], "finished_at": t["finished_at"], "error": t["error"],
+                "links": {"image_png": f"{base}?format=png" if FINAL_PNG in files else None,
+                          "image_exr": f"{base}?format=exr" if FINAL_EXR in files else None}}
+
+    def full_json(job: Job) -> dict:
+        """One job as GET /jobs/{id} gives it: with its frames."""
+        return job_json(job, tasks=store.tasks(job.id))
 
     # ---------------------------------------------------------------- pages
     @app.get("/", include_in_schema=False)
@@ -365,13 +392,14 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             exts = STAGE_EXTENSIONS if body.kind == "render" else IMAGE_EXTENSIONS
             path, name = resolve_in_root(config.stage_root, body.stage, exts)
         settings = validate_settings(body.kind, body.settings, config.limits)
+        frames = job_frames(settings) if body.kind == "render" else None
         max_attempts = body.max_attempts or config.max_attempts
         digest = request_hash(body.kind, name, settings, body.priority, max_attempts)
         try:
             job, created = store.create(kind=body.kind, stage=path, stage_name=name, settings=settings,
                                         priority=body.priority, max_attempts=max_attempts,
                                         idempotency_key=key, request_hash=digest,
-                                        check_pending=body.kind == "render")
+                                        check_pending=body.kind == "render", frames=frames)
         except IdempotencyConflict as e:
             raise HTTPException(409, str(e)) from None
         if created and body.kind == "render":
@@ -383,7 +411,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if not created:
             response.status_code = 200
             response.headers["Idempotent-Replayed"] = "true"
-        return job_json(job)
+        return full_json(job)
 
     @app.get("/jobs", dependencies=auth, summary="List jobs, newest first",
              description="Filter by one or more `state`s and by `stage`: text the stage name contains (plain "
@@ -391,22 +419,59 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
     def list_jobs(state: Optional[list[Literal["queued", "running", "succeeded", "failed", "canceled"]]] = Query(None),
                   stage: Optional[str] = Query(None, description="text the stage name contains"),
                   limit: int = Query(200, ge=1, le=1000), offset: int = Query(0, ge=0, le=2**62)):
-        jobs, total = store.list_jobs(states=state, limit=limit, offset=offset, stage=check_stage_search(stage))
-        return {"jobs": [job_json(j) for j in jobs], "count": len(jobs), "total": total}
+        rows, total = store.list_rows(states=state, limit=limit, offset=offset, stage=check_stage_search(stage))
+        counts = store.task_counts([r["id"] for r in rows])
+        texts = [listed.text(r, counts.get(r["id"])) for r in rows]
+        listed.trim()
+        # The body is assembled from each job's JSON text (FastAPI's generic encoder, which walked
+        # every value of every job, was half of this endpoint's time; #21 item 3).
+        body = '{"jobs":[' + ",".join(texts) + f'],"count":{len(rows)},"total":{total}}}'
+        return Response(body.encode(), media_type="application/json")
 
     @app.get("/jobs/{job_id}", dependencies=auth,
              summary="One job: state, progress %, spp, samples/s, ETA, error, attempts")
     def get_job(job_id: str = Path(..., pattern=JOB_ID)):
-        return job_json(job_or_404(job_id))
+        return full_json(job_or_404(job_id))
+
+    @app.get("/jobs/{job_id}/frames/{index}/image", dependencies=auth,
+             summary="One frame of a frame-range job: its final image",
+             responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
+                        404: {"description": "no such frame, or not rendered yet"}})
+    def frame_image(job_id: str = Path(..., pattern=JOB_ID), index: int = Path(..., ge=0, le=10**9),
+                    format: Literal["png", "exr"] = "png",
+                    t: Optional[str] = Query(None, description="ignored; lets pages defeat caches")):
+        job = job_or_404(job_id)
+        tasks = store.tasks(job.id)
+        if index >= len(tasks):
+            raise HTTPException(404, f"job {job.id} has no frame index {index} ({len(tasks)} frames)")
+        path = os.path.join(config.job_dir(job.id), frame_dir(index), FINAL_EXR if format == "exr" else FINAL_PNG)
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read()
+        except FileNotFoundError:
+            raise HTTPException(404, f"frame {tasks[index]['frame']:g} of job {job.id} has no image yet "
+                                     f"(state {tasks[index]['state']})") from None
+        return Response(data, media_type=MEDIA[format], headers={
+            "Cache-Control": "no-store", "X-Illum-Image": "frame", "X-Illum-Frame": f"{tasks[index]['frame']:g}",
+            "X-Illum-Spp": str(tasks[index]["spp_done"]), "X-Illum-State": tasks[index]["state"],
+            "Content-Disposition": f'inline; filename="{job.id}.{index:04d}.{format}"'})
 
     @app.get("/jobs/{job_id}/image", dependencies=auth, summary="The final image, else the latest progressive snapshot",
              responses={200: {"content": {"image/png": {}, "image/x-exr": {}}},
                         404: {"description": "no image yet"}})
     def job_image(job_id: str = Path(..., pattern=JOB_ID), format: Literal["png", "exr"] = "png",
+                  denoised: bool = Query(False, description="the OIDN-denoised beauty (a job with settings.denoise; "
+                                                            "PNG only: the final EXR holds it as its 'denoised' layer)"),
                   t: Optional[str] = Query(None, description="ignored; lets pages defeat caches")):
         job = job_or_404(job_id)
         d = config.job_dir(job.id)
-        final, preview = (FINAL_PNG, PREVIEW_PNG) if format == "png" else (FINAL_EXR, PREVIEW_EXR)
+        if denoised and format != "png":
+            raise InputError(422, "query.denoised", "the denoised image is served as PNG; the final EXR holds it as "
+                                                    "its 'denoised' layer")
+        if denoised and not job.settings.get("denoise"):
+            raise HTTPException(404, f"job {job.id} does not denoise (settings.denoise is false)")
+        final, preview = ((FINAL_DENOISED_PNG, PREVIEW_DENOISED_PNG) if denoised
+                          else (FINAL_PNG, PREVIEW_PNG) if format == "png" else (FINAL_EXR, PREVIEW_EXR))
         for name, kind in ((final, "final"), (preview, "preview")):
             try:
                 fh = open(os.path.join(d, name), "rb")
@@ -474,7 +539,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         if job.state in ("succeeded", "failed"):
             raise HTTPException(409, f"job {job_id} already {job.state}")
         api_log(job, f"canceled by request (attempts so far: {job.attempts})")
-        return job_json(job)
+        return full_json(job)
 
     @app.patch("/jobs/{job_id}", dependencies=auth, summary="Change a queued or running job's priority",
                description="The queue takes the new priority into account at once: workers claim the highest "
@@ -488,7 +553,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             raise HTTPException(409, f"job {job_id} already {job.state}: only queued or running jobs take a new "
                                      "priority (requeue it with one)")
         api_log(job, f"priority set to {body.priority}")
-        return job_json(job)
+        return full_json(job)
 
     @app.post("/jobs/{job_id}/requeue", dependencies=auth, summary="Run a failed or canceled job again",
               description=("The job goes back to `queued` with a fresh allowance of `max_attempts` attempts, "
@@ -509,7 +574,7 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
             api_log(job, f"requeued by request (requeue {job.row['requeues']}, {job.attempts} attempts "
                               f"so far; a fresh {job.max_attempts} attempts"
                               + (f", priority {job.priority}" if priority is not None else "") + ")")
-        return job_json(job)
+        return full_json(job)
 
     @app.delete("/jobs/{job_id}", status_code=204, dependencies=auth,
                 summary="Delete a job and its files (a running job is canceled first)")
@@ -519,6 +584,56 @@ def create_app(config: ServiceConfig, *, start_workers: bool = True) -> FastAPI:
         return Response(status_code=204)
 
     return app
+
+
+def _listing(directory: str) -> set:
+    """The names in a job's (or frame's) directory: one read instead of a stat per file, since
+    the job list builds links for every row. Empty before anything is written (or once removed)."""
+    try:
+        return set(os.listdir(directory))
+    except OSError:
+        return set()
+
+
+def _dumps(obj) -> str:
+    """JSON text as Starlette's JSONResponse writes it."""
+    return json.dumps(obj, ensure_ascii=False, allow_nan=False, separators=(",", ":"))
+
+
+class _ListCache:
+    """The JSON text of each job GET /jobs listed, reused while its row and frame counts are
+    unchanged: the page polls the list every second, and under load (#21 item 3) decoding each
+    row's settings, reading its directory and encoding it again was most of the endpoint's time.
+
+    A job's image links follow its files, which a worker writes between two writes of the row
+    (progress, heartbeat every ``--heartbeat-interval``): a running job's links are at most one
+    heartbeat late. A job with a start and no end (running) has its elapsed time computed anew on
+    each listing; only its decoding and its files are reused. Safe across request threads (a
+    race only encodes a job twice)."""
+
+    MAX = 10_000
+
+    def __init__(self, encode):
+        self.encode = encode            # (Job, frame counts) -> the API dict (job_json)
+        self.entries: dict = {}         # id -> (row values, frame counts, API dict, text or None)
+
+    def text(self, row, counts: Optional[dict]) -> str:
+        key = (tuple(row), None if counts is None else tuple(sorted(counts.items())))
+        hit = self.entries.get(row["id"])
+        if hit is None or hit[0] != key:
+            out = self.encode(Job.from_row(row), counts)
+            live = row["started_at"] is not None and row["finished_at"] is None
+            hit = (key, out, None if live else _dumps(out))
+            self.entries[row["id"]] = hit
+        if hit[2] is not None:
+            return hit[2]
+        out = dict(hit[1])
+        out["elapsed_seconds"] = max(0.0, time.time() - row["started_at"])
+        return _dumps(out)
+
+    def trim(self) -> None:
+        if len(self.entries) > self.MAX:   # deleted jobs and old pages: start afresh
+            self.entries.clear()
 
 
 def _swagger_dir() -> Optional[str]:

@@ -73,6 +73,7 @@ def register_cli(subparsers) -> None:
     sub.add_argument("-o", "--output", default=None, help="download the final image here (.exr or .png; implies --wait)")
     sub.add_argument("--quiet", action="store_true")
     add_render_flags(sub, "submit")
+    add_render_flags(sub, "submit", ranges=True)   # a range is one job, a task per frame
     sub.set_defaults(func=cmd_submit)
 
     j = subparsers.add_parser("jobs", help="list a render service's jobs (or show, cancel, delete one)")
@@ -232,10 +233,10 @@ def cmd_submit(a) -> int:
     from renderer.cli import options_from_args
 
     from .client import ServiceError
-    from .models import settings_from_options
+    from .models import range_settings, settings_from_options
 
     if a.kind == "render":
-        settings = settings_from_options(options_from_args(a, "submit"))
+        settings = {**settings_from_options(options_from_args(a, "submit")), **range_settings(a)}
     else:
         settings = {k: v for k, v in (("size", a.size), ("method", a.method)) if v is not None}
     with _client(a) as client:
@@ -331,7 +332,11 @@ def cmd_jobs(a) -> int:
     for j in listing["jobs"]:
         tries = f"{j['attempts']}/{j['max_attempts']}" + (f" +{j['requeues']}rq" if j.get("requeues") else "")
         elapsed = j.get("elapsed_seconds")
-        rows.append((j["id"], j["state"], f"{j.get('progress') or 0:.0f}%", str(j.get("spp_done") or 0),
+        progress = f"{j.get('progress') or 0:.0f}%"
+        fc = j.get("frame_counts")
+        if fc:   # a frame range: frames ended / frames
+            progress += f" ({fc['succeeded'] + fc['failed']}/{sum(fc.values())} frames)"
+        rows.append((j["id"], j["state"], progress, str(j.get("spp_done") or 0),
                      str(j["priority"]), tries, "-" if elapsed is None else f"{elapsed:.1f}s",
                      format_size(j["peak_memory"]) if j.get("peak_memory") else "-", _age(j.get("created_at")),
                      j["stage"], (j.get("error") or "")[:60]))

@@ -38,6 +38,7 @@ class Limits:
     max_json_bytes: int = 1024 * 1024
     max_preconvolve_size: int = 2048
     max_attempts: int = 16
+    max_frames: int = 10_000                 # frames (tasks) of one frame-range job
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from .config import Limits
 from .paths import InputError
 
 __all__ = ["JobCreate", "JobPatch", "JobRequeue", "STAGE_SEARCH_MAX", "check_stage_search", "RenderSettings", "PreconvolveSettings", "validate_settings", "render_options",
-           "request_hash", "DEFAULT_SPP"]
+           "request_hash", "DEFAULT_SPP", "job_frames", "range_settings"]
 
 DEFAULT_SPP = 64
 
@@ -66,7 +66,7 @@ def _check_option(cls, v, info: ValidationInfo):
 def _request_model():
     """The ``render`` job settings model: one field per option renderer/options.py offers on the
     HTTP API, named as the declaration's ``api`` name."""
-    api = [o for o in options.OPTIONS if "api" in o.routes and o.api_name]
+    api = [o for o in (*options.OPTIONS, *options.RANGE_OPTIONS) if "api" in o.routes and o.api_name]
     fields = {}
     for o in api:
         default = Field(default_factory=o.default_value) if isinstance(o.default, dict) else Field(o.default)
@@ -185,6 +185,11 @@ def validate_settings(kind: str, settings: dict, limits: Limits) -> dict:
         out = s.model_dump()
         if out["spp"] is None and out["time_budget"] is None:
             out["spp"] = DEFAULT_SPP
+        frames = job_frames(out)
+        if frames is not None and len(frames) > limits.max_frames:
+            field = "frames" if out.get("frames") is not None else "frame_count"
+            raise InputError(422, f"settings.{field}", f"{len(frames)} frames exceed the server limit of "
+                                                       f"{limits.max_frames}")
         return out
     if kind == "preconvolve":
         try:
@@ -196,6 +201,34 @@ def validate_settings(kind: str, settings: dict, limits: Limits) -> dict:
                              f"{p.size} exceeds the server limit of {limits.max_preconvolve_size}")
         return p.model_dump()
     raise InputError(422, "kind", f"unknown kind {kind!r}")
+
+
+def job_frames(settings: dict) -> list[float] | None:
+    """The frames of a render job whose settings ask for a range (``frames``, ``frame_count`` or
+    ``frame_inc``; renderer/frames.py frame_list, as ``illum render`` reads them), else None: the
+    job is one render. Raises InputError (422) naming the setting."""
+    from renderer.errors import SettingsError
+    from renderer.frames import frame_list
+
+    if all(settings.get(o.api_name) is None for o in options.RANGE_OPTIONS):
+        return None
+    try:
+        frames = frame_list(settings.get("frame"), settings.get("frame_count"), settings.get("frame_inc"),
+                            settings.get("frames"))
+    except SettingsError as e:
+        names = {"--frames": "frames", "--frame-count": "frame_count", "--frame-inc": "frame_inc", "--frame": "frame"}
+        raise InputError(422, f"settings.{names.get(e.attribute, 'frames')}", e.message) from None
+    if frames[0] is None:
+        # The workers could read the stage's start frame, but the job's tasks are made here, at
+        # submission, and the server never opens a stage.
+        raise InputError(422, "settings.frame", "a frame range (frame_count, frame_inc) needs its first frame here")
+    return [float(f) for f in frames]
+
+
+def range_settings(a) -> dict:
+    """Parsed ``illum submit`` range flags (RANGE_OPTIONS) -> their request settings."""
+    return {o.api_name: options.to_json(o, getattr(a, o.name)) for o in options.RANGE_OPTIONS
+            if getattr(a, o.name, None) is not None}
 
 
 def request_hash(kind: str, stage_name: str, settings: dict, priority: int, max_attempts: int) -> str:

@@ -34,6 +34,11 @@ State machine::
   ``max_attempts``.
 * Finished jobs add to persistent histograms (render seconds, peak memory) in the same
   transaction that ends them, so ``/metrics`` counts survive restarts and deletions.
+* A frame-range job has one row per frame in ``tasks`` (v4). The job is claimed, heartbeated,
+  canceled and requeued as a whole; its worker takes the job's tasks one at a time
+  (``start_task``, lowest index first) and ends each (``finish_task``). A worker lost on frame k
+  puts only frame k back in the queue (the reaper; the job is requeued), or fails frame k once its
+  own attempts reach ``max_attempts``: the frames already rendered are never rendered again.
 * Deleting a job hides it at once (``deleted_at``); the row and its directory are removed by
   ``collect_deleted`` once no worker holds it, so a worker never writes into a removed dir.
 """
@@ -55,7 +60,7 @@ __all__ = ["JobStore", "Job", "STATES", "TERMINAL_STATES", "KINDS"]
 STATES = ("queued", "running", "succeeded", "failed", "canceled")
 TERMINAL_STATES = ("succeeded", "failed", "canceled")
 KINDS = ("render", "preconvolve")
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -94,6 +99,24 @@ CREATE TABLE IF NOT EXISTS jobs (
     attempt_base        INTEGER NOT NULL DEFAULT 0    -- attempts spent before the last requeue
 );
 CREATE INDEX IF NOT EXISTS jobs_queue ON jobs (state, priority DESC, seq);
+-- v4: the frames of a frame-range job, one task each: its own state, attempts and image. The job
+-- is claimed as a whole; its worker runs the tasks still queued, in order (service/worker.py).
+CREATE TABLE IF NOT EXISTS tasks (
+    job_id          TEXT NOT NULL REFERENCES jobs (id) ON DELETE CASCADE,
+    idx             INTEGER NOT NULL,          -- position in the range, from 0
+    frame           REAL NOT NULL,             -- the time code rendered
+    state           TEXT NOT NULL DEFAULT 'queued'
+                    CHECK (state IN ('queued', 'running', 'succeeded', 'failed', 'canceled')),
+    attempts        INTEGER NOT NULL DEFAULT 0,
+    attempt_base    INTEGER NOT NULL DEFAULT 0,   -- attempts spent before the job's last requeue
+    progress        REAL NOT NULL DEFAULT 0,      -- percent of this frame
+    spp_done        INTEGER NOT NULL DEFAULT 0,
+    render_seconds  REAL NOT NULL DEFAULT 0,
+    started_at      REAL,
+    finished_at     REAL,
+    error           TEXT,
+    PRIMARY KEY (job_id, idx)
+);
 CREATE TABLE IF NOT EXISTS workers (
     id            TEXT PRIMARY KEY,
     host          TEXT NOT NULL,
@@ -226,6 +249,9 @@ class JobStore:
                     raise
                 db.execute("COMMIT")
             db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+            # v4 only added a table (made by the schema script above): no column to add.
+            db.execute("UPDATE meta SET value=? WHERE key='schema_version' AND CAST(value AS INTEGER) < ?",
+                       (str(SCHEMA_VERSION), SCHEMA_VERSION))
 
     # ------------------------------------------------------------------ connections
     @contextlib.contextmanager
@@ -260,10 +286,12 @@ class JobStore:
     # ------------------------------------------------------------------ submission
     def create(self, *, kind: str, stage: str, stage_name: str, settings: dict, priority: int,
                max_attempts: int, idempotency_key: str | None = None,
-               request_hash: str | None = None, check_pending: bool = False) -> tuple[Job, bool]:
+               request_hash: str | None = None, check_pending: bool = False,
+               frames: list[float] | None = None) -> tuple[Job, bool]:
         """Insert a queued job. Returns (job, created): with an idempotency key already used for
         the same request, the existing job and False; for a different request it raises
-        IdempotencyConflict. check_pending: no worker may claim the job until ``check_done``."""
+        IdempotencyConflict. check_pending: no worker may claim the job until ``check_done``.
+        frames: a frame-range job's frames, one task each (in the same transaction)."""
         now = time.time()
         job_id = uuid.uuid4().hex[:16]
         with self.transaction() as db:
@@ -281,8 +309,71 @@ class JobStore:
                 (job_id, kind, int(priority), stage, stage_name, json.dumps(settings, sort_keys=True),
                  idempotency_key, request_hash, now, now, int(max_attempts), settings.get("spp"),
                  "pending" if check_pending else "done"))
+            if frames:
+                db.executemany("INSERT INTO tasks (job_id, idx, frame) VALUES (?, ?, ?)",
+                               [(job_id, k, float(f)) for k, f in enumerate(frames)])
             row = db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
         return Job.from_row(row), True
+
+    # ------------------------------------------------------------------ frame tasks
+    def tasks(self, job_id: str) -> list[dict]:
+        """A frame-range job's tasks in range order ([] for a one-frame job)."""
+        with self.connect() as db:
+            return [dict(r) for r in db.execute("SELECT * FROM tasks WHERE job_id=? ORDER BY idx", (job_id,))]
+
+    def task_counts(self, job_ids: list[str]) -> dict:
+        """{job id: {state: tasks}} for the frame-range jobs among ``job_ids`` (one query)."""
+        if not job_ids:
+            return {}
+        out: dict = {}
+        with self.connect() as db:
+            for i in range(0, len(job_ids), 500):   # SQLite's bound-parameter limit
+                part = job_ids[i:i + 500]
+                rows = db.execute(f"""SELECT job_id, state, COUNT(*) FROM tasks WHERE job_id IN
+                                      ({','.join('?' * len(part))}) GROUP BY job_id, state""", part).fetchall()
+                for job_id, state, n in rows:
+                    out.setdefault(job_id, {s: 0 for s in STATES})[state] = int(n)
+        return out
+
+    def running_tasks(self) -> dict:
+        """{job id: index of its running frame task} over all jobs."""
+        with self.connect() as db:
+            return {r[0]: int(r[1]) for r in db.execute("SELECT job_id, idx FROM tasks WHERE state='running'")}
+
+    def start_task(self, job_id: str, worker_id: str) -> dict | None | bool:
+        """The worker owning the running job takes its next task (the lowest index still
+        queued) and counts an attempt on it. Returns the task row, None when no task is left,
+        or False when the job is no longer this worker's (stop)."""
+        now = time.time()
+        with self.transaction() as db:
+            if db.execute(f"SELECT 1 FROM jobs WHERE {_OWNED}", (job_id, worker_id)).fetchone() is None:
+                return False
+            row = db.execute(
+                """UPDATE tasks SET state='running', attempts=attempts+1, started_at=?, finished_at=NULL,
+                       progress=0, spp_done=0
+                   WHERE job_id=? AND idx=(SELECT idx FROM tasks WHERE job_id=? AND state IN ('queued', 'running')
+                                           ORDER BY idx LIMIT 1)
+                   RETURNING *""", (now, job_id, job_id)).fetchone()
+        return dict(row) if row is not None else None
+
+    def finish_task(self, job_id: str, worker_id: str, idx: int, state: str, *, error: str | None = None,
+                    **fields) -> bool:
+        """End a task's attempt (succeeded, failed, or queued to retry), only by the worker
+        owning its job. fields: spp_done, render_seconds, progress."""
+        if state not in ("succeeded", "failed", "queued"):
+            raise ValueError(f"a worker cannot move a task to {state!r}")
+        bad = set(fields) - {"spp_done", "render_seconds", "progress"}
+        if bad:
+            raise ValueError(f"not task fields: {sorted(bad)}")
+        now = time.time()
+        sets = ["state=?", "finished_at=?", "error=?", *(f"{k}=?" for k in fields)]
+        args = [state, None if state == "queued" else now, error, *fields.values()]
+        with self.transaction() as db:
+            if db.execute(f"SELECT 1 FROM jobs WHERE {_OWNED}", (job_id, worker_id)).fetchone() is None:
+                return False
+            cur = db.execute(f"UPDATE tasks SET {', '.join(sets)} WHERE job_id=? AND idx=? AND state='running'",
+                             (*args, job_id, int(idx)))
+            return cur.rowcount == 1
 
     # ------------------------------------------------------------------ queries
     def get(self, job_id: str, include_deleted: bool = False) -> Job | None:
@@ -296,6 +387,13 @@ class JobStore:
         """Newest first. ``stage``: only jobs whose stage name contains this text (case-blind
         for ASCII letters; matched as plain text, never as a pattern). Returns (jobs, total
         matching)."""
+        rows, total = self.list_rows(states, limit, offset, stage)
+        return [Job.from_row(r) for r in rows], total
+
+    def list_rows(self, states: list[str] | None = None, limit: int = 200, offset: int = 0,
+                  stage: str | None = None) -> tuple[list[sqlite3.Row], int]:
+        """``list_jobs`` as undecoded rows (``Job.from_row`` makes jobs of them): GET /jobs
+        decodes only the rows that changed since it last listed them."""
         where = "deleted_at IS NULL"
         args: list[Any] = []
         if states:
@@ -308,7 +406,7 @@ class JobStore:
             total = db.execute(f"SELECT COUNT(*) FROM jobs WHERE {where}", args).fetchone()[0]
             rows = db.execute(f"SELECT * FROM jobs WHERE {where} ORDER BY seq DESC LIMIT ? OFFSET ?",
                               args + [int(limit), int(offset)]).fetchall()
-        return [Job.from_row(r) for r in rows], int(total)
+        return rows, int(total)
 
     def queue_order(self) -> list[str]:
         """Ids of the claimable jobs in the order workers will take them."""
@@ -343,6 +441,8 @@ class JobStore:
                 db.execute("""UPDATE jobs SET state='canceled', cancel_requested_at=?, finished_at=?, updated_at=?,
                               eta_seconds=NULL, samples_per_second=NULL WHERE id=?""", (now, now, now, job_id))
                 db.execute("UPDATE workers SET stop_deadline=? WHERE job_id=?", (now + grace, job_id))
+                db.execute("""UPDATE tasks SET state='canceled', finished_at=? WHERE job_id=?
+                              AND state IN ('queued', 'running')""", (now, job_id))
                 if row["state"] == "running":  # a run ended
                     _observe_end(db, job_id)
             row = db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
@@ -384,6 +484,9 @@ class JobStore:
                        asset_check=CASE WHEN kind='render' THEN 'pending' ELSE 'done' END
                    WHERE id=? AND deleted_at IS NULL AND state IN ('failed', 'canceled')""",
                 (None if priority is None else int(priority), now, job_id))
+            if cur.rowcount == 1:  # frames not rendered yet get their fresh attempts too
+                db.execute("""UPDATE tasks SET state='queued', attempt_base=attempts, error=NULL, finished_at=NULL
+                              WHERE job_id=? AND state IN ('failed', 'canceled', 'running')""", (job_id,))
             row = db.execute("SELECT * FROM jobs WHERE id=? AND deleted_at IS NULL", (job_id,)).fetchone()
         return (Job.from_row(row) if row is not None else None), cur.rowcount == 1
 
@@ -489,17 +592,25 @@ class JobStore:
             db.execute("UPDATE workers SET heartbeat_at=? WHERE id=?", (now, worker_id))
             return cur.rowcount == 1
 
-    def progress(self, job_id: str, worker_id: str, **fields) -> bool:
+    def progress(self, job_id: str, worker_id: str, task: tuple[int, dict] | None = None, **fields) -> bool:
         """Update progress columns of a job this worker owns (progress, spp_done, spp_target,
-        samples_per_second, eta_seconds, render_seconds)."""
+        samples_per_second, eta_seconds, render_seconds); ``task``: (index, {progress,
+        spp_done, render_seconds}) of the running frame task, in the same transaction."""
         bad = set(fields) - _PROGRESS_FIELDS
         if bad:
             raise ValueError(f"not progress fields: {sorted(bad)}")
         now = time.time()
         sets = ", ".join(_assign(k) for k in fields)
-        with self.connect() as db:
+        with self.transaction() as db:
             cur = db.execute(f"""UPDATE jobs SET {sets}, heartbeat_at=?, updated_at=? WHERE id=? AND worker=?
                                  AND state='running'""", (*fields.values(), now, now, job_id, worker_id))
+            if task is not None and cur.rowcount == 1:
+                idx, values = task
+                bad = set(values) - {"spp_done", "render_seconds", "progress"}
+                if bad:
+                    raise ValueError(f"not task fields: {sorted(bad)}")
+                db.execute(f"UPDATE tasks SET {', '.join(f'{k}=?' for k in values)} WHERE job_id=? AND idx=? "
+                           "AND state='running'", (*values.values(), job_id, int(idx)))
             return cur.rowcount == 1
 
     def finish(self, job_id: str, worker_id: str, state: str, *, error: str | None = None,
@@ -537,6 +648,14 @@ class JobStore:
             cur = db.execute(f"UPDATE jobs SET {', '.join(assign)} WHERE id=? AND worker=? AND state='running'",
                              (*args, job_id, worker_id))
             db.execute("UPDATE workers SET job_id=NULL, stop_deadline=NULL WHERE id=?", (worker_id,))
+            if cur.rowcount == 1:
+                # A frame task still running ends with its job: back in the queue (the attempt
+                # refunded too on a graceful shutdown), or failed with the job's reason.
+                db.execute(f"""UPDATE tasks SET state=?, error=COALESCE(?, error), finished_at=?
+                               {', attempts=MAX(attempts-1, 0)' if refund else ''}
+                               WHERE job_id=? AND state='running'""",
+                           ("queued" if requeue else "failed", None if state == "succeeded" else error,
+                            None if requeue else now, job_id))
             if cur.rowcount == 1 and not requeue:
                 _observe_end(db, job_id)
             return cur.rowcount == 1
@@ -577,7 +696,22 @@ class JobStore:
             rows = db.execute("""SELECT id, attempts - attempt_base AS run_attempt, max_attempts, error, heartbeat_at
                                  FROM jobs WHERE state='running' AND heartbeat_at < ?""", (cutoff,)).fetchall()
             for r in rows:
-                if r["run_attempt"] >= r["max_attempts"]:
+                task = db.execute("""SELECT idx, frame, attempts - attempt_base AS run_attempt FROM tasks
+                                     WHERE job_id=? AND state='running'""", (r["id"],)).fetchone()
+                if task is not None:
+                    # A frame-range job lost on frame k: only frame k is retried (or fails, once
+                    # its own attempts are spent); the job goes back to the queue for its other
+                    # frames, and the next worker skips the frames already rendered.
+                    why = r["error"] or f"worker lost: no heartbeat for {stale_after:g} s"
+                    spent = task["run_attempt"] >= r["max_attempts"]
+                    db.execute("UPDATE tasks SET state=?, error=?, finished_at=? WHERE job_id=? AND idx=?",
+                               ("failed" if spent else "queued",
+                                f"{why} (attempt {task['run_attempt']} of {r['max_attempts']}"
+                                + ("; giving up)" if spent else ")"), now if spent else None, r["id"], task["idx"]))
+                    db.execute("""UPDATE jobs SET state='queued', worker=NULL, updated_at=?, eta_seconds=NULL,
+                                  samples_per_second=NULL WHERE id=?""", (now, r["id"]))
+                    changed.append((r["id"], "queued"))
+                elif r["run_attempt"] >= r["max_attempts"]:
                     why = r["error"] or f"worker lost: no heartbeat for {stale_after:g} s"
                     err = f"{why} (attempt {r['run_attempt']} of {r['max_attempts']}; giving up)"
                     db.execute("""UPDATE jobs SET state='failed', error=?, finished_at=?, updated_at=?,
@@ -637,6 +771,10 @@ class JobStore:
 # let go of it (a canceled job requeued before its old worker stopped).
 _CLAIMABLE = ("state='queued' AND asset_check='done' AND deleted_at IS NULL "
               "AND id NOT IN (SELECT job_id FROM workers WHERE job_id IS NOT NULL)")
+
+
+# The job is running under this worker (bound: job id, worker id).
+_OWNED = "id=? AND worker=? AND state='running' AND deleted_at IS NULL"
 
 
 def _assign(column: str) -> str:

@@ -49,7 +49,7 @@ class _Slot:
     started: float = 0.0
     crashes: list = field(default_factory=list)   # monotonic times of recent early exits
     not_before: float = 0.0                       # respawn back-off
-    job_id: str | None = None                     # the job the worker holds, as last seen
+    held: tuple | None = None                     # (job, running frame task or None) the worker holds, as last seen
     job_seen: float = 0.0                         # monotonic time it was first seen holding it
 
 
@@ -229,15 +229,18 @@ class Supervisor:
         """Kill the worker of a job that has run longer than the server's max time plus
         max_time_grace this attempt, and fail the job for good: a worker blocked in a read (a
         stage that never finishes opening) still heartbeats, so the reaper would never notice.
-        An attempt is timed from when this supervisor first sees its worker holding it."""
+        An attempt is timed from when this supervisor first sees its worker holding it; for a
+        frame-range job, each frame task's attempt is timed on its own (the limit is per frame)."""
         c = self.config
         limit = c.limits.max_time_budget + c.max_time_grace
-        holding = {w["id"]: w["job_id"] for w in self.store.workers() if w["job_id"]}
+        frames = self.store.running_tasks()
+        holding = {w["id"]: (w["job_id"], frames.get(w["job_id"])) for w in self.store.workers() if w["job_id"]}
         with self._lock:
             for slot in self.slots:
-                job_id = holding.get(slot.worker_id)
-                if job_id != slot.job_id:
-                    slot.job_id, slot.job_seen = job_id, now
+                held = holding.get(slot.worker_id)
+                job_id = held[0] if held else None
+                if held != slot.held:
+                    slot.held, slot.job_seen = held, now
                 if job_id is None or now - slot.job_seen <= limit or slot.proc is None or slot.proc.poll() is not None:
                     continue
                 msg = (f"the job ran {now - slot.job_seen:.0f} s, beyond this server's limit of "

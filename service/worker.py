@@ -53,6 +53,8 @@ log = logging.getLogger("illum.worker")
 PREVIEW_EXR, PREVIEW_PNG = "preview.exr", "preview.png"
 FINAL_EXR, FINAL_PNG, STATS_JSON = "final.exr", "final.png", "stats.json"
 THUMB_PNG = "thumb.png"     # a small sRGB PNG of the latest image, for the job list
+# With settings.denoise: the OIDN-denoised beauty as sRGB PNGs, of each snapshot and of the end
+PREVIEW_DENOISED_PNG, FINAL_DENOISED_PNG = "preview_denoised.png", "final_denoised.png"
 THUMB_SIZE = 64             # pixels on the longer side
 CHECKPOINT, CHECKPOINT_META = "checkpoint.npz", "checkpoint.json"
 JOB_LOG = "job.log"
@@ -201,7 +203,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
     if job.run_attempt == 1:
         # A new run (a new job, or one a user requeued): whatever a discarded run left as its
         # result is stale (a job running has no result yet); the checkpoint is kept to resume.
-        for name in (FINAL_EXR, FINAL_PNG, STATS_JSON):
+        for name in (FINAL_EXR, FINAL_PNG, FINAL_DENOISED_PNG, STATS_JSON):
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(os.path.join(jobdir, name))
     requeues = int(job.row.get("requeues") or 0)
@@ -225,7 +227,7 @@ def run_job(ctx: WorkerContext, job: Job) -> str:
                 raise IllumError(f"unknown job kind {job.kind!r}")
         except _Canceled:
             return _stopped(ctx, job, hb, jlog)
-        except IllumError as e:
+        except (IllumError, _FramesFailed) as e:
             msg = _clean(str(e), job)
             jlog(f"error: {msg}")
             ctx.store.finish(job.id, ctx.worker_id, "failed", error=msg, peak_memory=hb.peak())
@@ -326,8 +328,10 @@ class _Tracker:
     store, snapshots (preview + checkpoint) to the job directory."""
 
     def __init__(self, ctx: WorkerContext, job: Job, jobdir: str, stop: threading.Event, jlog: JobLog, *,
-                 target: int | None, budget: float | None, used_seconds: float, start_spp: int):
+                 target: int | None, budget: float | None, used_seconds: float, start_spp: int,
+                 task: Optional["_TaskRun"] = None):
         self.ctx, self.job, self.jobdir, self.stop, self.jlog = ctx, job, jobdir, stop, jlog
+        self.task = task                      # the frame task rendering (a frame-range job), else None
         self.target = target
         self.budget = budget                  # total budget of the job (all attempts)
         self.used = used_seconds              # render seconds of earlier attempts
@@ -338,9 +342,11 @@ class _Tracker:
         self.last_snap = -1e30                # the first pass is snapshotted at once (early preview)
         self.snap_cost = 0.0                  # seconds the last snapshot took to write
         self.last_logged_pct = -1
-        self.ckpt = _Checkpoint(jobdir)
+        self.ckpt = _Checkpoint(task.dir if task is not None else jobdir)
         self.state_extra: dict = {}           # backend state saved with the checkpoint (Ray blocks)
         self.film = None
+        self.aovs = None
+        self.denoise_failed = False
         self.done = start_spp
 
     # renderer callbacks -------------------------------------------------------------
@@ -353,9 +359,11 @@ class _Tracker:
     def progress(self, done: int, target, fraction: float) -> None:
         self.done = done
 
-    def snapshot(self, film, done: int, extra: dict | None = None) -> None:
-        """Called after every pass (snapshot_interval=0); throttles its own writes."""
+    def snapshot(self, film, done: int, extra: dict | None = None, aovs=None) -> None:
+        """Called after every pass (snapshot_interval=0); throttles its own writes. ``aovs``
+        (with settings.denoise): the render's passes, whose guides denoise the preview."""
         self.film = film
+        self.aovs = aovs
         self.done = done
         if extra is not None:
             self.state_extra = extra
@@ -370,6 +378,8 @@ class _Tracker:
             self.write_snapshot(film, done, now)
             # Keep snapshot I/O under ~10 % of the time: a 4K checkpoint is hundreds of MB.
             self.snap_cost = time.monotonic() - now
+
+    snapshot.takes_aovs = True   # render() passes its AOVs when the job denoises
 
     # helpers ------------------------------------------------------------------------
     def elapsed(self, now: float | None = None) -> float:
@@ -395,15 +405,25 @@ class _Tracker:
         if self.budget:
             etas.append(max(self.budget - self.used - el, 0.0))
         frac = self.fraction(done, now)
-        if not self.ctx.store.progress(self.job.id, self.ctx.worker_id, progress=round(100.0 * frac, 2),
-                                       spp_done=int(done), spp_target=self.target, samples_per_second=sps,
-                                       eta_seconds=min(etas) if etas else None,
-                                       render_seconds=self.used + el):
+        task, job_frac, render_seconds = None, frac, self.used + el
+        if self.task is not None:
+            # The job's progress covers the whole range; the task row has the frame's own.
+            t = self.task
+            task = (t.idx, {"progress": round(100.0 * frac, 2), "spp_done": int(done), "render_seconds": self.used + el})
+            job_frac = (t.done + frac) / t.count
+            render_seconds = t.seconds_before + self.used + el
+            if etas and frac > 0:   # this frame's ETA, and the frames after it at this frame's pace
+                etas = [min(etas) + (t.count - t.done - 1) * (self.used + el) / frac]
+        if not self.ctx.store.progress(self.job.id, self.ctx.worker_id, task=task,
+                                       progress=round(100.0 * job_frac, 2), spp_done=int(done),
+                                       spp_target=self.target, samples_per_second=sps,
+                                       eta_seconds=min(etas) if etas else None, render_seconds=render_seconds):
             self.stop.set()
         pct = int(frac * 100) // 10 * 10
         if pct != self.last_logged_pct:
             self.last_logged_pct = pct
-            self.jlog(f"progress {pct}% ({done} spp, {sps / 1e3:.1f} ksamples/s)")
+            head = f"frame {self.task.frame:g}: " if self.task is not None else ""
+            self.jlog(f"{head}progress {pct}% ({done} spp, {sps / 1e3:.1f} ksamples/s)")
 
     def write_snapshot(self, film, done: int, now: float | None = None) -> None:
         """Preview EXR + PNG, then the checkpoint, all written atomically."""
@@ -413,9 +433,35 @@ class _Tracker:
             return  # canceled: do not write into a directory that may be going away
         write_exr(os.path.join(self.jobdir, PREVIEW_EXR), film, {"illum:spp": int(done), "illum:jobId": self.job.id})
         write_png(os.path.join(self.jobdir, PREVIEW_PNG), film)
+        if self.aovs is not None and self.aovs.passes is not None and not self.denoise_failed:
+            from renderer.render import denoise_film
+
+            try:
+                write_png(os.path.join(self.jobdir, PREVIEW_DENOISED_PNG), denoise_film(film, self.aovs, full=True)[0])
+            except RuntimeError as e:   # OIDN failed: the render goes on, without denoised previews
+                self.denoise_failed = True
+                self.jlog(f"warning: no denoised preview: {e}")
         write_thumbnail(os.path.join(self.jobdir, THUMB_PNG), film.image())
         self.ckpt.save(film, {"spp": int(done), "render_seconds": self.used + self.elapsed(now),
                               "attempt": self.job.attempts, **self.state_extra})
+
+
+def frame_dir(idx: int) -> str:
+    """A frame task's directory inside its job's: its checkpoint and final images."""
+    return os.path.join("frames", f"{int(idx):04d}")
+
+
+@dataclass
+class _TaskRun:
+    """The frame task a frame-range job is rendering: its index and time code, its directory
+    (checkpoint, final images), and where it stands in the range (for the job's progress)."""
+
+    idx: int
+    frame: float
+    dir: str
+    count: int                 # frames in the range
+    done: int                  # frames of the range already ended (succeeded or failed)
+    seconds_before: float      # render seconds of the frames already rendered
 
 
 def thumbnail(image: np.ndarray, size: int = THUMB_SIZE) -> np.ndarray:
@@ -485,10 +531,11 @@ def _check_stage_assets(ctx: WorkerContext, job: Job) -> None:
 
 
 def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLog) -> dict:
-    from renderer.render import render, write_outputs
-
     jobdir = ctx.job_dir(job.id)
     opts = render_options(job.settings, threads=ctx.threads, max_memory=ctx.max_memory)
+    tasks = ctx.store.tasks(job.id)
+    if tasks:  # checked at the first frame still to render
+        opts.frame = next((t["frame"] for t in tasks if t["state"] in ("queued", "running")), tasks[0]["frame"])
     opts.validate()
     from renderer.deadline import deadline
 
@@ -496,19 +543,33 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
         _check_stage_assets(ctx, job)
     with deadline(opts.load_timeout, "reading the stage's render settings", file=job.stage):
         _check_stage_resolution(ctx, job, opts)
+    if tasks:
+        return _run_frames(ctx, job, opts, stop, jlog, len(tasks))
+    result, render_seconds, start_spp = _render_film(ctx, job, opts, jobdir, stop, jlog)
+    return _write_final(ctx, job, opts, result, jobdir, render_seconds, start_spp, jlog)
+
+
+def _render_film(ctx: WorkerContext, job: Job, opts, jobdir: str, stop: threading.Event, jlog: JobLog,
+                 task: Optional[_TaskRun] = None, shared: dict | None = None):
+    """Render one frame (resuming from its checkpoint, in ``task.dir`` for a frame task) with
+    the job's callbacks. Returns (RenderResult, render seconds over all attempts, spp resumed
+    from); raises _Canceled when the job stopped."""
+    from renderer.render import render
+
     user_budget = opts.time_budget
     total_budget = min(user_budget, ctx.max_time) if (user_budget and ctx.max_time) else (user_budget or ctx.max_time)
-    ckpt = _Checkpoint(jobdir)
+    ckpt = _Checkpoint(task.dir if task is not None else jobdir)
     resume, meta = ckpt.load(jlog)
     used = float(meta.get("render_seconds", 0.0)) if resume is not None else 0.0
     start_spp = int(resume.count.max()) if resume is not None and resume.count.size else 0
     if resume is not None:
-        jlog(f"resuming from checkpoint: {start_spp} spp, {used:.1f} s rendered before")
+        jlog(f"{'frame %g: ' % task.frame if task else ''}resuming from checkpoint: {start_spp} spp, "
+             f"{used:.1f} s rendered before")
     if total_budget is not None:
         # The budget covers all attempts; a resumed job renders at least one more pass.
         opts.time_budget = max(total_budget - used, 1e-3)
     tracker = _Tracker(ctx, job, jobdir, stop, jlog, target=opts.spp, budget=total_budget, used_seconds=used,
-                       start_spp=start_spp)
+                       start_spp=start_spp, task=task)
 
     if ctx.backend == "ray":
         from .ray_backend import get_pool
@@ -520,27 +581,39 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     else:
         result = render(job.stage, opts, progress=tracker.progress, snapshot=tracker.snapshot,
                         snapshot_interval=0.0, cancel=tracker.cancel, resume=resume,
-                        scene_cache=ctx.scene_cache)
+                        scene_cache=None if shared is not None else ctx.scene_cache, shared=shared)
     if stop.is_set():
         if ctx.shutdown.is_set() and result.film is not None:
             tracker.write_snapshot(result.film, int(result.stats["spp"]))
         raise _Canceled()
+    return result, used + float(result.stats["seconds"]["render"]), start_spp
 
-    # Final outputs: the EXR carries the render metadata, minus the server's absolute paths.
+
+def _write_final(ctx: WorkerContext, job: Job, opts, result, outdir: str, render_seconds: float, start_spp: int,
+                 jlog: JobLog, head: str = "") -> dict:
+    """The final EXR, PNG, statistics and thumbnail of a render in ``outdir``; the checkpoint
+    there is removed. Returns the job's (or frame task's) result summary."""
+    from renderer.render import write_outputs
+
+    # The EXR carries the render metadata, minus the server's absolute paths.
     result.metadata["illum:stage"] = job.stage_name
     result.metadata["illum:jobId"] = job.id
     result.stats["stage"] = job.stage_name
-    render_seconds = used + float(result.stats["seconds"]["render"])
     result.stats["job"] = {"id": job.id, "attempts": job.attempts, "render_seconds_all_attempts": render_seconds,
                            "resumed_from_spp": start_spp}
-    write_outputs(result, exr=os.path.join(jobdir, FINAL_EXR), png=os.path.join(jobdir, FINAL_PNG),
-                  stats_json=os.path.join(jobdir, STATS_JSON))
-    write_thumbnail(os.path.join(jobdir, THUMB_PNG), result.film.image())
-    ckpt.remove()
+    write_outputs(result, exr=os.path.join(outdir, FINAL_EXR), png=os.path.join(outdir, FINAL_PNG),
+                  stats_json=os.path.join(outdir, STATS_JSON))
+    write_thumbnail(os.path.join(outdir, THUMB_PNG), result.film.image())
+    if result.aovs is not None and result.aovs.denoised is not None:
+        from renderer.film import write_png
+        from renderer.render import full_image
+
+        write_png(os.path.join(outdir, FINAL_DENOISED_PNG), full_image(result.film, result.aovs.denoised))
+    _Checkpoint(outdir).remove()
     for w in result.warnings:
-        jlog(f"warning: {_clean(w, job)}")
+        jlog(f"{head}warning: {_clean(w, job)}")
     if opts.spp is not None and result.stats["spp"] < opts.spp:
-        jlog(f"warning: stopped at {result.stats['spp']} of {opts.spp} spp by the time budget")
+        jlog(f"{head}warning: stopped at {result.stats['spp']} of {opts.spp} spp by the time budget")
     s = result.stats
     if s.get("kernels_compiled"):  # the warm-up missed a route (renderer/warmup.py ROUTES)
         jlog(f"compiled {s['kernels_compiled']} kernels in {s['seconds'].get('compile', 0.0):.1f} s "
@@ -548,6 +621,97 @@ def _run_render(ctx: WorkerContext, job: Job, stop: threading.Event, jlog: JobLo
     return {"spp": int(s["spp"]), "resolution": s["resolution"], "render_seconds": render_seconds,
             "samples_per_second": float(s["samples_per_second"]), "warnings": [_clean(w, job) for w in result.warnings],
             "files": [FINAL_EXR, FINAL_PNG, STATS_JSON], "resumed_from_spp": start_spp}
+
+
+class _FramesFailed(Exception):
+    """Some frames of a frame-range job failed for good: the job fails, not retried (each frame
+    had its own attempts)."""
+
+
+def _run_frames(ctx: WorkerContext, job: Job, opts, stop: threading.Event, jlog: JobLog, count: int) -> dict:
+    """A frame-range job: render its tasks still queued, lowest index first, each with its own
+    checkpoint and final images (frame_dir) and its own attempts; the stage is composed once for
+    all of them (render(shared=...)), as ``illum render --frames`` does. A frame that fails
+    for good (a user error, out of memory, or attempts spent) does not stop the others; the
+    job then fails naming them. Frames already rendered (an earlier attempt) are never redone."""
+    import dataclasses
+
+    from renderer.errors import IllumError
+
+    jobdir = ctx.job_dir(job.id)
+    shared: dict | None = {} if ctx.backend != "ray" else None
+    while True:
+        if stop.is_set():
+            raise _Canceled()
+        row = ctx.store.start_task(job.id, ctx.worker_id)
+        if row is False:
+            stop.set()
+            raise _Canceled()
+        if row is None:
+            break
+        tasks = ctx.store.tasks(job.id)
+        ended = [t for t in tasks if t["state"] in ("succeeded", "failed")]
+        task = _TaskRun(idx=row["idx"], frame=row["frame"], dir=os.path.join(jobdir, frame_dir(row["idx"])),
+                        count=count, done=len(ended),
+                        seconds_before=sum(t["render_seconds"] for t in ended))
+        os.makedirs(task.dir, exist_ok=True)
+        run_attempt = row["attempts"] - row["attempt_base"]
+        head = f"frame {task.frame:g}: "
+        jlog(f"{head}[{task.idx + 1}/{count}] attempt {run_attempt} of {job.max_attempts}")
+        frame_opts = dataclasses.replace(opts, frame=task.frame)
+        try:
+            if shared is not None and "stage" not in shared:
+                from renderer.deadline import deadline
+                from renderer.usd.stage_reader import open_stage
+
+                with deadline(opts.load_timeout, "opening the stage", file=job.stage):
+                    shared["stage"] = open_stage(job.stage)
+            result, seconds, start_spp = _render_film(ctx, job, frame_opts, jobdir, stop, jlog, task=task,
+                                                      shared=shared)
+            summary = _write_final(ctx, job, frame_opts, result, task.dir, seconds, start_spp, jlog, head)
+        except _Canceled:
+            raise
+        except (IllumError, MemoryError) as e:   # the same frame would fail the same way again
+            msg = _clean(str(e) if isinstance(e, IllumError) else f"out of memory: {e}", job)
+            jlog(f"{head}error: {msg}")
+            if not ctx.store.finish_task(job.id, ctx.worker_id, task.idx, "failed", error=msg):
+                raise _Canceled() from None
+            continue
+        except Exception as e:  # may be transient: this frame alone is retried, up to max_attempts
+            if stop.is_set():
+                raise _Canceled() from None
+            msg = _clean(f"internal error: {type(e).__name__}: {e}", job)
+            jlog(f"{head}{msg}\n{traceback.format_exc()}")
+            again = run_attempt < job.max_attempts
+            if not ctx.store.finish_task(job.id, ctx.worker_id, task.idx, "queued" if again else "failed",
+                                         error=msg if again else f"{msg} (attempt {run_attempt} of "
+                                                                 f"{job.max_attempts}; giving up)"):
+                raise _Canceled() from None
+            continue
+        # The job's own preview and thumbnail follow the range: the page shows the last frame done.
+        from renderer.film import write_exr, write_png
+
+        write_exr(os.path.join(jobdir, PREVIEW_EXR), result.film, {"illum:spp": summary["spp"],
+                                                                    "illum:jobId": job.id,
+                                                                    "illum:frame": float(task.frame)})
+        write_png(os.path.join(jobdir, PREVIEW_PNG), result.film)
+        write_thumbnail(os.path.join(jobdir, THUMB_PNG), result.film.image())
+        if not ctx.store.finish_task(job.id, ctx.worker_id, task.idx, "succeeded", spp_done=summary["spp"],
+                                     render_seconds=seconds, progress=100.0):
+            raise _Canceled()
+        jlog(f"{head}succeeded: {summary['spp']} spp, {seconds:.2f} s")
+    if shared and "stage" in shared:
+        shared.clear()
+    tasks = ctx.store.tasks(job.id)
+    failed = [t for t in tasks if t["state"] == "failed"]
+    if failed:
+        first = failed[0]
+        listed = ", ".join(f"{t['frame']:g}" for t in failed[:10]) + (", ..." if len(failed) > 10 else "")
+        raise _FramesFailed(f"{len(failed)} of {len(tasks)} frames failed ({listed}); frame {first['frame']:g}: "
+                            f"{first['error']}")
+    spp = min(t["spp_done"] for t in tasks)
+    return {"frames": len(tasks), "spp": spp, "render_seconds": sum(t["render_seconds"] for t in tasks),
+            "files": [os.path.join(frame_dir(t["idx"]), n) for t in tasks for n in (FINAL_EXR, FINAL_PNG, STATS_JSON)]}
 
 
 def _run_preconvolve(ctx: WorkerContext, job: Job, jlog: JobLog) -> dict:

@@ -12,6 +12,8 @@ let jobsCache = new Map();
 const thumbs = new Map();    // job id -> {key, url}: the row thumbnails fetched so far
 let thumbsBusy = false;
 let pollSeq = 0;             // answers to older list requests (filters changed since) are dropped
+let frameShown = null;       // the frame index whose image the preview shows (a range job), or null: the latest
+let framesBusy = false;
 
 function token() { return localStorage.getItem("illumToken") || ""; }
 
@@ -168,6 +170,13 @@ function renderJobs(jobs) {
     fill.style.width = Math.min(100, j.progress || 0) + "%";
     bar.appendChild(fill);
     pc.appendChild(bar);
+    if (j.frame_counts) {   // a frame range: frames ended / frames
+      const fc = j.frame_counts, total = Object.values(fc).reduce((a, b) => a + b, 0);
+      const span = document.createElement("span");
+      span.className = "frames-done";
+      span.textContent = (fc.succeeded + fc.failed) + "/" + total + " frames";
+      pc.appendChild(span);
+    }
     cell(tr, String(j.spp_done || 0));
     cell(tr, j.samples_per_second ? (j.samples_per_second / 1000).toFixed(1) : "–");
     cell(tr, fmtDuration(j.elapsed_seconds), "elapsed");
@@ -186,6 +195,7 @@ function renderJobs(jobs) {
 function select(id) {
   selected = id;
   lastPreviewKey = null;
+  frameShown = null;
   history.replaceState(null, "", "#" + id);
   for (const tr of $("jobs-body").children) tr.classList.toggle("selected", tr.dataset.id === id);
   showSelected();
@@ -211,26 +221,91 @@ function showSelected() {
   $("delete-btn").disabled = !j;
   $("log-link").hidden = !j;
   $("exr-link").hidden = !(j && j.links && j.links.image_exr);
+  $("denoised-row").hidden = !(j && j.links && j.links.image_denoised_png);
   if (j) {
     $("log-link").href = "/jobs/" + j.id + "/log";
     $("exr-link").href = "/jobs/" + j.id + "/image?format=exr";
     $("exr-link").dataset.filename = j.id + ".exr";
   }
+  $("sel-frames-label").hidden = $("sel-frames").hidden = !(j && j.frame_counts);
   if (!j) {
     $("preview").hidden = true;
     $("preview-none").hidden = false;
     return;
   }
-  const key = j.id + ":" + j.state + ":" + j.spp_done + ":" + (j.links && j.links.image_png ? 1 : 0);
-  if (j.links && j.links.image_png && key !== lastPreviewKey) refreshPreview(j, key);
+  if (j.frame_counts) refreshFrames(j);
+  if (frameShown !== null) {   // a chosen frame's final image stays until another is chosen
+    const c = $("frame-strip").children[frameShown];
+    const key = "frame:" + j.id + ":" + frameShown;
+    if (c && c.dataset.png && key !== lastPreviewKey) refreshPreview(j, key, c.dataset.png);
+    return;
+  }
+  // The live preview, or (a job that denoises, the box ticked) its OIDN-denoised version.
+  const denoised = !!(j.links && j.links.image_denoised_png) && $("show-denoised").checked;
+  const key = j.id + ":" + j.state + ":" + j.spp_done + ":" + (j.links && j.links.image_png ? 1 : 0) + ":" + denoised;
+  if (j.links && j.links.image_png && key !== lastPreviewKey) {
+    refreshPreview(j, key, denoised ? j.links.image_denoised_png : null);
+  }
 }
 
-async function refreshPreview(j, key) {
+// A frame range's tasks: one cell per frame, filled to its progress and coloured by its state;
+// clicking a rendered frame shows its image, clicking it again goes back to the latest.
+async function refreshFrames(j) {
+  if (framesBusy) return;
+  framesBusy = true;
+  try {
+    const full = await api("GET", "/jobs/" + j.id);
+    if (j.id !== selected || !full.frames) return;
+    const fc = full.frame_counts, total = full.frames.length;
+    $("sel-frames-text").textContent = fc.succeeded + " of " + total + " done" +
+      (fc.running ? ", " + fc.running + " running" : "") + (fc.failed ? ", " + fc.failed + " failed" : "") +
+      (fc.queued ? ", " + fc.queued + " queued" : "");
+    const strip = $("frame-strip");
+    while (strip.children.length > total) strip.lastChild.remove();
+    while (strip.children.length < total) {
+      const cellEl = document.createElement("span");
+      cellEl.appendChild(document.createElement("div"));
+      cellEl.addEventListener("click", () => showFrame(Number(cellEl.dataset.index)));
+      strip.appendChild(cellEl);
+    }
+    full.frames.forEach((f, i) => {
+      const c = strip.children[i];
+      c.className = "frame " + f.state + (frameShown === f.index ? " shown" : "");
+      c.dataset.index = String(f.index);
+      c.dataset.state = f.state;
+      c.dataset.png = f.links.image_png || "";
+      c.title = "frame " + f.frame + ": " + f.state + (f.state === "running" ? " " + f.progress.toFixed(0) + "%" : "") +
+        ", " + f.spp_done + " spp, attempt " + f.attempts + (f.error ? " — " + f.error : "");
+      c.firstChild.style.height = (f.state === "running" ? Math.min(100, f.progress) : f.state === "queued" ? 0 : 100) + "%";
+    });
+  } catch (e) {
+    /* the next poll retries */
+  } finally {
+    framesBusy = false;
+  }
+}
+
+function showFrame(index) {
+  const c = $("frame-strip").children[index];
+  if (!selected || !c) return;
+  if (frameShown === index || !c.dataset.png) {   // back to the latest image
+    frameShown = null;
+    lastPreviewKey = null;
+    showSelected();
+    return;
+  }
+  frameShown = index;
+  lastPreviewKey = null;
+  for (const el of $("frame-strip").children) el.classList.toggle("shown", el === c);
+  showSelected();
+}
+
+async function refreshPreview(j, key, path) {
   if (previewBusy) return;
   previewBusy = true;
   try {
     // A new query string each time: the preview file is replaced in place as the render refines.
-    const r = await authFetch("/jobs/" + j.id + "/image?format=png&t=" + Date.now());
+    const r = await authFetch((path || "/jobs/" + j.id + "/image?format=png") + "&t=" + Date.now());
     if (!r.ok || j.id !== selected) return;
     const blob = await r.blob();
     const url = URL.createObjectURL(blob);
@@ -325,6 +400,7 @@ $("submit-form").addEventListener("submit", async (ev) => {
   if (w !== null || h !== null) settings.resolution = [w, h];
   if ($("light-sampler").value !== "auto") settings.light_sampler = $("light-sampler").value;
   if ($("estimator").value) settings.estimator = $("estimator").value;
+  if ($("frames").value.trim()) settings.frames = $("frames").value.trim();
   const body = { kind: "render", stage: $("stage").value, settings, priority: numberOrNull("priority") ?? 50 };
   $("submit-btn").disabled = true;
   try {
@@ -406,6 +482,8 @@ $("delete-confirm").addEventListener("click", async () => {
 let filterTimer = null;
 $("filter-state").addEventListener("change", () => poll());
 $("filter-stage").addEventListener("input", () => { clearTimeout(filterTimer); filterTimer = setTimeout(poll, 250); });
+
+$("show-denoised").addEventListener("change", () => { lastPreviewKey = null; showSelected(); });
 
 $("exr-link").addEventListener("click", (ev) => {
   ev.preventDefault();

@@ -271,3 +271,25 @@ def test_preconvolve_job(client, tmp_path):
         assert attrs["illum:method"] == method
     bad = client.post("/jobs", json={"kind": "preconvolve", "stage": "cornell_box.usda"})
     assert bad.status_code == 400
+
+
+def test_the_job_list_follows_each_change(client):
+    """GET /jobs reuses a listed job's JSON while its row is unchanged (service/app.py
+    _ListCache): each state, progress and new image is still in the next listing, and a listed
+    job is what GET /jobs/{id} says (less the frames and the elapsed time, which runs on)."""
+    job = client.post("/jobs", json={"stage": "cornell_box.usda", "settings": {"resolution": [8, 8], "spp": 2}}).json()
+
+    def listed():
+        return next(j for j in client.get("/jobs", params={"limit": 1000}).json()["jobs"] if j["id"] == job["id"])
+
+    assert listed()["state"] in ("queued", "running")   # listed (and kept) before it ends
+    done = wait_job(client, job["id"])
+    last = listed()
+    assert last["state"] == "succeeded" and last["progress"] == 100.0 and last["spp_done"] == 2
+    assert last["links"]["image_png"] and last["links"]["thumbnail"] and last["result"]["spp"] == 2
+    one = client.get(f"/jobs/{job['id']}").json()
+    for j in (last, one, done):
+        j.pop("elapsed_seconds"), j.pop("frames", None)
+    assert last == one == done
+    assert client.post(f"/jobs/{job['id']}/requeue").status_code == 409   # succeeded: unchanged
+    assert listed()["state"] == "succeeded"

@@ -184,3 +184,30 @@ def test_page_token_flow_and_errors(tmp_path, stage_root):
     finally:
         b.close()
         s.stop()
+
+
+def test_page_shows_per_frame_progress(server, client, browser):
+    """A frame range submitted from the page: the job's row counts its frames, the selected job
+    shows one cell per frame with its state as the range renders (one done while the next runs),
+    and clicking a rendered frame shows that frame's image."""
+    b = browser
+    b.goto(server.url + "/")
+    b.wait("document.querySelectorAll('#stage option').length > 0", what="the stage list")
+    b.eval("document.getElementById('frames').value = '1-3', true")
+    job_id = _submit_from_page(b, "cornell_box.usda", spp="60000", time_budget="2", w="16", h="16")
+    job = client.get(f"/jobs/{job_id}").json()
+    assert job["settings"]["frames"] == "1-3" and [f["frame"] for f in job["frames"]] == [1.0, 2.0, 3.0]
+    cells = "[...document.querySelectorAll('#frame-strip .frame')].map(c => c.dataset.state)"
+    mixed = b.wait(f"(() => {{ const s = {cells}; return s.length === 3 && s[0] === 'succeeded' && "
+                   "s[1] === 'running' ? s : null; })()", timeout=120, what="frame 1 done while frame 2 renders")
+    assert mixed[2] == "queued"
+    b.wait(f"(() => {{ const s = {cells}; return s.every(x => x === 'succeeded') ? s : null; }})()", timeout=120,
+           what="every frame done")
+    b.wait("document.getElementById('sel-frames-text').textContent === '3 of 3 done'", what="the frame summary")
+    b.wait(f"document.querySelector('#jobs-body tr[data-id=\"{job_id}\"] .frames-done').textContent === '3/3 frames'",
+           what="the row's frame count")
+    b.eval("document.querySelectorAll('#frame-strip .frame')[1].click(), true")
+    b.wait("document.getElementById('preview').dataset.kind === 'frame'", what="frame 2's image")
+    assert b.wait(PIXEL_SUM, what="the frame's pixels")[:2] == [16, 16]
+    assert b.eval("document.querySelectorAll('#frame-strip .frame.shown').length") == 1
+    assert b.js_errors() == []

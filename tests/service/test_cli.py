@@ -141,3 +141,23 @@ def test_progress_bar_on_a_tty(server):
     assert proc.returncode == 0, tty
     assert "100%|" in tty and "succeeded" in tty
     assert b"ALF_PROGRESS" not in out
+
+
+def test_submit_a_frame_range(server, illum):
+    """``illum submit --frames`` (the range flags of ``illum render``, RANGE_OPTIONS) makes one job
+    with a task per frame; a bad range is refused by the server naming the setting."""
+    from .conftest import wait_job
+
+    r = illum("submit", "cornell_box.usda", "--server", server.url, "--frames", "3-7x2", "--spp", "1",
+              "--res", "8", "8", "--quiet")
+    assert r.returncode == 0, r.stderr
+    job_id = r.stdout.strip()
+    with server.client() as c:
+        done = wait_job(c, job_id, timeout=120)
+    assert done["settings"]["frames"] == "3-7x2" and done["state"] == "succeeded", done
+    assert [(f["frame"], f["state"]) for f in done["frames"]] == [(3.0, "succeeded"), (5.0, "succeeded"),
+                                                                   (7.0, "succeeded")]
+    r = illum("submit", "cornell_box.usda", "--server", server.url, "--frame", "2", "--frame-count", "0")
+    assert r.returncode == 2 and "settings.frame_count" in r.stderr, r.stderr
+    r = illum("jobs", "--server", server.url)
+    assert r.returncode == 0 and f"{job_id}  succeeded  100% (3/3 frames)" in r.stdout, r.stdout

@@ -108,15 +108,17 @@ def test_the_routes_offer_exactly_the_declared_options():
     sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
     declared = {o.name for o in OPTIONS}
     # `illum render`'s own flags: where its files go and how they are written, and what it prints.
+    # Both take a frame range: RANGE_OPTIONS, declared beside OPTIONS (not render() options).
+    ranges = {o.name for o in options.RANGE_OPTIONS}
     own_render = {"stage", "output", "preview", "stats", "quiet", "debug", "help", "make_output_path",
-                  "exr_compression", "half", "verbosity", "version", "frame_count", "frame_inc", "frames"}
+                  "exr_compression", "half", "verbosity", "version"}
     for route, own in (("render", own_render),
                        ("submit", {"stage", "server", "upload", "kind", "priority", "idempotency_key",
                                    "max_attempts", "size", "method", "wait", "output", "quiet", "help"})):
         dests = {a.dest for a in sub.choices[route]._actions}
-        assert dests - own == {o.name for o in _on(route)}, route
-        assert not (own & declared), route
-    assert set(RenderSettings.model_fields) == {o.api_name for o in _on("api")}
+        assert dests - own - ranges == {o.name for o in _on(route)}, route
+        assert ranges <= dests and not (own & declared), route
+    assert set(RenderSettings.model_fields) == {o.api_name for o in (*_on("api"), *options.RANGE_OPTIONS)}
     assert set(RenderOptions.__dataclass_fields__) == declared
 
 

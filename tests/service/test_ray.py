@@ -129,6 +129,15 @@ def test_server_ray_backend_end_to_end(tmp_path, cluster, pool):
             stats = c.get(f"/jobs/{job['id']}/stats").json()
             assert stats["ray"]["actors"] == 2 and stats["ray"]["blocks_run"] >= 2
 
+            # a frame range: each frame's passes go to the actors, each frame is its own task
+            rng = c.post("/jobs", json={"stage": "cornell_box.usda",
+                                        "settings": {"resolution": [16, 16], "spp": 4, "frames": "1-2"}}).json()
+            done = wait_job(c, rng["id"], timeout=120)
+            assert done["state"] == "succeeded", (done, c.get(f"/jobs/{rng['id']}/log").text)
+            assert [(f["state"], f["spp_done"]) for f in done["frames"]] == [("succeeded", 4)] * 2
+            img, attrs = read_exr_bytes(c.get(done["frames"][1]["links"]["image_exr"]).content, tmp_path, "f2.exr")
+            assert attrs["illum:frame"] == 2.0 and attrs["illum:rayActors"] == 2 and img.shape == (16, 16, 3)
+
             # cancel reaches the actors too: the driver lets go of the job within 2 s
             long = c.post("/jobs", json={"stage": "cornell_box.usda",
                                          "settings": {"resolution": [16, 16], "spp": 60000, "time_budget": 60}}).json()

@@ -216,9 +216,9 @@ _V2_JOBS = """CREATE TABLE jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT 
 
 
 def test_a_version_2_database_is_migrated(tmp_path):
-    """Version 3 adds peak_memory, requeues, attempt_base and the histograms table: a version 2
-    database opens with its jobs intact, and a job that used up its attempts there can be
-    requeued for a fresh set."""
+    """Version 3 adds peak_memory, requeues, attempt_base and the histograms table, version 4 the
+    frame tasks: a version 2 database opens with its jobs intact, and a job that used up its
+    attempts there can be requeued for a fresh set."""
     import sqlite3
 
     path = tmp_path / "v2.db"
@@ -232,7 +232,7 @@ def test_a_version_2_database_is_migrated(tmp_path):
     db.commit()
     db.close()
     store = JobStore(str(path))
-    assert store.get_meta("schema_version") == "3" == str(SCHEMA_VERSION)
+    assert store.get_meta("schema_version") == "4" == str(SCHEMA_VERSION)
     with store.connect() as c:
         columns = {r[1] for r in c.execute("PRAGMA table_info(jobs)")}
         assert {"peak_memory", "requeues", "attempt_base"} <= columns
