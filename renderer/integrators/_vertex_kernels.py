@@ -496,7 +496,10 @@ def _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is
 def _shaped(LP, g, SHP, d, Le):
     """Le (3-tuple) of light g seen along unit d (receiver -> light) times the light's ShapingAPI
     factor toward the emission direction -d (kernels/shaping.shaping_factor_row, the general
-    path's formula); Le itself for an unshaped light. SHP: ShapingTable.kernel_record()."""
+    path's formula); Le itself for an unshaped light. SHP: ShapingTable.kernel_record().
+    Callers test LP[g, LP_SHAPE] >= 0 first: a call costs numba an atomic reference count
+    increment and decrement for each of SHP's 14 arrays (not pruned), twice per estimator sample,
+    which unshaped lights (most) need not pay."""
     j = int(LP[g, LP_SHAPE])
     if j < 0:
         return Le
@@ -621,14 +624,14 @@ def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
+def _light_F(LP, g, p, ns, theta_g, far_ratio, kappa_max):
     """Light g's unshadowed irradiance E (3-tuple) at p (3-tuple) about the shading normal ns,
     the control variate's F = c(wo) E: lights/irradiance.py's rule per kind, by the same compiled
-    rows (lights/analytic.py's rect_F, sphere_F, disk_F on the radius s1, distant_F and
-    dome_constant_F; a textured dome's preconvolved table by preconvolve.irradiance_row at
-    R^T ns). fcalc: FastPath.fcalc (exact flags, the distant lights' theta_max, the quadrature
-    switches, the domes' packed tables); E means something only where fcalc[0][g] is set."""
-    _exact, theta, far_ratio, kappa_max, PK = fcalc
+    rows (lights/analytic.py's rect_F, sphere_F, disk_F on the radius s1, distant_F of the cone
+    theta_g and dome_constant_F), for every light but a textured dome (_dome_table_F). far_ratio,
+    kappa_max: the quadrature switches (FastPath.fcalc). Only LP crosses the call: each array
+    argument of a call costs numba an atomic reference count increment and decrement, and the
+    per-light estimators call this once per (vertex, light) pair."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
     if kind == K_RECT:
@@ -639,18 +642,37 @@ def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
     elif kind == K_DISK:
         G = disk_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_N), LP[g, LP_P0], far_ratio, kappa_max)
     elif kind == K_DISTANT:
-        G = distant_F(ns, _lp(LP, g, LP_A), theta[g])
-    elif LP[g, LP_TEX] < 0:
-        G = dome_constant_F()
+        G = distant_F(ns, _lp(LP, g, LP_A), theta_g)
     else:
-        j = int(LP[g, LP_J])
-        R = IMG[0][j]
-        # The normal in the dome's frame (R^T ns; R local -> world), as DomeLight.irradiance_lookup.
-        e = packed_row(PK, j, ns[0] * R[0, 0] + ns[1] * R[1, 0] + ns[2] * R[2, 0],
-                       ns[0] * R[0, 1] + ns[1] * R[1, 1] + ns[2] * R[2, 1],
-                       ns[0] * R[0, 2] + ns[1] * R[1, 2] + ns[2] * R[2, 2], tbuf)
-        return (e[0] * Le[0], e[1] * Le[1], e[2] * Le[2])
+        G = dome_constant_F()
     return (G * Le[0], G * Le[1], G * Le[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _dome_table_F(LP, g, ns, R, PK, tbuf):
+    """_light_F of a textured dome g: its preconvolved table (preconvolve.irradiance_row through
+    packed_row on PK, FastPath.fcalc's packed tables) at R^T ns, R (3, 3) the dome's local ->
+    world rotation, times the dome's radiance scale; tbuf: packed_row's scratch."""
+    Le = _lp(LP, g, LP_L)
+    # The normal in the dome's frame (R^T ns; R local -> world), as DomeLight.irradiance_lookup.
+    e = packed_row(PK, int(LP[g, LP_J]), ns[0] * R[0, 0] + ns[1] * R[1, 0] + ns[2] * R[2, 0],
+                   ns[0] * R[0, 1] + ns[1] * R[1, 1] + ns[2] * R[2, 1],
+                   ns[0] * R[0, 2] + ns[1] * R[1, 2] + ns[2] * R[2, 2], tbuf)
+    return (e[0] * Le[0], e[1] * Le[1], e[2] * Le[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _table_F(LP, g):
+    """Whether light g's F comes from its preconvolved table (_dome_table_F: a textured dome),
+    else from _light_F."""
+    return LP[g, LP_KIND] == K_DOME and LP[g, LP_TEX] >= 0.0
+
+
+@njit(cache=True, nogil=True)
+def _uses_F(tok, exact):
+    """Whether the estimator of token index tok takes a group with F (estimators/compiled.py:
+    the control variate and ratio, where F is exact; estimate's mode is not NO_GROUP then)."""
+    return exact and (tok == ec.T_CV or tok == ec.T_RATIO)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -718,7 +740,8 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
         c = ctr + np.uint64(5 * i + 1)
         wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
                                                  IMG, lcon[0], lcon[1], lcon[2])
-        Le = _shaped(LP, g, SHP, wi, Le)
+        if LP[g, LP_SHAPE] >= 0.0:
+            Le = _shaped(LP, g, SHP, wi, Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le, sd, ss)
         above = lz > 0.0 and cos_g > 0.0
         if not above:
@@ -737,7 +760,8 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
         # Lights are intersected from p itself (estimators.base.bsdf_samples).
         t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
-        Le = _shaped(LP, g, SHP, (wx, wy, wz), Le)
+        if LP[g, LP_SHAPE] >= 0.0:
+            Le = _shaped(LP, g, SHP, (wx, wy, wz), Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le, sd, ss)
         hit = p_b > 0.0 and cos_g > 0.0 and wl[2] > 0.0 and (Le[0] > 0.0 or Le[1] > 0.0 or Le[2] > 0.0)
         if not hit:
@@ -747,23 +771,25 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, mult, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH,
+def _direct_pair(g, tok, alpha, N, power_g, exact, E, sd, ss, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH,
                  GR, k_sh, k_grp, scratch, SHP):
     """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
-    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact: whether
-    its F = c(wo) E is exact, E then taken here by _light_F from fcalc; mult: the lights'
-    diffuse and specular multipliers, FastPath.mult): the samples (_draw_pair), the estimator's
-    coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:] (sh_o, sh_d, sh_t,
-    sh_path, sh_c, sh_x, sh_cov, sh_l: sh_c the radiance each adds if unblocked, sh_x, sh_cov its X
-    and covered flag, sh_l the light g) and, for a diffuse combination, group k_grp of GR (g_int (path, first ray,
-    rays, N, mode), g_f (F, beta)), which resolve_groups_kernel adds once the rays are traced.
-    Returns the new (k_sh, k_grp). SHP: the ShapingAPI record (_shaped)."""
-    ls, bs, cl, cb, tbuf = scratch
+    estimator (token index tok, α index alpha, N samples, heuristic power_g; exact, E: whether
+    its F = c(wo) E is exact and E (3-tuple; _light_F, taken by the caller where _uses_F); sd,
+    ss: the light's diffuse and specular multipliers, FastPath.mult): the samples (_draw_pair),
+    the estimator's coefficients (estimators/compiled.py), then the shadow rays at SH[k_sh:]
+    (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov: sh_c the radiance each adds if unblocked,
+    sh_x, sh_cov its X and covered flag; the caller writes their light) and, for a diffuse
+    combination, group k_grp of GR (g_int (path, first ray, rays, N, mode), g_f (F, beta)),
+    which resolve_groups_kernel adds once the rays are traced. Returns the new (k_sh, k_grp).
+    SHP: the ShapingAPI record (_shaped). Called once per (vertex, light) pair: every array it
+    takes costs numba an atomic reference count increment and decrement per call (not pruned
+    here), so records it does not need (F's tables, the multipliers) stay with the caller."""
+    ls, bs, cl, cb = scratch
     need_l, need_b = ec.needs(tok)
-    sd = mult[0][g]
-    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, mult[1][g], ls, bs, SHP)
+    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls, bs, SHP)
     mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
-    sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov, sh_l = SH
+    sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov = SH
     p, ng, eps = V[0], V[1], V[9]
     first = k_sh
     for half in range(2):
@@ -784,7 +810,6 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, mult, V, Pm, beta, pr_
                 sh_x[k_sh, c] = co[i, ec.C_X + c] if cov > 0.0 else 0.0
             sh_t[k_sh] = dist * (1.0 - 1e-5) - eps if dist < math.inf else 1e37
             sh_path[k_sh] = pr_path
-            sh_l[k_sh] = g
             sh_c[k_sh, 0] = c0
             sh_c[k_sh, 1] = c1
             sh_c[k_sh, 2] = c2
@@ -797,10 +822,8 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, fcalc, mult, V, Pm, beta, pr_
         g_int[k_grp, 2] = k_sh - first
         g_int[k_grp, 3] = N
         g_int[k_grp, 4] = mode
-        _p, _ng, _sf, _tf, ns, wo, ao, bo, _pd, _eps, m = V
+        _p, _ng, _sf, _tf, _ns, wo, ao, bo, _pd, _eps, m = V
         a, j0, fy, kd, f0, f90 = _mat(Pm, m)
-        # F only for the pairs whose estimate uses it (this light's own, not every light's).
-        E = _light_F(LP, g, p, ns, fcalc, IMG, tbuf)
         for c in range(3):
             # F = c(wo) E sd (estimators.control_variates.diffuse_cv_inputs).
             g_f[k_grp, c] = _diffuse_constant(Pm[m, RHO + c], f0[c], f90[c], ao, bo) * E[c] * sd if wo[2] > 0.0 else 0.0
@@ -929,11 +952,16 @@ def vertex_kernel(
     # Outputs: each shadow ray's X and covered flag, the groups, and each shadow ray's light.
     e_tok, e_alpha, e_N, cont, cont_prev, e_key = est
     sh_x, sh_cov, g_int, g_f, sh_l = est_out
-    SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov, sh_l)
+    SH = (sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov)
     GR = (g_int, g_f)
     n_max = max(1, e_N.max()) if nl else 1
     scratch = (np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NSMP)), np.empty((n_max, ec.NC)),
-               np.empty((n_max, ec.NC)), np.empty(fcalc[4][-1]))
+               np.empty((n_max, ec.NC)))
+    # F's record and the multipliers, unpacked once here (each pair reads its light's entries:
+    # taking an array out of a tuple per pair costs an atomic reference count pair).
+    f_exact, f_theta, far_ratio, kappa_max, f_pk = fcalc
+    tbuf = np.empty(f_pk[-1])
+    m_d, m_s = mult
     k_grp = 0
     for lo in range(0, n, BLK):
         hi = min(n, lo + BLK)
@@ -996,7 +1024,8 @@ def vertex_kernel(
                 tl, Le, seen = _finite_seen(LP, g, o, d)
                 if not (seen and tl < t_geo):
                     continue
-                Le = _shaped(LP, g, SHP, d, Le)
+                if LP[g, LP_SHAPE] >= 0.0:
+                    Le = _shaped(LP, g, SHP, d, Le)
                 if unsampled[r]:
                     w = 1.0
                 else:
@@ -1067,10 +1096,22 @@ def vertex_kernel(
                     V = ((px, py, pz), _w3(W, W_G, i), _w3(W, W_FS, i), _w3(W, W_FT, i), _w3(W, W_N, i),
                          _w3(W, W_WO, i), W[W_AO * BLK + i], W[W_BO * BLK + i], W[W_PD * BLK + i], eps,
                          int(W[W_M * BLK + i]))
-                    k_sh, k_grp = _direct_pair(g, e_tok[gl], e_alpha[gl], e_N[gl], power[gl], fcalc[0][g], fcalc,
-                                               mult, V, Pm, (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
+                    tok = e_tok[gl]
+                    exact = f_exact[g]
+                    E = (0.0, 0.0, 0.0)
+                    if _uses_F(tok, exact):
+                        # F only for the pairs whose estimate uses it (this light's own, not every light's).
+                        if _table_F(LP, g):
+                            E = _dome_table_F(LP, g, V[4], i_rot[int(LP[g, LP_J])], f_pk, tbuf)
+                        else:
+                            E = _light_F(LP, g, V[0], V[4], f_theta[g], far_ratio, kappa_max)
+                    first = k_sh
+                    k_sh, k_grp = _direct_pair(g, tok, e_alpha[gl], e_N[gl], power[gl], exact, E, m_d[g], m_s[g], V,
+                                               Pm, (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
                                                np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
                                                scratch, SHP)
+                    for s_ in range(first, k_sh):
+                        sh_l[s_] = g
                     continue
                 if g < n_batch:
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
@@ -1092,7 +1133,8 @@ def vertex_kernel(
                                                                graz)
                     if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
                         continue
-                    Le = _shaped(LP, g, SHP, wi, Le)
+                    if LP[g, LP_SHAPE] >= 0.0:
+                        Le = _shaped(LP, g, SHP, wi, Le)
                     # Divided by the pick's pmf: a delta light's weight is 1 (its radiance is
                     # divided), the others' h(pmf p_l, p_b) / (pmf p_l).
                     if delta:

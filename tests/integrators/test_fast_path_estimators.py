@@ -143,15 +143,23 @@ def test_picking_service_with_per_light_estimators(tmp_path, sampler, estimator,
 
 @njit(cache=True)
 def _kernel_F(LP, g, p, ns, fcalc, IMG, E):
-    """E[i] = _vertex_kernels._light_F of light g[i] at p[i] about ns[i] (the kernel's F)."""
-    tbuf = np.empty(fcalc[4][-1])
+    """E[i] = the kernel's F of light g[i] at p[i] about ns[i], as vertex_kernel takes it:
+    _vertex_kernels._dome_table_F where _table_F, else _light_F."""
+    _exact, theta, far_ratio, kappa_max, PK = fcalc
+    tbuf = np.empty(PK[-1])
     for i in range(p.shape[0]):
-        e = vk._light_F(LP, g[i], (p[i, 0], p[i, 1], p[i, 2]), (ns[i, 0], ns[i, 1], ns[i, 2]), fcalc, IMG, tbuf)
+        gi = g[i]
+        pi = (p[i, 0], p[i, 1], p[i, 2])
+        ni = (ns[i, 0], ns[i, 1], ns[i, 2])
+        if vk._table_F(LP, gi):
+            e = vk._dome_table_F(LP, gi, ni, IMG[0][int(LP[gi, vk.LP_J])], PK, tbuf)
+        else:
+            e = vk._light_F(LP, gi, pi, ni, theta[gi], far_ratio, kappa_max)
         E[i, 0], E[i, 1], E[i, 2] = e
 
 
 def test_kernel_F_is_the_irradiance_of_the_numpy_api(tmp_path, monkeypatch):
-    """The F the vertex kernel takes per (vertex, light) pair (_light_F, from FastPath's tables)
+    """The F the vertex kernel takes per (vertex, light) pair (_light_F or _dome_table_F, from FastPath's tables)
     is LightSet.irradiance's E, and its exact flag irradiance's exact, for every light kind the
     fast path serves, at random points and shading normals: rects (a sheared one), a sphere, a
     point, a circular and an elliptical disk, a rotated textured dome (its preconvolved table), a
