@@ -203,6 +203,7 @@ class FastPath:
                              else np.full(lights.count, -1, dtype=np.int64))
         self.shadow_tint = lights.shadow_tint
         self.lux_shadows = scene.shadow_group is not None or lights.shadow_tint is not None
+        self._shadows = None  # trace_kernel's shadow-group record (_shadow_record), made on first use
         rl, sl, dl = self.rect, self.sphere, self.disk
         self.fcalc = self._f_record(order, dome, dist)
         # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
@@ -284,12 +285,61 @@ class FastPath:
         return keys, keys2, ckeys
 
     def _kernel_args(self):
-        """trace_kernel's arguments fixed for the render: (emb, surf, tables, plan, walk)."""
+        """trace_kernel's arguments fixed for the render: (emb, surf, tables, plan, walk, shadows)."""
         if self._kernel is None:
             scene = self.integ.scene
             emb = (*scene.accel.packet_handles(TRACE_WIDTH), TRACE_WIDTH)
-            self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None)
+            self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None,
+                            self._shadow_record())
         return self._kernel
+
+    def _shadow_record(self):
+        """_trace_kernel.shadow_visibility_kernel's record of the shadow groups (its docstring),
+        or None for a scene whose shadow rays are all plain and untinted: each light's group in
+        the kernel's order (-1: the scene BVH, plain rays), each light's shadow:color (0: black
+        shadows), and per group (scene.shadow_group, shadow_accels, shadow_params) the Embree
+        scene of its shadowLink BVH, its ShadowAPI mode and (distance, falloff, gamma), and for
+        scenes with cut-outs the cut-out walks' geometry of the triangles its BVH holds (in its
+        own triangle order, from offset off[g]) with its ray epsilon terms."""
+        if not self.lux_shadows:
+            return None
+        scene = self.integ.scene
+        lights = self.integ.lights
+        grp = np.ascontiguousarray(self.shadow_group[self.order], dtype=np.int64)
+        tint = np.ascontiguousarray(self.shadow_tint[self.order] if self.shadow_tint is not None
+                                    else np.zeros((lights.count, 3)), dtype=np.float64)
+        accels = scene.shadow_accels
+        n_g = len(accels)
+        g_scene = np.array([a.packet_handles(TRACE_WIDTH)[0] for a in accels], dtype=np.int64)
+        g_mode = np.zeros(n_g, dtype=np.int64)
+        g_par = np.zeros((n_g, 3))
+        for g in range(n_g):
+            p = scene.shadow_params[g] if scene.shadow_params else None
+            if p is None:
+                g_mode[g] = tk.SH_PLAIN
+            elif not p.enable:
+                g_mode[g] = tk.SH_OFF
+            else:
+                g_mode[g] = tk.SH_FADE if p.falloff > 0.0 else tk.SH_NEAR
+                g_par[g] = p.distance, p.falloff, p.gamma
+        # The cut-out walks' geometry per group: the scene's arrays at the BVH's triangles.
+        tris = [a.tri_index if a.tri_index is not None else np.arange(a.count) for a in accels] if self.cutouts \
+            else [np.zeros(0, dtype=np.int64)] * n_g
+        sel = np.concatenate([np.zeros(0, dtype=np.int64), *tris]).astype(np.int64)
+        off = np.concatenate([[0], np.cumsum([t.size for t in tris])]).astype(np.int64)
+        vertices, face_normal, normals, tri_mat, tri_mag = self.geo
+        st = np.asarray(scene.geometry.st, dtype=np.float64) if self.cutouts else np.zeros((0, 3, 2))
+        g_geo = (off, *(np.ascontiguousarray(a[sel]) for a in (vertices, face_normal, normals, st, tri_mat, tri_mag)))
+        g_eps = np.array([a.epsilon_terms() for a in accels], dtype=np.float64).reshape(n_g, 3)
+        return grp, tint, g_scene, g_mode, g_par, g_geo, g_eps
+
+    def _count_traced(self, tally) -> None:
+        """Add the BVH queries of a tally (trace_kernel's, shadow_visibility_kernel's) to the
+        Accels that answered them: the scene's, and each shadow group's (from N_TALLY on)."""
+        scene = self.integ.scene
+        scene.accel.count_traced(tally[tk.T_INTERSECT], tally[tk.T_OCCLUDED])
+        for g, a in enumerate(scene.shadow_accels):
+            a.count_traced(tally[tk.N_TALLY + 2 * g], tally[tk.N_TALLY + 2 * g + 1])
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
@@ -304,19 +354,19 @@ class FastPath:
     def trace_compiled(self, o, d, tmax, max_depth, keys, keys2, ckeys) -> np.ndarray:
         """trace as one call of _trace_kernel.trace_kernel (GIL released), with the keys of _keys."""
         integ = self.integ
-        emb, surf, tables, plan, walk = self._kernel_args()
+        emb, surf, tables, plan, walk, shadows = self._kernel_args()
         n_u = vk.U_LIGHT + (3 if self.picks else 2 * integ.lights.count)
         L = np.zeros((o.shape[0], 3))
-        tally = np.zeros(tk.N_TALLY, dtype=np.int64)
+        tally = np.zeros(tk.N_TALLY + 2 * len(integ.scene.shadow_accels), dtype=np.int64)
         tk.trace_kernel(emb, np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
                         np.ascontiguousarray(tmax, dtype=np.float64), keys, keys2, ckeys, n_u, max_depth, surf, tables,
-                        plan, walk, L, tally)
+                        plan, walk, L, tally, shadows)
         integ.rays.add(shadow=tally[tk.T_SHADOW], extension=tally[tk.T_EXTENSION])
         with integ.rays.lock:
             for name, t in (("continuation_mis", tk.T_CONTINUATION), ("own_samples", tk.T_OWN_SAMPLES),
                             ("alpha_one_fallback", tk.T_ALPHA_ONE_FALLBACK)):
                 integ.rule_counts[name] += int(tally[t])
-        integ.scene.accel.count_traced(tally[tk.T_INTERSECT], tally[tk.T_OCCLUDED])
+        self._count_traced(tally)
         return L
 
     def trace_loop(self, o, d, tmax, rng, max_depth, keys, keys2, ckeys) -> np.ndarray:
@@ -386,7 +436,17 @@ class FastPath:
             blocked = np.zeros(0, dtype=bool)
             v = np.zeros(0)
             traced = k_sh
-            if k_sh and self.lux_shadows:
+            if k_sh and self.lux_shadows and accel.backend == "native":
+                # The shadow groups by trace_kernel's own call (the same rays, keys and counts).
+                emb, _, _, _, walk, shadows = self._kernel_args()
+                v, tint = np.empty(k_sh), np.empty((k_sh, 3))
+                tally = np.zeros(tk.N_TALLY + 2 * len(integ.scene.shadow_accels), dtype=np.int64)
+                tk.shadow_visibility_kernel(emb, np.uint64(ckeys[bounce, 1]), sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh],
+                                            est_out[4][:k_sh], walk, shadows, v, tint, tally)
+                self._count_traced(tally)
+                traced = int(tally[tk.T_SHADOW])
+                vk.add_visible_kernel(L, sh_path[:k_sh], sh_c[:k_sh], v, tint)
+            elif k_sh and self.lux_shadows:
                 v, tint, traced = self._visibility(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], est_out[4][:k_sh], rng,
                                                    ckeys[bounce, 1])
                 vk.add_visible_kernel(L, sh_path[:k_sh], sh_c[:k_sh], v, tint)
