@@ -6,7 +6,8 @@ what the unblocked ones carry. ``trace_kernel`` makes those same calls, in the s
 the same per-bounce keys, from compiled code: Embree through accel.py's native handles
 (``_intersect_rows`` / ``_occluded_rows``, packets of the width the caller picks), the walks of
 _cutout_kernels.py, and _vertex_kernels' ``vertex_kernel``, ``add_unblocked_kernel`` and
-``resolve_groups_kernel``, not copies of them. So a chunk's image is the Python loop's to the
+``resolve_groups_kernel`` (with shadow groups: ``shadow_visibility_kernel`` below, which the
+Python loop calls too, and the visible kernels), not copies of them. So a chunk's image is the Python loop's to the
 last bit, and the call holds no GIL from the camera rays to the last bounce: render threads
 running chunks side by side scale (PathIntegrator.render_pass).
 

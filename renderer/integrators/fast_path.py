@@ -13,8 +13,9 @@ A scene qualifies when it has
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
   does not illuminate, and a continuation ray that left such a vertex adds none of its emission;
   shadowLink: the light's shadow rays are traced against its own BVH, scene.shadow_accels, by
-  _visibility), and ShadowAPI (lights with shadow:enable off, a shadow distance or falloff get
-  their own shadow group like a shadowLink, traced by shadow_api.visibility, and the blocked
+  _trace_kernel.shadow_visibility_kernel), and ShadowAPI (lights with shadow:enable off, a shadow
+  distance or falloff get their own shadow group like a shadowLink, traced by the same kernel
+  with shadow_api.py's rules, and the blocked
   fraction of a shadow:color light's ray shows the colour: _vertex_kernels.add_visible_kernel),
   and any diffuse/specular multipliers (their lights' estimators apply them), under any lighting
   service: exhaustive
@@ -51,7 +52,8 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
-Where no bounce needs numpy work (no per-hit surface rows, no shadow groups: ``kernel_reason``),
+Where no bounce needs numpy work (no per-hit surface rows: ``kernel_reason``; shadow groups are
+traced in compiled code, _trace_kernel.shadow_visibility_kernel),
 the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
 inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
 so render threads running chunks side by side scale; it makes the Python loop's calls with the
@@ -264,8 +266,6 @@ class FastPath:
         scene keeps the Python bounce loop (numpy work between the compiled calls)."""
         if self.per_hit:
             return "per-hit surfaces (textured inputs, emission or normal maps) are evaluated in numpy"
-        if self.lux_shadows:
-            return "shadow links, ShadowAPI settings or shadow colours are traced per group from Python"
         if self.integ.scene.accel.backend != "native":
             return "no native Embree"
         if self.cutouts and self.walk is None:
