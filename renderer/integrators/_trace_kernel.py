@@ -71,7 +71,7 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
     (2, l) samples per light at the first vertex and deeper, cont (3, l) bool on continuation MIS
     for camera rays (all), at the first vertex and deeper, cap (2,) shadow rays per row at most,
     groups (2,) estimator groups per row, cv (l,) bool the control variate's lights, fallback
-    (2, l) bool those falling back to alpha = one). walk: _cutout_kernels' record (fns, geo, cut,
+    (2, l) bool those falling back to alpha = one, emits: a material emits (extension_useful)). walk: _cutout_kernels' record (fns, geo, cut,
     tab, eps; FastPath.walk), or None for a scene without cut-outs (numba prunes the walks' branches
     then: a plain scene compiles none of their code). tally (N_TALLY + 2 groups,) int64: counters
     T_* added in place, then each shadow group's BVH queries (shadow_visibility_kernel).
@@ -79,7 +79,7 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
     through shadow_visibility_kernel and add their visibility with the colour), or None for plain
     shadows (numba prunes that branch then)."""
     scene, fn_i, fn_o, width = emb
-    tok, alpha, N_at, cont_at, cap_at, grp_at, cv, fallback = plan
+    tok, alpha, N_at, cont_at, cap_at, grp_at, cv, fallback, emits = plan
     nl = tok.shape[0]
     m = o.shape[0]
     cap = max(cap_at[0], cap_at[1])
@@ -143,6 +143,8 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
                       n_o32[:n], n_d32[:n], n_t32[:n], sh_o[:n * c], sh_d[:n * c], sh_t[:n * c], sh_path[:n * c],
                       sh_c[:n * c], counts, est, est_out)
         k_next, k_sh, k_grp = counts[0], counts[1], counts[3]
+        if not extension_useful(bounce, max_depth, cont, emits):
+            k_next = 0
         # The (vertex, light) pairs each light got at this bounce, into the rule counters.
         for li in range(nl):
             pairs = counts[4 + li]
@@ -179,6 +181,25 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
         unsampled = sampled
         n = k_next
 
+
+
+@njit(cache=True, nogil=True)
+def extension_useful(bounce, max_depth, cont, emits):
+    """Whether the extension rays that leave the vertices of ``bounce`` can add anything: what
+    such a ray finds counts as emission of a surface (emits) or, as continuation MIS's BSDF half,
+    of the lights on continuation MIS at those vertices (cont (lights,) bool); past the last
+    scattering vertex (bounce max_depth - 1) it reaches nothing that scatters, and without
+    lights nothing scatters light at all."""
+    if emits:
+        return True
+    if cont.shape[0] == 0:
+        return False
+    if bounce < max_depth - 1:
+        return True
+    for li in range(cont.shape[0]):
+        if cont[li]:
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True)

@@ -38,7 +38,7 @@ A scene qualifies when it has
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); no mesh lights, and a maximum depth of at least 2. With K emitter samples the K - 1
+  each hit); no mesh lights; any maximum depth. With K emitter samples the K - 1
   extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
   weighted 1/K by PathIntegrator._trace_camera.
 
@@ -63,7 +63,12 @@ One difference in the order of work, not in the estimate: at the last scattering
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
 a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
 there too and traces the extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
-direct light; the variance differs slightly.
+direct light; the variance differs slightly. At max depth 1 (direct light only) the fast path
+does what the general path does: every light takes its own estimator at the one vertex. The
+extension rays that leave the last scattering vertex are traced only where they can add
+something (_trace_kernel.extension_useful: a light on continuation MIS there, or an emitting
+surface), so max depth 1 traces none in a scene without emissive surfaces, and max depth 0 only
+the camera rays.
 """
 
 from __future__ import annotations
@@ -107,10 +112,6 @@ def fast_path_reason(integ) -> str:
         return "dome portals"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
-    if opt.max_depth <= 1:
-        # Direct lighting only: the general path traces no extension rays at all there, where
-        # this one would trace one per pixel for the BSDF half (module docstring).
-        return "max depth <= 1"
     mats = scene.materials
     if not mats.params_needed and mats.packed_bsdf() is None:
         return "no packed UsdPreviewSurface rows"
@@ -227,7 +228,9 @@ class FastPath:
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
             self.lux, self.fcalc, self.mult)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
-        self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
+        # At max depth 1 the first vertex is the last one: every light takes its own estimator
+        # there, as in the general path, and no extension ray is traced (module docstring).
+        self.cont_at = [integ.cont_ok & integ.samples_one & (integ.opt.max_depth > 1), integ.cont_ok.copy()]
         self.plan = self._plan()
         self._kernel = None  # trace_kernel's fixed arguments (_kernel_args), made on first use
 
@@ -259,7 +262,7 @@ class FastPath:
         return (self.est_tok, self.est_alpha, c(np.stack([first[0], deeper[0]]), dtype=np.int64),
                 c(np.stack([first[2], first[1], deeper[1]]), dtype=np.bool_),
                 np.array([first[3], deeper[3]], dtype=np.int64), np.array([first[4], deeper[4]], dtype=np.int64),
-                c(cv), c(fallback))
+                c(cv), c(fallback), bool(self.integ.scene.materials.has_emission))
 
     def kernel_reason(self) -> str:
         """'' when trace runs as one compiled call (_trace_kernel.trace_kernel), else why this
@@ -424,6 +427,8 @@ class FastPath:
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts, est, est_out)
             k_next, k_sh, k_grp = int(counts[0]), int(counts[1]), int(counts[3])
+            if not tk.extension_useful(bounce, max_depth, est[3], self.plan[-1]):
+                k_next = 0
             # The (vertex, light) pairs each light got at this bounce (all, or the picked ones).
             per_light = counts[4:]
             cont = est[3]
