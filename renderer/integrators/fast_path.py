@@ -7,7 +7,8 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
-* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+* no lights (emissive surfaces only, or black: the extension rays go on only where a surface
+  emits, _trace_kernel.extension_useful), or only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
@@ -99,8 +100,6 @@ def fast_path_reason(integ) -> str:
     scene, lights, opt = integ.scene, integ.lights, integ.opt
     if not getattr(opt, "fast_path", True):
         return "disabled (--no-fast-path)"
-    if not integ.has_lights:
-        return "no lights"
     rect = KIND_NAMES.index("rect")
     if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
         return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
@@ -182,10 +181,12 @@ class FastPath:
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
         # The lighting service's record (light_pick.py), and each global light's index in the
         # kernel's order (rect, sphere, disk, then infinite lights).
-        from ..light_samplers import pick_tables
+        from ..light_samplers import make_light_sampler, pick_tables
 
-        self.picks = not getattr(scene.light_sampler, "exhaustive", False)
-        self.sp = pick_tables(scene.light_sampler, lights)
+        # (A scene without lights has no service to pick with: the exhaustive one visits none.)
+        sampler = scene.light_sampler if lights.count else make_light_sampler("exhaustive", lights)
+        self.picks = not getattr(sampler, "exhaustive", False)
+        self.sp = pick_tables(sampler, lights)
         fast_of = np.full(lights.count, -1, dtype=np.int64)
         order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
         fast_of[order] = np.arange(order.size)
