@@ -71,7 +71,8 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
     (2, l) samples per light at the first vertex and deeper, cont (3, l) bool on continuation MIS
     for camera rays (all), at the first vertex and deeper, cap (2,) shadow rays per row at most,
     groups (2,) estimator groups per row, cv (l,) bool the control variate's lights, fallback
-    (2, l) bool those falling back to alpha = one, emits: a material emits (extension_useful)). walk: _cutout_kernels' record (fns, geo, cut,
+    (2, l) bool those falling back to alpha = one, emits: a material emits (extension_useful)).
+    walk: _cutout_kernels' record (fns, geo, cut,
     tab, eps; FastPath.walk), or None for a scene without cut-outs (numba prunes the walks' branches
     then: a plain scene compiles none of their code). tally (N_TALLY + 2 groups,) int64: counters
     T_* added in place, then each shadow group's BVH queries (shadow_visibility_kernel).

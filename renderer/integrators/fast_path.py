@@ -8,7 +8,8 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * no lights (emissive surfaces only, or black: the extension rays go on only where a surface
-  emits, _trace_kernel.extension_useful), or only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+  emits, _trace_kernel.extension_useful), or only RectLights (untextured), SphereLights
+  (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
