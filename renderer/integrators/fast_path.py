@@ -65,12 +65,14 @@ One difference in the order of work, not in the estimate: at the last scattering
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
 a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
 there too and traces the extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
-direct light; the variance differs slightly. At max depth 1 (direct light only) the fast path
-does what the general path does: every light takes its own estimator at the one vertex. The
-extension rays that leave the last scattering vertex are traced only where they can add
-something (_trace_kernel.extension_useful: a light on continuation MIS there, or an emitting
-surface), so max depth 1 traces none in a scene without emissive surfaces, and max depth 0 only
-the camera rays.
+direct light; the variance differs slightly. That holds at max depth 1 (direct light only) too,
+where the one vertex is the last: continuation MIS with its extension ray traced 4x the samples
+per CPU-second of the lights' own estimators there (the Cornell box, 128x128: 1.1M against 0.26M;
+the general path 0.46M; bench/results/shaping/shadow_groups_kernel.md). The extension rays that
+leave the last scattering vertex are traced only where they can add something
+(_trace_kernel.extension_useful: a light on continuation MIS there, or an emitting surface), so
+a scene whose lights all take their own estimators there traces none at that bounce, and max
+depth 0 only the camera rays.
 """
 
 from __future__ import annotations
@@ -230,9 +232,7 @@ class FastPath:
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
             self.lux, self.fcalc, self.mult)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
-        # At max depth 1 the first vertex is the last one: every light takes its own estimator
-        # there, as in the general path, and no extension ray is traced (module docstring).
-        self.cont_at = [integ.cont_ok & integ.samples_one & (integ.opt.max_depth > 1), integ.cont_ok.copy()]
+        self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
         self._kernel = None  # trace_kernel's fixed arguments (_kernel_args), made on first use
 
