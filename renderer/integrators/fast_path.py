@@ -210,7 +210,6 @@ class FastPath:
                              else np.full(lights.count, -1, dtype=np.int64))
         self.shadow_tint = lights.shadow_tint
         self.lux_shadows = scene.shadow_group is not None or lights.shadow_tint is not None
-        self._shadows = None  # trace_kernel's shadow-group record (_shadow_record), made on first use
         rl, sl, dl = self.rect, self.sphere, self.disk
         self.fcalc = self._f_record(order, dome, dist)
         # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
