@@ -7,14 +7,17 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
-* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+* no lights (emissive surfaces only, or black: the extension rays go on only where a surface
+  emits, _trace_kernel.extension_useful), or only RectLights (untextured), SphereLights
+  (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
   does not illuminate, and a continuation ray that left such a vertex adds none of its emission;
   shadowLink: the light's shadow rays are traced against its own BVH, scene.shadow_accels, by
-  _visibility), and ShadowAPI (lights with shadow:enable off, a shadow distance or falloff get
-  their own shadow group like a shadowLink, traced by shadow_api.visibility, and the blocked
+  _trace_kernel.shadow_visibility_kernel), and ShadowAPI (lights with shadow:enable off, a shadow
+  distance or falloff get their own shadow group like a shadowLink, traced by the same kernel
+  with shadow_api.py's rules, and the blocked
   fraction of a shadow:color light's ray shows the colour: _vertex_kernels.add_visible_kernel),
   and any diffuse/specular multipliers (their lights' estimators apply them), under any lighting
   service: exhaustive
@@ -37,7 +40,7 @@ A scene qualifies when it has
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); no mesh lights, and a maximum depth of at least 2. With K emitter samples the K - 1
+  each hit); no mesh lights; any maximum depth. With K emitter samples the K - 1
   extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
   weighted 1/K by PathIntegrator._trace_camera.
 
@@ -51,7 +54,8 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
-Where no bounce needs numpy work (no per-hit surface rows, no shadow groups: ``kernel_reason``),
+Where no bounce needs numpy work (no per-hit surface rows: ``kernel_reason``; shadow groups are
+traced in compiled code, _trace_kernel.shadow_visibility_kernel),
 the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
 inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
 so render threads running chunks side by side scale; it makes the Python loop's calls with the
@@ -61,7 +65,14 @@ One difference in the order of work, not in the estimate: at the last scattering
 (depth D - 1 for max depth D) the general path runs the full MIS estimator (a light sample and
 a BSDF sample of its own) for mis lights with N = 1, while the fast path keeps continuation MIS
 there too and traces the extension ray for the emission it finds, as pbrt does. Both are unbiased estimates of the same
-direct light; the variance differs slightly.
+direct light; the variance differs slightly. That holds at max depth 1 (direct light only) too,
+where the one vertex is the last: continuation MIS with its extension ray traced 4x the samples
+per CPU-second of the lights' own estimators there (the Cornell box, 128x128: 1.1M against 0.26M;
+the general path 0.46M; bench/results/shaping/shadow_groups_kernel.md). The extension rays that
+leave the last scattering vertex are traced only where they can add something
+(_trace_kernel.extension_useful: a light on continuation MIS there, or an emitting surface), so
+a scene whose lights all take their own estimators there traces none at that bounce, and max
+depth 0 only the camera rays.
 """
 
 from __future__ import annotations
@@ -92,8 +103,6 @@ def fast_path_reason(integ) -> str:
     scene, lights, opt = integ.scene, integ.lights, integ.opt
     if not getattr(opt, "fast_path", True):
         return "disabled (--no-fast-path)"
-    if not integ.has_lights:
-        return "no lights"
     rect = KIND_NAMES.index("rect")
     if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
         return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
@@ -105,10 +114,6 @@ def fast_path_reason(integ) -> str:
         return "dome portals"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
-    if opt.max_depth <= 1:
-        # Direct lighting only: the general path traces no extension rays at all there, where
-        # this one would trace one per pixel for the BSDF half (module docstring).
-        return "max depth <= 1"
     mats = scene.materials
     if not mats.params_needed and mats.packed_bsdf() is None:
         return "no packed UsdPreviewSurface rows"
@@ -179,10 +184,12 @@ class FastPath:
         power = np.ascontiguousarray(integ.est_heuristic == HEURISTICS.index("power"))
         # The lighting service's record (light_pick.py), and each global light's index in the
         # kernel's order (rect, sphere, disk, then infinite lights).
-        from ..light_samplers import pick_tables
+        from ..light_samplers import make_light_sampler, pick_tables
 
-        self.picks = not getattr(scene.light_sampler, "exhaustive", False)
-        self.sp = pick_tables(scene.light_sampler, lights)
+        # (A scene without lights has no service to pick with: the exhaustive one visits none.)
+        sampler = scene.light_sampler if lights.count else make_light_sampler("exhaustive", lights)
+        self.picks = not getattr(sampler, "exhaustive", False)
+        self.sp = pick_tables(sampler, lights)
         fast_of = np.full(lights.count, -1, dtype=np.int64)
         order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
         fast_of[order] = np.arange(order.size)
@@ -256,15 +263,13 @@ class FastPath:
         return (self.est_tok, self.est_alpha, c(np.stack([first[0], deeper[0]]), dtype=np.int64),
                 c(np.stack([first[2], first[1], deeper[1]]), dtype=np.bool_),
                 np.array([first[3], deeper[3]], dtype=np.int64), np.array([first[4], deeper[4]], dtype=np.int64),
-                c(cv), c(fallback))
+                c(cv), c(fallback), bool(self.integ.scene.materials.has_emission))
 
     def kernel_reason(self) -> str:
         """'' when trace runs as one compiled call (_trace_kernel.trace_kernel), else why this
         scene keeps the Python bounce loop (numpy work between the compiled calls)."""
         if self.per_hit:
             return "per-hit surfaces (textured inputs, emission or normal maps) are evaluated in numpy"
-        if self.lux_shadows:
-            return "shadow links, ShadowAPI settings or shadow colours are traced per group from Python"
         if self.integ.scene.accel.backend != "native":
             return "no native Embree"
         if self.cutouts and self.walk is None:
@@ -284,12 +289,61 @@ class FastPath:
         return keys, keys2, ckeys
 
     def _kernel_args(self):
-        """trace_kernel's arguments fixed for the render: (emb, surf, tables, plan, walk)."""
+        """trace_kernel's arguments fixed for the render: (emb, surf, tables, plan, walk, shadows)."""
         if self._kernel is None:
             scene = self.integ.scene
             emb = (*scene.accel.packet_handles(TRACE_WIDTH), TRACE_WIDTH)
-            self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None)
+            self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None,
+                            self._shadow_record())
         return self._kernel
+
+    def _shadow_record(self):
+        """_trace_kernel.shadow_visibility_kernel's record of the shadow groups (its docstring),
+        or None for a scene whose shadow rays are all plain and untinted: each light's group in
+        the kernel's order (-1: the scene BVH, plain rays), each light's shadow:color (0: black
+        shadows), and per group (scene.shadow_group, shadow_accels, shadow_params) the Embree
+        scene of its shadowLink BVH, its ShadowAPI mode and (distance, falloff, gamma), and for
+        scenes with cut-outs the cut-out walks' geometry of the triangles its BVH holds (in its
+        own triangle order, from offset off[g]) with its ray epsilon terms."""
+        if not self.lux_shadows:
+            return None
+        scene = self.integ.scene
+        lights = self.integ.lights
+        grp = np.ascontiguousarray(self.shadow_group[self.order], dtype=np.int64)
+        tint = np.ascontiguousarray(self.shadow_tint[self.order] if self.shadow_tint is not None
+                                    else np.zeros((lights.count, 3)), dtype=np.float64)
+        accels = scene.shadow_accels
+        n_g = len(accels)
+        g_scene = np.array([a.packet_handles(TRACE_WIDTH)[0] for a in accels], dtype=np.int64)
+        g_mode = np.zeros(n_g, dtype=np.int64)
+        g_par = np.zeros((n_g, 3))
+        for g in range(n_g):
+            p = scene.shadow_params[g] if scene.shadow_params else None
+            if p is None:
+                g_mode[g] = tk.SH_PLAIN
+            elif not p.enable:
+                g_mode[g] = tk.SH_OFF
+            else:
+                g_mode[g] = tk.SH_FADE if p.falloff > 0.0 else tk.SH_NEAR
+                g_par[g] = p.distance, p.falloff, p.gamma
+        # The cut-out walks' geometry per group: the scene's arrays at the BVH's triangles.
+        tris = [a.tri_index if a.tri_index is not None else np.arange(a.count) for a in accels] if self.cutouts \
+            else [np.zeros(0, dtype=np.int64)] * n_g
+        sel = np.concatenate([np.zeros(0, dtype=np.int64), *tris]).astype(np.int64)
+        off = np.concatenate([[0], np.cumsum([t.size for t in tris])]).astype(np.int64)
+        vertices, face_normal, normals, tri_mat, tri_mag = self.geo
+        st = np.asarray(scene.geometry.st, dtype=np.float64) if self.cutouts else np.zeros((0, 3, 2))
+        g_geo = (off, *(np.ascontiguousarray(a[sel]) for a in (vertices, face_normal, normals, st, tri_mat, tri_mag)))
+        g_eps = np.array([a.epsilon_terms() for a in accels], dtype=np.float64).reshape(n_g, 3)
+        return grp, tint, g_scene, g_mode, g_par, g_geo, g_eps
+
+    def _count_traced(self, tally) -> None:
+        """Add the BVH queries of a tally (trace_kernel's, shadow_visibility_kernel's) to the
+        Accels that answered them: the scene's, and each shadow group's (from N_TALLY on)."""
+        scene = self.integ.scene
+        scene.accel.count_traced(tally[tk.T_INTERSECT], tally[tk.T_OCCLUDED])
+        for g, a in enumerate(scene.shadow_accels):
+            a.count_traced(tally[tk.N_TALLY + 2 * g], tally[tk.N_TALLY + 2 * g + 1])
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
@@ -304,19 +358,19 @@ class FastPath:
     def trace_compiled(self, o, d, tmax, max_depth, keys, keys2, ckeys) -> np.ndarray:
         """trace as one call of _trace_kernel.trace_kernel (GIL released), with the keys of _keys."""
         integ = self.integ
-        emb, surf, tables, plan, walk = self._kernel_args()
+        emb, surf, tables, plan, walk, shadows = self._kernel_args()
         n_u = vk.U_LIGHT + (3 if self.picks else 2 * integ.lights.count)
         L = np.zeros((o.shape[0], 3))
-        tally = np.zeros(tk.N_TALLY, dtype=np.int64)
+        tally = np.zeros(tk.N_TALLY + 2 * len(integ.scene.shadow_accels), dtype=np.int64)
         tk.trace_kernel(emb, np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
                         np.ascontiguousarray(tmax, dtype=np.float64), keys, keys2, ckeys, n_u, max_depth, surf, tables,
-                        plan, walk, L, tally)
+                        plan, walk, L, tally, shadows)
         integ.rays.add(shadow=tally[tk.T_SHADOW], extension=tally[tk.T_EXTENSION])
         with integ.rays.lock:
             for name, t in (("continuation_mis", tk.T_CONTINUATION), ("own_samples", tk.T_OWN_SAMPLES),
                             ("alpha_one_fallback", tk.T_ALPHA_ONE_FALLBACK)):
                 integ.rule_counts[name] += int(tally[t])
-        integ.scene.accel.count_traced(tally[tk.T_INTERSECT], tally[tk.T_OCCLUDED])
+        self._count_traced(tally)
         return L
 
     def trace_loop(self, o, d, tmax, rng, max_depth, keys, keys2, ckeys) -> np.ndarray:
@@ -374,6 +428,8 @@ class FastPath:
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts, est, est_out)
             k_next, k_sh, k_grp = int(counts[0]), int(counts[1]), int(counts[3])
+            if not tk.extension_useful(bounce, max_depth, est[3], self.plan[-1]):
+                k_next = 0
             # The (vertex, light) pairs each light got at this bounce (all, or the picked ones).
             per_light = counts[4:]
             cont = est[3]
@@ -386,7 +442,17 @@ class FastPath:
             blocked = np.zeros(0, dtype=bool)
             v = np.zeros(0)
             traced = k_sh
-            if k_sh and self.lux_shadows:
+            if k_sh and self.lux_shadows and accel.backend == "native":
+                # The shadow groups by trace_kernel's own call (the same rays, keys and counts).
+                emb, _, _, _, walk, shadows = self._kernel_args()
+                v, tint = np.empty(k_sh), np.empty((k_sh, 3))
+                tally = np.zeros(tk.N_TALLY + 2 * len(integ.scene.shadow_accels), dtype=np.int64)
+                tk.shadow_visibility_kernel(emb, np.uint64(ckeys[bounce, 1]), sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh],
+                                            est_out[4][:k_sh], walk, shadows, v, tint, tally)
+                self._count_traced(tally)
+                traced = int(tally[tk.T_SHADOW])
+                vk.add_visible_kernel(L, sh_path[:k_sh], sh_c[:k_sh], v, tint)
+            elif k_sh and self.lux_shadows:
                 v, tint, traced = self._visibility(sh_o[:k_sh], sh_d[:k_sh], sh_t[:k_sh], est_out[4][:k_sh], rng,
                                                    ckeys[bounce, 1])
                 vk.add_visible_kernel(L, sh_path[:k_sh], sh_c[:k_sh], v, tint)

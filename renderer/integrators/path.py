@@ -276,7 +276,9 @@ class PathIntegrator:
         self.fast_path_reason = fast_path_reason(self)
         if not self.fast_path_reason:
             self.fast = FastPath(self)
-        if options.max_depth <= 1:
+        # (The compiled route at max depth 1 traces them where a light is on continuation MIS at
+        # the one vertex: its BSDF half rides on them, fast_path.py's module docstring.)
+        if options.max_depth <= 1 and (self.fast is None or options.max_depth == 0 or not self.fast.cont_at[0].any()):
             self.skipped.append("max depth <= 1: no extension rays are traced (unless emissive geometry needs them)")
 
     def close(self) -> None:

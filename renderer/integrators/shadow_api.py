@@ -30,8 +30,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-__all__ = ["ShadowParams", "shadow_params", "visibility"]
+__all__ = ["ShadowParams", "shadow_params", "shadow_strength", "visibility"]
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,24 @@ def visibility(accel, o: np.ndarray, wi: np.ndarray, t_max: np.ndarray, params: 
     if params.falloff <= 0.0:
         return (~accel.occluded(o, wi, t_lim)).astype(np.float64), m
     t = accel.intersect(o, wi, t_lim).t  # inf where nothing is hit before the limit
-    d, f = params.distance, params.falloff
-    x = np.clip((d - t) / f, 0.0, 1.0)  # 1 at the zone's start (and nearer), 0 at d (and beyond)
-    s = np.where(np.isfinite(t), x ** params.gamma, 0.0)
-    return 1.0 - s, m
+    v = np.empty(m)
+    strength_kernel(t, params.distance, params.falloff, params.gamma, v)
+    return 1.0 - v, m
+
+
+@njit(cache=True, nogil=True)
+def shadow_strength(t, distance, falloff, gamma):
+    """s(t) of the module docstring for the nearest occluder at distance t (inf: none) and a
+    falloff zone of width falloff > 0 ending at distance: the one formula of both routes (the
+    fast path's kernels call it per shadow ray, _trace_kernel.shadow_visibility_kernel)."""
+    if not math.isfinite(t):
+        return 0.0
+    x = min(max((distance - t) / falloff, 0.0), 1.0)  # 1 at the zone's start (and nearer), 0 at d
+    return x ** gamma
+
+
+@njit(cache=True, nogil=True)
+def strength_kernel(t, distance, falloff, gamma, out):
+    """out[i] = shadow_strength(t[i], distance, falloff, gamma) for t (m,) float64."""
+    for i in range(t.shape[0]):
+        out[i] = shadow_strength(t[i], distance, falloff, gamma)

@@ -269,9 +269,74 @@ def test_fast_path_on_the_cornell_box():
     assert r.stats["fast_path"] == "on"
 
 
+@pytest.mark.parametrize("max_depth,kw,opt,extension", [
+    (0, {"more_kinds": True, "infinite": True}, {}, False),
+    (1, {"more_kinds": True, "infinite": True}, {}, True),
+    (1, {"more_kinds": True}, {"light_sampler": "bvh"}, True),
+    (1, {}, {"light_samples": {"": 2}}, False),
+    (1, {"textured": True, "emissive": True}, {"light_samples": {"": 2}}, True),
+])
+def test_direct_light_only_on_the_fast_path(tmp_path, max_depth, kw, opt, extension):
+    """Max depth 0 (the emitters seen directly) and 1 (direct light only: continuation MIS at the
+    one vertex for mis lights with N = 1, the lights' own estimators otherwise) on the compiled
+    route, against the general one. Extension rays leave the one vertex only where they can add
+    something: a light on continuation MIS, or an emissive surface (extension)."""
+    stage = tmp_path / "room.usda"
+    _room(stage, **kw)
+    fast, slow = _pair(stage, max_depth, spp=256, rr_depth=1, **opt)
+    assert fast.stats["fast_path"] == "on"
+    assert (fast.stats["rays"]["extension"] > 0) == extension, fast.stats["rays"]
+    if max_depth == 0:
+        assert fast.stats["rays"]["shadow"] == 0
+    z, zs = _block_z(fast, slow)
+    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
+    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
+    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
+
+
+def _unlit(path, emissive: bool):
+    """A stage without lights: a floor, a ball and a panel that emits (emissive) or not (black)."""
+    from tests.stage_builders import add_floor, add_quad
+
+    stage = new_stage(path)
+    add_camera(stage, pos=(0, 1.5, 4.0), tilt_x=-15)
+    add_settings(stage, (32, 24))
+    add_floor(stage, diffuse=(0.6, 0.6, 0.6))
+    panel = preview_material(stage, "/World/Looks/Panel", diffuse=(0.3, 0.3, 0.3))
+    if emissive:
+        UsdShade.Shader.Get(stage, "/World/Looks/Panel/PBR").CreateInput(
+            "emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(2.0, 1.5, 0.8))
+    add_quad(stage, "/World/Panel", [(-1, 0.2, -1), (1, 0.2, -1), (1, 1.6, -1), (-1, 1.6, -1)], mat=panel,
+             double_sided=True)
+    ball = UsdGeom.Sphere.Define(stage, "/World/Ball")
+    ball.CreateRadiusAttr(0.4)
+    ball.AddTranslateOp().Set(Gf.Vec3d(0.6, 0.4, 0.3))
+    bind(ball.GetPrim(), preview_material(stage, "/World/Looks/Ball", diffuse=(0.2, 0.5, 0.7), roughness=0.3))
+    stage.GetRootLayer().Save()
+
+
+@pytest.mark.parametrize("emissive", [True, False])
+def test_scenes_without_lights_on_the_fast_path(tmp_path, emissive):
+    """No lights: an emissive panel lights the floor and the ball through the BSDF samples alone
+    (z-tested against the general path), or nothing does and the image is black on both routes,
+    the compiled one tracing no ray past the camera's."""
+    stage = tmp_path / "unlit.usda"
+    _unlit(stage, emissive)
+    fast, slow = _pair(stage, 4, spp=256 if emissive else 4, rr_depth=1)
+    assert fast.stats["fast_path"] == "on"
+    if not emissive:
+        assert not fast.film.mean().any() and not slow.film.mean().any()
+        assert fast.stats["rays"]["extension"] == 0 and fast.stats["rays"]["shadow"] == 0
+        return
+    assert fast.stats["rays"]["extension"] > 0
+    z, zs = _block_z(fast, slow)
+    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
+    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
+    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
+
+
 @pytest.mark.parametrize("kw,opt,reason", [
     ({"portal": True}, {}, "dome portals"),
-    ({}, {"max_depth": 1}, "max depth <= 1"),
 ])
 def test_scenes_the_fast_path_cannot_serve_say_why(tmp_path, kw, opt, reason):
     stage = tmp_path / "room.usda"

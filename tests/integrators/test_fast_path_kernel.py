@@ -15,6 +15,7 @@ import pytest
 from renderer.integrators import fast_path as fp_mod
 from renderer.render import RenderOptions, render
 from tests.integrators.test_fast_path import _room
+from tests.integrators.test_fast_path_lux import linked_card
 from tests.integrators.test_fast_path_materials import _card_stage
 
 
@@ -71,6 +72,8 @@ def _estimator_room(tmp_path):
 STAGES = {
     "cornell": (lambda tmp_path: "stages/cornell_box.usda", dict(resolution=(40, 40))),
     "cutout": (_card, {}),
+    "shadows": (lambda tmp_path: "stages/shaping/shadows.usda", dict(resolution=(48, 24))),
+    "shadow_links_cutout": (linked_card, {}),
     "estimators": (_estimator_room, dict(estimator={"": "lightSampling", "/World/Big": "mis"},
                                          light_samples={"": 2})),
     "estimators_bvh": (_estimator_room, dict(estimator={"": "bsdfSampling", "/World/Bulb": "mis"},
@@ -135,8 +138,9 @@ def test_scenes_with_numpy_work_per_bounce_keep_the_python_loop(tmp_path):
     assert "per-hit" in reason("stages/plant/plant.usda")
     # F is taken inside the vertex kernel: the control variate runs in the compiled loop too.
     assert reason("stages/cornell_box.usda", estimator={"": "controlVariate"}) == ""
-    # Shadow groups (ShadowAPI settings, shadowLink) are traced per group from Python.
-    assert "shadow" in reason("stages/shaping/shadows.usda")
+    # Shadow groups (ShadowAPI settings, shadowLink, shadow colours) are traced inside the kernel:
+    # the stage runs as one trace_kernel call.
+    assert reason("stages/shaping/shadows.usda") == ""
     assert reason("stages/cornell_box.usda") == ""
     assert reason(_card(tmp_path)) == ""
 

@@ -18,7 +18,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
 
 from renderer.render import RenderOptions, render
 from tests.integrators.test_fast_path import Z_MAX, _block_z, _room
-from tests.integrators.test_fast_path_materials import _check
+from tests.integrators.test_fast_path_materials import _card_stage, _check
+from tests.stage_builders import add_quad, preview_material
 
 IES = os.path.abspath("stages/ies/narrow_spot.ies")
 
@@ -224,4 +225,27 @@ def test_shadows_stage_on_the_compiled_path():
     """stages/shaping/shadows.usda: four shaped spots with plain, disabled, coloured and
     distance-limited shadows."""
     fast, slow = _pair("stages/shaping/shadows.usda", 3, 64, resolution=(64, 32), emitter_samples=1)
+    _check(fast, slow)
+
+
+def linked_card(tmp_path):
+    """test_fast_path_materials' card (a constant opacity 0.4 cuts it) over a lit floor, with a
+    grey board between card and floor that the rect light's shadowLink excludes: that light's
+    shadow rays are traced against a BVH of floor and card alone, through the cut-out card; the
+    dim sky's see the board."""
+    path = _card_stage(tmp_path / "linked_card.usda", tmp_path, textured=False)
+    stage = Usd.Stage.Open(path)
+    add_quad(stage, "/World/Board", [(-0.5, 0.5, -0.5), (-0.5, 0.5, 0.5), (0.5, 0.5, 0.5), (0.5, 0.5, -0.5)],
+             mat=preview_material(stage, "/World/Looks/Board", diffuse=(0.5, 0.5, 0.5)))
+    UsdLux.LightAPI(stage.GetPrimAtPath("/World/Light")).GetShadowLinkCollectionAPI().CreateExcludesRel().AddTarget(
+        "/World/Board")
+    stage.GetRootLayer().Save()
+    return path
+
+
+def test_shadow_links_through_cutouts_on_the_compiled_path(tmp_path):
+    """A shadowLink group in a scene with cut-outs: the kernel walks the group's own BVH through
+    the cut-out card (its triangles' materials, in the group BVH's order)."""
+    stage = linked_card(tmp_path)
+    fast, slow = _pair(stage, 3, 128, estimator={"": "mis"})
     _check(fast, slow)

@@ -46,14 +46,26 @@ def test_max_depth_zero_shows_only_emitters(tmp_path):
     assert r.stats["rays"]["shadow"] == 0 and r.stats["rays"]["extension"] == 0
 
 
-def test_max_depth_one_traces_no_extension_rays(tmp_path):
+@pytest.mark.parametrize("opt", [{"fast_path": False}, {"estimator": {"": "lightSampling"}}])
+def test_max_depth_one_traces_no_extension_rays(tmp_path, opt):
+    """The general path at max depth 1, and the compiled route where no light is on continuation
+    MIS (it traces them for mis lights with one sample: their BSDF half rides on them)."""
     stage = tmp_path / "q.usda"
     quad_light_stage(stage)
-    r = render(str(stage), RenderOptions(spp=2, max_depth=1, threads=1))
+    r = render(str(stage), RenderOptions(spp=2, max_depth=1, threads=1, **opt))
+    assert r.stats["fast_path"] == ("on" if "estimator" in opt else "disabled (--no-fast-path)")
     assert r.stats["rays"]["extension"] == 0
     assert r.stats["rays"]["shadow"] > 0
     assert r.film.mean().max() > 0.0
     assert any("no extension rays" in s for s in r.stats["skipped"])
+
+
+def test_max_depth_one_on_the_compiled_route_says_nothing_of_skipped_extension_rays(tmp_path):
+    stage = tmp_path / "q.usda"
+    quad_light_stage(stage)
+    r = render(str(stage), RenderOptions(spp=2, max_depth=1, threads=1))
+    assert r.stats["fast_path"] == "on" and r.stats["rays"]["extension"] > 0
+    assert not any("no extension rays" in s for s in r.stats["skipped"])
 
 
 def test_images_do_not_depend_on_thread_count(tmp_path):
