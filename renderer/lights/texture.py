@@ -177,6 +177,17 @@ class ImageSet:
             mean_rgb=np.array(mean, dtype=np.float64).reshape(-1, 3),
         )
 
+    def kernel_record(self) -> tuple:
+        """The set as the compiled rows read it (kernels/lights.py's textured rows): (texels,
+        offset, height, width, weight, total, row_cdf, row_cdf_start, col_cdf, col_cdf_start),
+        C-contiguous float64 / int64."""
+        c = np.ascontiguousarray
+        f64, i64 = np.float64, np.int64
+        return (c(self.texels.reshape(-1, 3), dtype=f64), c(self.offset, dtype=i64), c(self.height, dtype=i64),
+                c(self.width, dtype=i64), c(self.weight, dtype=f64), c(self.total, dtype=f64),
+                c(self.row_cdf, dtype=f64), c(self.row_cdf_start, dtype=i64), c(self.col_cdf, dtype=f64),
+                c(self.col_cdf_start, dtype=i64))
+
     def texel_index(self, img: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         r = np.clip(row, 0, self.height[img] - 1)
         c = np.clip(col, 0, self.width[img] - 1)
