@@ -208,6 +208,11 @@ class FastPath:
         # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
         self.mult = (np.ascontiguousarray(lights.diffuse_scale[order], dtype=np.float64),
                      np.ascontiguousarray(lights.specular_scale[order], dtype=np.float64))
+        # Dome portals (DomeLight.portal_record: kernels/portal.py's rows sample through them and
+        # give the escaped rays' pdf) and the RectLights' textures (each rect's image or -1, and
+        # their ImageSet.kernel_record: kernels/lights.py's rect_texel_* rows).
+        self.portal = dome.portal_record()
+        self.texrect = (np.ascontiguousarray(rl.tex, dtype=np.int64), rl.images.kernel_record())
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
         self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
@@ -222,7 +227,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux, self.fcalc, self.mult)
+            self.lux, self.fcalc, self.mult, self.portal, self.texrect)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
