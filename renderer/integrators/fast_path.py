@@ -8,7 +8,8 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
-  and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
+  and DomeLights (lat-long textured or constant, with portals: kernels/portal.py's rows sample
+  through them and give an escaped ray's pdf, as DomeLight does), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
   does not illuminate, and a continuation ray that left such a vertex adds none of its emission;
@@ -100,9 +101,6 @@ def fast_path_reason(integ) -> str:
     rl = lights.kinds[rect]
     if np.any(rl.tex >= 0):
         return "a textured RectLight"
-    dome = lights.kinds[KIND_NAMES.index("dome")]
-    if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
-        return "dome portals"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if opt.max_depth <= 1:

@@ -270,7 +270,6 @@ def test_fast_path_on_the_cornell_box():
 
 
 @pytest.mark.parametrize("kw,opt,reason", [
-    ({"portal": True}, {}, "dome portals"),
     ({}, {"max_depth": 1}, "max depth <= 1"),
 ])
 def test_scenes_the_fast_path_cannot_serve_say_why(tmp_path, kw, opt, reason):
