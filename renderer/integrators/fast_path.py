@@ -7,7 +7,8 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
-* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+* only RectLights (textured ones by kernels/lights.py's rect_texel_* rows, off the vectorised
+  batch sampler), SphereLights (treatAsPoint included), DiskLights, DistantLights
   and DomeLights (lat-long textured or constant, with portals: kernels/portal.py's rows sample
   through them and give an escaped ray's pdf, as DomeLight does), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
@@ -95,12 +96,8 @@ def fast_path_reason(integ) -> str:
         return "disabled (--no-fast-path)"
     if not integ.has_lights:
         return "no lights"
-    rect = KIND_NAMES.index("rect")
     if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
         return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
-    rl = lights.kinds[rect]
-    if np.any(rl.tex >= 0):
-        return "a textured RectLight"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     if opt.max_depth <= 1:
