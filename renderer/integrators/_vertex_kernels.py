@@ -927,7 +927,7 @@ def vertex_kernel(
     (if not empty) the radiance its surface emits (added in full: emitting surfaces are reached
     by BSDF samples only, as in the general path) and bent_ns (hits, 3) (if not empty) its
     normal-mapped shading normal; light tables: the
-    RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
+    RectLight arrays (their textures in texrect), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
     the infinite lights (i_*: i_dome True for a DomeLight, with i_tex its image in the ImageSet
     im_* or -1 for a constant one and i_rot (3, 3) its local -> world rotation; else a
     DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
@@ -940,7 +940,10 @@ def vertex_kernel(
     meshes) bool, or (0, 0) without light linking); fcalc: the
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
-    continuation MIS: their estimators apply them, _split_at). L (m, 3)
+    continuation MIS: their estimators apply them, _split_at); portal: the domes' portals
+    (DomeLight.portal_record, kernels/portal.py's PR_* columns: a dome with portals samples and
+    weighs through them, _portal_sample and _portal_pdf); texrect: (each rect's image (rects,)
+    int64, -1 untextured; the rects' ImageSet.kernel_record(): _texrect_*). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
