@@ -435,13 +435,16 @@ LP_TEX = 32  # dome image, -1 for a constant dome
 LP_J = 33  # the row in the light's kind table
 LP_SHAPE = 34  # the light's row in the ShapingAPI table (lights/shaping.py), -1 when unshaped
 NLP = 35
-# A dome's portal count (vertex_kernel sets it from the portal record; a dome has no second size
-# in LP_P1). A rect's image is in LP_TEX (-1 untextured), set from the texrect record.
+# A dome's first portal row and portal count (vertex_kernel sets them from the portal record; a
+# dome has no sizes in LP_P0, LP_P1). A rect's image is in LP_TEX (-1 untextured), set from the
+# texrect record: the rects' images follow the domes' in IMG's ImageSet.
+LP_PORTAL0 = LP_P0
 LP_PORTALS = LP_P1
-# After the domes' images in IMG (vertex_kernel): the portal record (DomeLight.portal_record,
-# kernels/portal.py) and the RectLights' ImageSet (ImageSet.kernel_record).
+# After the images in IMG (vertex_kernel): the portal record's two arrays (DomeLight.portal_record,
+# kernels/portal.py). Only two: numba counts references to each array of IMG at every call that
+# passes it.
 IMG_PORTAL = 11
-IMG_TEXRECT = 12
+IMG_PORTAL_T = 12
 
 
 @njit(cache=True, nogil=True)
@@ -590,7 +593,7 @@ def _texrect_sample(LP, g, p, u0, u1, IMG, min_sa, graz):
     (kernels/lights.rect_texel_sample_row), the radiance the texel's colour at the sampled point
     (rect_radiance_row): RectLight.sample_li's rule. Kept out of the inlined _light_sample, so
     the untextured rows' code stays as it was."""
-    IM = IMG[IMG_TEXRECT]
+    IM = IMG[1:11]
     tex = int(LP[g, LP_TEX])
     ta, tb, t_pdf = rect_texel_sample_row(tex, u0, u1, LP[g, LP_AREA], IM)
     c = _lp(LP, g, LP_C)
@@ -607,7 +610,7 @@ def _texrect_seen(LP, g, o, d, tl, IMG):
     the colour of the texel there (rect_radiance_row, RectLight.le's rule)."""
     q = (o[0] + tl * d[0], o[1] + tl * d[1], o[2] + tl * d[2])
     return rect_radiance_row(_lp(LP, g, LP_L), int(LP[g, LP_TEX]), q, _lp(LP, g, LP_C), _lp(LP, g, LP_EXD),
-                             _lp(LP, g, LP_EYD), IMG[IMG_TEXRECT])
+                             _lp(LP, g, LP_EYD), IMG[1:11])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -619,7 +622,7 @@ def _texrect_pdf(LP, g, p, d, IMG, min_sa, graz):
     exd = _lp(LP, g, LP_EXD)
     eyd = _lp(LP, g, LP_EYD)
     _t, a, b, _hit = _rect_hit(p, d, c, n, exd, eyd)
-    t_pdf = rect_texel_pdf_row(int(LP[g, LP_TEX]), a, b, LP[g, LP_AREA], IMG[IMG_TEXRECT])
+    t_pdf = rect_texel_pdf_row(int(LP[g, LP_TEX]), a, b, LP[g, LP_AREA], IMG[1:11])
     return _rect_pdf_row(p, d, c, n, exd, eyd, _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH),
                          _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1], LP[g, LP_AREA], True, LP[g, LP_FLAG] != 0.0,
                          t_pdf, min_sa, graz)
@@ -632,7 +635,8 @@ def _portal_sample(LP, g, p, u0, u1, IMG, min_sa, graz):
     (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
      im_col_cdf, im_col_cdf_start) = IMG[:11]
     j = int(LP[g, LP_J])
-    wi, pdf, kt = portal_dome_sample_row(IMG[IMG_PORTAL], j, p, u0, u1, int(LP[g, LP_TEX]), i_rot[j], im_height,
+    wi, pdf, kt = portal_dome_sample_row(IMG[IMG_PORTAL], IMG[IMG_PORTAL_T], int(LP[g, LP_PORTAL0]),
+                                         int(LP[g, LP_PORTALS]), p, u0, u1, int(LP[g, LP_TEX]), i_rot[j], im_height,
                                          im_width, im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start,
                                          im_weight, im_total, im_offset, min_sa, graz)
     Le = _lp(LP, g, LP_L)
@@ -647,8 +651,9 @@ def _portal_pdf(LP, g, p, d, IMG, min_sa, graz):
     MIS weight of a BSDF ray that escapes to it must use the density its light samples have."""
     i_rot, _texels, im_offset, im_height, im_width, im_weight, im_total = IMG[:7]
     j = int(LP[g, LP_J])
-    return portal_dome_pdf_row(IMG[IMG_PORTAL], j, p, d, int(LP[g, LP_TEX]), i_rot[j], im_height, im_width,
-                               im_weight, im_total, im_offset, min_sa, graz)[0]
+    return portal_dome_pdf_row(IMG[IMG_PORTAL], IMG[IMG_PORTAL_T], int(LP[g, LP_PORTAL0]), int(LP[g, LP_PORTALS]),
+                               p, d, int(LP[g, LP_TEX]), i_rot[j], im_height, im_width, im_weight, im_total,
+                               im_offset, min_sa, graz)[0]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -941,9 +946,10 @@ def vertex_kernel(
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
     continuation MIS: their estimators apply them, _split_at); portal: the domes' portals
-    (DomeLight.portal_record, kernels/portal.py's PR_* columns: a dome with portals samples and
-    weighs through them, _portal_sample and _portal_pdf); texrect: (each rect's image (rects,)
-    int64, -1 untextured; the rects' ImageSet.kernel_record(): _texrect_*). L (m, 3)
+    (DomeLight.portal_record's PP and PT, kernels/portal.py; each dome's first row and count:
+    a dome with portals samples and weighs through them, _portal_sample and _portal_pdf);
+    texrect: (rects,) int64 each rect's image in the im_* set (after the domes'), -1 untextured
+    (_texrect_*). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -1003,12 +1009,15 @@ def vertex_kernel(
                       s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
                       d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex)
     IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-           im_col_cdf, im_col_cdf_start, portal, texrect[1])
-    # Each dome's portal count and each rect's image (-1: untextured) into LP (LP_PORTALS, LP_TEX).
-    portal_count = portal[1]
-    rect_tex = texrect[0]
+           im_col_cdf, im_col_cdf_start, portal[0], portal[1])
+    # Each dome's portal rows and each rect's image (-1: untextured) into LP (LP_PORTAL0,
+    # LP_PORTALS, LP_TEX).
+    portal_start = portal[2]
+    portal_count = portal[3]
+    rect_tex = texrect
     for g in range(LP.shape[0]):
         if LP[g, LP_KIND] == K_DOME:
+            LP[g, LP_PORTAL0] = portal_start[int(LP[g, LP_J])]
             LP[g, LP_PORTALS] = portal_count[int(LP[g, LP_J])]
         elif LP[g, LP_KIND] == K_RECT:
             LP[g, LP_TEX] = rect_tex[int(LP[g, LP_J])]

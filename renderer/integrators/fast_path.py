@@ -143,12 +143,12 @@ class FastPath:
                     np.ascontiguousarray(np.concatenate([np.reshape(dome.tex, nd), np.full(nt, -1)]), np.int64),
                     np.ascontiguousarray(np.concatenate([np.reshape(dome.rot, (nd, 3, 3)), np.zeros((nt, 3, 3))]),
                                          np.float64))
-        im = dome.images
-        f64, i64 = np.float64, np.int64
-        self.images = tuple(np.ascontiguousarray(a, dtype=t) for a, t in (
-            (np.reshape(im.texels, (-1, 3)), f64), (im.offset, i64), (im.height, i64), (im.width, i64),
-            (im.weight, f64), (im.total, f64), (im.row_cdf, f64), (im.row_cdf_start, i64), (im.col_cdf, f64),
-            (im.col_cdf_start, i64)))
+        # The domes' images, then the textured RectLights' (texrect: their image in this set).
+        from ..lights.texture import ImageSet
+
+        rl = lights.kinds[KIND_NAMES.index("rect")]
+        im = ImageSet.concat(dome.images, rl.images) if rl.images.count else dome.images
+        self.images = im.kernel_record()
         mats = scene.materials
         # Textured inputs, emission or normal maps: the material is evaluated per hit (st
         # needed) and the kernel reads per-hit rows; otherwise one packed row per material (cut-
@@ -203,11 +203,13 @@ class FastPath:
         # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
         self.mult = (np.ascontiguousarray(lights.diffuse_scale[order], dtype=np.float64),
                      np.ascontiguousarray(lights.specular_scale[order], dtype=np.float64))
-        # Dome portals (DomeLight.portal_record: kernels/portal.py's rows sample through them and
-        # give the escaped rays' pdf) and the RectLights' textures (each rect's image or -1, and
-        # their ImageSet.kernel_record: kernels/lights.py's rect_texel_* rows).
-        self.portal = dome.portal_record()
-        self.texrect = (np.ascontiguousarray(rl.tex, dtype=np.int64), rl.images.kernel_record())
+        # Dome portals (DomeLight.portal_record, and each dome's first portal row and count:
+        # kernels/portal.py's rows sample through them and give the escaped rays' pdf) and the
+        # RectLights' textures (each rect's image in self.images, after the domes', or -1:
+        # kernels/lights.py's rect_texel_* rows).
+        self.portal = (*dome.portal_record(), np.ascontiguousarray(dome.portal_start, dtype=np.int64),
+                       np.ascontiguousarray(dome.portal_count, dtype=np.int64))
+        self.texrect = np.ascontiguousarray(np.where(rl.tex >= 0, rl.tex + dome.images.count, -1), dtype=np.int64)
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
         self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)

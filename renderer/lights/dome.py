@@ -277,18 +277,26 @@ class DomeLight:
         self.warnings.extend(warns)
 
     def portal_record(self) -> tuple:
-        """The portals as the compiled rows read them (renderer/kernels/portal.py, PR_*):
-        (start, count (count,) int64, fraction (count,), center, ex, ey (P, 3), frame (P, 3, 3),
-        half (P, 2), table (P,) int64, f (T, N, N), sat (T, N+1, N+1), col (T, N, N+1))."""
+        """The portals as the compiled rows read them (renderer/kernels/portal.py): (PP (P, NPP)
+        a row per portal, columns PP_*; PT (3 T, N + 1, N + 1) the windowed tables, f, sat and
+        col of table t at 3 t, 3 t + 1 and 3 t + 2). Dome j's portals are rows portal_start[j]
+        .. + portal_count[j]."""
         if getattr(self, "_portal_record", None) is None:
-            c = np.ascontiguousarray
-            self._portal_record = (
-                c(self.portal_start, dtype=np.int64), c(self.portal_count, dtype=np.int64),
-                c(self.portal_fraction, dtype=np.float64), c(self.portal_center, dtype=np.float64),
-                c(self.portal_ex, dtype=np.float64), c(self.portal_ey, dtype=np.float64),
-                c(self.portal_frame, dtype=np.float64), c(self.portal_half, dtype=np.float64),
-                c(self.portal_table, dtype=np.int64), c(self.portal_f, dtype=np.float64),
-                c(self.portal_sat, dtype=np.float64), c(self.portal_col, dtype=np.float64))
+            P = self.portal_center.shape[0]
+            PP = np.zeros((P, portal_kernels.NPP))
+            PP[:, portal_kernels.PP_C:portal_kernels.PP_C + 3] = self.portal_center
+            PP[:, portal_kernels.PP_EX:portal_kernels.PP_EX + 3] = self.portal_ex
+            PP[:, portal_kernels.PP_EY:portal_kernels.PP_EY + 3] = self.portal_ey
+            PP[:, portal_kernels.PP_FR:portal_kernels.PP_FR + 9] = self.portal_frame.reshape(P, 9)
+            PP[:, portal_kernels.PP_HALF:portal_kernels.PP_HALF + 2] = self.portal_half
+            PP[:, portal_kernels.PP_TABLE] = self.portal_table
+            PP[:, portal_kernels.PP_FRACTION] = np.repeat(self.portal_fraction, self.portal_count)
+            n = portal_tables.N_CELLS
+            PT = np.zeros((3 * self.portal_f.shape[0], n + 1, n + 1))
+            PT[0::3, :n, :n] = self.portal_f
+            PT[1::3] = self.portal_sat
+            PT[2::3, :n, :] = self.portal_col
+            self._portal_record = (np.ascontiguousarray(PP), np.ascontiguousarray(PT))
         return self._portal_record
 
     def _portal_sample(self, i: np.ndarray, p: np.ndarray, u: np.ndarray):
@@ -299,8 +307,9 @@ class DomeLight:
         _tx, off, h, w, wt, tot, rc, rcs, cc, ccs = self.images.kernel_record()
         portal_kernels.portal_dome_sample_kernel(
             np.ascontiguousarray(i, dtype=np.int64), np.ascontiguousarray(p, dtype=np.float64),
-            np.ascontiguousarray(u, dtype=np.float64), self.portal_record(), self.tex,
-            np.ascontiguousarray(self.rot, dtype=np.float64), h, w, rc, rcs, cc, ccs, wt, tot, off, MIN_SOLID_ANGLE,
+            np.ascontiguousarray(u, dtype=np.float64), *self.portal_record(), self.portal_start, self.portal_count,
+            self.tex, np.ascontiguousarray(self.rot, dtype=np.float64), h, w, rc, rcs, cc, ccs, wt, tot, off,
+            MIN_SOLID_ANGLE,
             GRAZING_NZ2, wi, pdf, kt)
         L = self.L[i].copy()
         tex = kt >= 0
@@ -313,8 +322,9 @@ class DomeLight:
         _tx, off, h, w, wt, tot = self.images.kernel_record()[:6]
         portal_kernels.portal_dome_pdf_kernel(
             np.ascontiguousarray(i, dtype=np.int64), np.ascontiguousarray(p, dtype=np.float64),
-            np.ascontiguousarray(wi, dtype=np.float64), self.portal_record(), self.tex,
-            np.ascontiguousarray(self.rot, dtype=np.float64), h, w, wt, tot, off, MIN_SOLID_ANGLE, GRAZING_NZ2, pdf)
+            np.ascontiguousarray(wi, dtype=np.float64), *self.portal_record(), self.portal_start, self.portal_count,
+            self.tex, np.ascontiguousarray(self.rot, dtype=np.float64), h, w, wt, tot, off, MIN_SOLID_ANGLE,
+            GRAZING_NZ2, pdf)
         return pdf
 
     @staticmethod

@@ -19,7 +19,6 @@ import pytest
 from pxr import Sdf, Usd, UsdLux
 
 from renderer.integrators import fast_path as fp_mod
-from renderer.kernels.portal import PR_F
 from renderer.render import RenderOptions, render
 from tests.integrators.test_fast_path import Z_MAX, _block_z, _room
 from tests.integrators.test_fast_path_estimators import _check
@@ -66,11 +65,13 @@ def _write_exr(path, px) -> str:
     return str(path)
 
 
-def _textured_rects(path, tmp_path):
+def _textured_rects(path, tmp_path, sky=False):
     """The room of test_fast_path (three rects, a sphere, a point and a disk light) with colour
     ramps and one bright texel on the big tilted rect and on the one behind the ball: the texel
-    pick, the colour at a sample and the colour a ray crossing the rect sees all matter."""
-    _room(path, more_kinds=True)
+    pick, the colour at a sample and the colour a ray crossing the rect sees all matter. sky: with
+    the lat-long sky and the distant lights too (the rects' images then follow the dome's in the
+    kernel's image set)."""
+    _room(path, more_kinds=True, infinite=sky, sky_texture=sky)
     h, w = 6, 8
     y, x = np.mgrid[0:h, 0:w]
     img = np.stack([0.2 + x / w, 0.3 + y / h, 1.2 - x / w], axis=-1)
@@ -82,14 +83,14 @@ def _textured_rects(path, tmp_path):
     stage.GetRootLayer().Save()
 
 
-@pytest.mark.parametrize("estimator,N,opt", [
-    ("mis", 1, {}),                                  # continuation MIS, the textured rects off the batch
-    ("controlVariate", 3, {}),                       # no exact F: MIS with its own samples
-    ("mis", 1, {"light_sampler": "bvh"}),            # one picked light per vertex
+@pytest.mark.parametrize("estimator,N,opt,sky", [
+    ("mis", 1, {}, False),                           # continuation MIS, the textured rects off the batch
+    ("controlVariate", 3, {}, True),                 # no exact F: MIS with its own samples
+    ("mis", 1, {"light_sampler": "bvh"}, False),     # one picked light per vertex
 ])
-def test_textured_rects_on_the_compiled_path_match_the_general_path(tmp_path, estimator, N, opt):
+def test_textured_rects_on_the_compiled_path_match_the_general_path(tmp_path, estimator, N, opt, sky):
     stage = tmp_path / "room.usda"
-    _textured_rects(stage, tmp_path)
+    _textured_rects(stage, tmp_path, sky)
     _check(*_pair(stage, estimator, N, **opt))
 
 
@@ -114,7 +115,7 @@ def test_the_comparison_detects_an_untextured_rect(tmp_path, monkeypatch):
     _textured_rects(stage, tmp_path)
 
     def untextured(fp):
-        fp.texrect = (np.full_like(fp.texrect[0], -1), fp.texrect[1])
+        fp.texrect = np.full_like(fp.texrect, -1)
 
     _broken(monkeypatch, untextured)
     z, _ = _block_z(*_pair(stage, "mis"))
@@ -127,7 +128,10 @@ def test_the_comparison_detects_a_wrong_portal_density(monkeypatch):
     comparison fails."""
 
     def wrong(fp):
-        fp.portal = tuple(a * 3.0 if k == PR_F else a for k, a in enumerate(fp.portal))
+        PP, PT, start, count = fp.portal
+        PT = PT.copy()
+        PT[0::3] *= 3.0  # the f tables (kernels/portal.py: f of table t at 3 t)
+        fp.portal = (PP, PT, start, count)
 
     _broken(monkeypatch, wrong)
     z, _ = _block_z(*_pair(WINDOW, "lightSampling"))
