@@ -60,12 +60,14 @@ from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
+from renderer.kernels.portal import portal_dome_pdf_row, portal_dome_sample_row
 from renderer.kernels.shaping import shaping_factor_row
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
 from renderer.preconvolve import packed_row
 from renderer.kernels.lights import (
     rect_sample_batch_kernel, sphere_sample_batch_kernel, _disk_hit, _disk_pdf_row, _disk_sample_row, _distant_pdf_row, _dome_sample_row, _dome_texel_row, _distant_sample_row, _rect_hit, _rect_pdf_row,
     _rect_sample_row, _row, _sphere_hit_row, _sphere_pdf_row, _sphere_sample_row, _uniform_sphere_row,
+    rect_radiance_row, rect_texel_pdf_row, rect_texel_sample_row,
 )
 
 _INV_PI = 1.0 / math.pi
@@ -433,6 +435,16 @@ LP_TEX = 32  # dome image, -1 for a constant dome
 LP_J = 33  # the row in the light's kind table
 LP_SHAPE = 34  # the light's row in the ShapingAPI table (lights/shaping.py), -1 when unshaped
 NLP = 35
+# A dome's first portal row and portal count (vertex_kernel sets them from the portal record; a
+# dome has no sizes in LP_P0, LP_P1). A rect's image is in LP_TEX (-1 untextured), set from the
+# texrect record: the rects' images follow the domes' in IMG's ImageSet.
+LP_PORTAL0 = LP_P0
+LP_PORTALS = LP_P1
+# After the images in IMG (vertex_kernel): the portal record's two arrays (DomeLight.portal_record,
+# kernels/portal.py). Only two: numba counts references to each array of IMG at every call that
+# passes it.
+IMG_PORTAL = 11
+IMG_PORTAL_T = 12
 
 
 @njit(cache=True, nogil=True)
@@ -573,6 +585,81 @@ def _infinite_seen(LP, g, d, IMG):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _tex_rect(LP, g):
+    """Light g is a textured RectLight (its texel rows apply: _texrect_*)."""
+    return LP[g, LP_KIND] == K_RECT and LP[g, LP_TEX] >= 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _texrect_sample(LP, g, p, u0, u1, IMG, min_sa, graz):
+    """_light_sample for a textured RectLight: a texel picked by luminance and a point in it
+    (kernels/lights.rect_texel_sample_row), the radiance the texel's colour at the sampled point
+    (rect_radiance_row): RectLight.sample_li's rule. Kept out of the inlined _light_sample, so
+    the untextured rows' code stays as it was."""
+    IM = IMG[1:11]
+    tex = int(LP[g, LP_TEX])
+    ta, tb, t_pdf = rect_texel_sample_row(tex, u0, u1, LP[g, LP_AREA], IM)
+    c = _lp(LP, g, LP_C)
+    wi, dist, pdf, pl, ok = _rect_sample_row(p, u0, u1, c, _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH),
+                                             _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1], _lp(LP, g, LP_N),
+                                             LP[g, LP_AREA], True, LP[g, LP_FLAG] != 0.0, ta, tb, t_pdf, min_sa, graz)
+    Le = rect_radiance_row(_lp(LP, g, LP_L), tex, pl, c, _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD), IM)
+    return wi, dist, (pdf if ok else 0.0), Le, False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _texrect_seen(LP, g, o, d, tl, IMG):
+    """The radiance a ray o + t d meeting textured RectLight g's front at t = tl sees: L times
+    the colour of the texel there (rect_radiance_row, RectLight.le's rule)."""
+    q = (o[0] + tl * d[0], o[1] + tl * d[1], o[2] + tl * d[2])
+    return rect_radiance_row(_lp(LP, g, LP_L), int(LP[g, LP_TEX]), q, _lp(LP, g, LP_C), _lp(LP, g, LP_EXD),
+                             _lp(LP, g, LP_EYD), IMG[1:11])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _texrect_pdf(LP, g, p, d, IMG, min_sa, graz):
+    """_finite_pdf for a textured RectLight: its texel sampling's solid-angle pdf of direction d
+    from p (the texel d meets: rect_texel_pdf_row; RectLight.pdf_li's rule)."""
+    c = _lp(LP, g, LP_C)
+    n = _lp(LP, g, LP_N)
+    exd = _lp(LP, g, LP_EXD)
+    eyd = _lp(LP, g, LP_EYD)
+    _t, a, b, _hit = _rect_hit(p, d, c, n, exd, eyd)
+    t_pdf = rect_texel_pdf_row(int(LP[g, LP_TEX]), a, b, LP[g, LP_AREA], IMG[1:11])
+    return _rect_pdf_row(p, d, c, n, exd, eyd, _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH),
+                         _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1], LP[g, LP_AREA], True, LP[g, LP_FLAG] != 0.0,
+                         t_pdf, min_sa, graz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _portal_sample(LP, g, p, u0, u1, IMG, min_sa, graz):
+    """_light_sample for a DomeLight with portals: kernels/portal.portal_dome_sample_row (through
+    the portals usable from p, or the dome's own sampling), the radiance the dome's along wi."""
+    (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
+     im_col_cdf, im_col_cdf_start) = IMG[:11]
+    j = int(LP[g, LP_J])
+    wi, pdf, kt = portal_dome_sample_row(IMG[IMG_PORTAL], IMG[IMG_PORTAL_T], int(LP[g, LP_PORTAL0]),
+                                         int(LP[g, LP_PORTALS]), p, u0, u1, int(LP[g, LP_TEX]), i_rot[j], im_height,
+                                         im_width, im_row_cdf, im_row_cdf_start, im_col_cdf, im_col_cdf_start,
+                                         im_weight, im_total, im_offset, min_sa, graz)
+    Le = _lp(LP, g, LP_L)
+    if kt >= 0:
+        Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
+    return wi, math.inf, pdf, Le, False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _portal_pdf(LP, g, p, d, IMG, min_sa, graz):
+    """The light pdf of a DomeLight with portals along unit d from p (portal_dome_pdf_row): the
+    MIS weight of a BSDF ray that escapes to it must use the density its light samples have."""
+    i_rot, _texels, im_offset, im_height, im_width, im_weight, im_total = IMG[:7]
+    j = int(LP[g, LP_J])
+    return portal_dome_pdf_row(IMG[IMG_PORTAL], IMG[IMG_PORTAL_T], int(LP[g, LP_PORTAL0]), int(LP[g, LP_PORTALS]),
+                               p, d, int(LP[g, LP_TEX]), i_rot[j], im_height, im_width, im_weight, im_total,
+                               im_offset, min_sa, graz)[0]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     """A sample of light g from p with uniforms (u0, u1): (wi, dist, pdf, Le, delta), pdf the
     solid-angle pdf (1 for a delta light) and 0 where the sample is unusable, dist inf for an
@@ -580,6 +667,10 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
     delta = LP[g, LP_FLAG] != 0.0 and kind != K_RECT
+    if kind == K_RECT and LP[g, LP_TEX] >= 0.0:
+        return _texrect_sample(LP, g, p, u0, u1, IMG, min_sa, graz)
+    if kind == K_DOME and LP[g, LP_PORTALS] > 0.0:
+        return _portal_sample(LP, g, p, u0, u1, IMG, min_sa, graz)
     if kind == K_RECT:
         wi, dist, pdf, _pl, ok = _rect_sample_row(p, u0, u1, _lp(LP, g, LP_C), _lp(LP, g, LP_A), _lp(LP, g, LP_B),
                                                   _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0], LP[g, LP_P1],
@@ -598,7 +689,7 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     tex = int(LP[g, LP_TEX])
     if kind == K_DOME and tex >= 0:
         (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-         im_col_cdf, im_col_cdf_start) = IMG
+         im_col_cdf, im_col_cdf_start) = IMG[:11]
         wi, pdf, kt = _dome_sample_row(u0, u1, tex, i_rot[int(LP[g, LP_J])], im_height, im_width, im_row_cdf,
                                        im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
         Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
@@ -616,10 +707,14 @@ def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
     seen): (t (inf for an infinite light or a miss), Le (black on a miss), p_l (0 on a miss))."""
     if LP[g, LP_KIND] >= K_DOME:
         p_l, Le = _infinite_seen(LP, g, wi, IMG)
+        if LP[g, LP_KIND] == K_DOME and LP[g, LP_PORTALS] > 0.0:
+            p_l = _portal_pdf(LP, g, p, wi, IMG, min_sa, graz)
         return math.inf, Le, p_l
     tl, Le, seen = _finite_seen(LP, g, p, wi)
     if not seen:
         return math.inf, (0.0, 0.0, 0.0), 0.0
+    if _tex_rect(LP, g):
+        return tl, _texrect_seen(LP, g, p, wi, tl, IMG), _texrect_pdf(LP, g, p, wi, IMG, min_sa, graz)
     return tl, Le, _finite_pdf(LP, g, p, wi, close_ratio, min_sa, graz)
 
 
@@ -842,7 +937,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, portal, texrect,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -860,7 +955,7 @@ def vertex_kernel(
     (if not empty) the radiance its surface emits (added in full: emitting surfaces are reached
     by BSDF samples only, as in the general path) and bent_ns (hits, 3) (if not empty) its
     normal-mapped shading normal; light tables: the
-    RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
+    RectLight arrays (their textures in texrect), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
     the infinite lights (i_*: i_dome True for a DomeLight, with i_tex its image in the ImageSet
     im_* or -1 for a constant one and i_rot (3, 3) its local -> world rotation; else a
     DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
@@ -873,7 +968,11 @@ def vertex_kernel(
     meshes) bool, or (0, 0) without light linking); fcalc: the
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
-    continuation MIS: their estimators apply them, _split_at). L (m, 3)
+    continuation MIS: their estimators apply them, _split_at); portal: the domes' portals
+    (DomeLight.portal_record's PP and PT, kernels/portal.py; each dome's first row and count:
+    a dome with portals samples and weighs through them, _portal_sample and _portal_pdf);
+    texrect: (rects,) int64 each rect's image in the im_* set (after the domes'), -1 untextured
+    (_texrect_*). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -933,7 +1032,18 @@ def vertex_kernel(
                       s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
                       d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex)
     IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-           im_col_cdf, im_col_cdf_start)
+           im_col_cdf, im_col_cdf_start, portal[0], portal[1])
+    # Each dome's portal rows and each rect's image (-1: untextured) into LP (LP_PORTAL0,
+    # LP_PORTALS, LP_TEX).
+    portal_start = portal[2]
+    portal_count = portal[3]
+    rect_tex = texrect
+    for g in range(LP.shape[0]):
+        if LP[g, LP_KIND] == K_DOME:
+            LP[g, LP_PORTAL0] = portal_start[int(LP[g, LP_J])]
+            LP[g, LP_PORTALS] = portal_count[int(LP[g, LP_J])]
+        elif LP[g, LP_KIND] == K_RECT:
+            LP[g, LP_TEX] = rect_tex[int(LP[g, LP_J])]
     lcon = (close_ratio, min_sa, graz)
     # The global index of each light in the kernel's order.
     glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
@@ -975,8 +1085,8 @@ def vertex_kernel(
                 sampled = sampled or (hit_prim[r] >= 0 and depth[r] < max_depth)
             if sampled and not picks:
                 for j in range(n_rect):
-                    if not cont[rect_light[j]]:
-                        continue  # its estimator samples it in the scalar pass
+                    if not cont[rect_light[j]] or rect_tex[j] >= 0:
+                        continue  # its estimator samples it in the scalar pass, or _light_sample (textured)
                     rect_sample_batch_kernel(W2, UB, U_LIGHT + 2 * rect_light[j], 0, hi - lo, _row(center, j),
                                              _row(ex, j), _row(ey, j), _row(x_hat, j), _row(y_hat, j), edge_len[j, 0],
                                              edge_len[j, 1], _row(nrm, j), area[j], is_rect[j], min_sa, graz, R[j])
@@ -1024,6 +1134,9 @@ def vertex_kernel(
                 tl, Le, seen = _finite_seen(LP, g, o, d)
                 if not (seen and tl < t_geo):
                     continue
+                tex_rect = _tex_rect(LP, g)
+                if tex_rect:
+                    Le = _texrect_seen(LP, g, o, d, tl, IMG)
                 if LP[g, LP_SHAPE] >= 0.0:
                     Le = _shaped(LP, g, SHP, d, Le)
                 if unsampled[r]:
@@ -1032,7 +1145,8 @@ def vertex_kernel(
                     # h(p_b, pmf p_l): p_l and the service's pmf from the vertex the ray left, as
                     # the light half there used.
                     pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
-                    p_l = _finite_pdf(LP, g, pv, d, close_ratio, min_sa, graz)
+                    p_l = (_texrect_pdf(LP, g, pv, d, IMG, min_sa, graz) if tex_rect
+                           else _finite_pdf(LP, g, pv, d, close_ratio, min_sa, graz))
                     pmf = pick_pmf_row(sp, gl, pv[0], pv[1], pv[2], S[r, PN], S[r, PN + 1], S[r, PN + 2])
                     w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
                 L[pr_path, 0] += b0 * Le[0] * w
@@ -1052,6 +1166,9 @@ def vertex_kernel(
                     if unsampled[r]:
                         w = 1.0
                     else:
+                        if LP[q, LP_KIND] == K_DOME and LP[q, LP_PORTALS] > 0.0:
+                            # Through portals: the density the light half drew with from the vertex.
+                            p_l = _portal_pdf(LP, q, (S[r, PP], S[r, PP + 1], S[r, PP + 2]), d, IMG, min_sa, graz)
                         pmf = pick_pmf_row(sp, gl, S[r, PP], S[r, PP + 1], S[r, PP + 2], S[r, PN], S[r, PN + 1],
                                            S[r, PN + 2])
                         w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
@@ -1113,7 +1230,7 @@ def vertex_kernel(
                     for s_ in range(first, k_sh):
                         sh_l[s_] = g
                     continue
-                if g < n_batch:
+                if g < n_batch and not _tex_rect(LP, g):
                     # Rect and sphere lights: sampled and weighed by the vectorised passes.
                     wi = (R[g, 0, i], R[g, 1, i], R[g, 2, i])
                     dist = R[g, 3, i]
@@ -1259,4 +1376,4 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
-             "renderer/lights/analytic.py", "renderer/preconvolve.py"])
+             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/portal.py"])

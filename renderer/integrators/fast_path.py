@@ -8,9 +8,10 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * no lights (emissive surfaces only, or black: the extension rays go on only where a surface
-  emits, _trace_kernel.extension_useful), or only RectLights (untextured), SphereLights
-  (treatAsPoint included), DiskLights, DistantLights
-  and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
+  emits, _trace_kernel.extension_useful), or only RectLights (textured ones by kernels/lights.py's
+  rect_texel_* rows, off the vectorised batch sampler), SphereLights (treatAsPoint included), DiskLights, DistantLights
+  and DomeLights (lat-long textured or constant, with portals: kernels/portal.py's rows sample
+  through them and give an escaped ray's pdf, as DomeLight does), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
   does not illuminate, and a continuation ray that left such a vertex adds none of its emission;
@@ -103,15 +104,8 @@ def fast_path_reason(integ) -> str:
     scene, lights, opt = integ.scene, integ.lights, integ.opt
     if not getattr(opt, "fast_path", True):
         return "disabled (--no-fast-path)"
-    rect = KIND_NAMES.index("rect")
     if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
         return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
-    rl = lights.kinds[rect]
-    if np.any(rl.tex >= 0):
-        return "a textured RectLight"
-    dome = lights.kinds[KIND_NAMES.index("dome")]
-    if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
-        return "dome portals"
     if scene.tri_light is not None or scene.tri_absorb is not None:
         return "mesh lights"
     mats = scene.materials
@@ -153,12 +147,12 @@ class FastPath:
                     np.ascontiguousarray(np.concatenate([np.reshape(dome.tex, nd), np.full(nt, -1)]), np.int64),
                     np.ascontiguousarray(np.concatenate([np.reshape(dome.rot, (nd, 3, 3)), np.zeros((nt, 3, 3))]),
                                          np.float64))
-        im = dome.images
-        f64, i64 = np.float64, np.int64
-        self.images = tuple(np.ascontiguousarray(a, dtype=t) for a, t in (
-            (np.reshape(im.texels, (-1, 3)), f64), (im.offset, i64), (im.height, i64), (im.width, i64),
-            (im.weight, f64), (im.total, f64), (im.row_cdf, f64), (im.row_cdf_start, i64), (im.col_cdf, f64),
-            (im.col_cdf_start, i64)))
+        # The domes' images, then the textured RectLights' (texrect: their image in this set).
+        from ..lights.texture import ImageSet
+
+        rl = lights.kinds[KIND_NAMES.index("rect")]
+        im = ImageSet.concat(dome.images, rl.images) if rl.images.count else dome.images
+        self.images = im.kernel_record()
         mats = scene.materials
         # Textured inputs, emission or normal maps: the material is evaluated per hit (st
         # needed) and the kernel reads per-hit rows; otherwise one packed row per material (cut-
@@ -215,6 +209,13 @@ class FastPath:
         # The lights' diffuse and specular multipliers in kernel order (their estimators apply them).
         self.mult = (np.ascontiguousarray(lights.diffuse_scale[order], dtype=np.float64),
                      np.ascontiguousarray(lights.specular_scale[order], dtype=np.float64))
+        # Dome portals (DomeLight.portal_record, and each dome's first portal row and count:
+        # kernels/portal.py's rows sample through them and give the escaped rays' pdf) and the
+        # RectLights' textures (each rect's image in self.images, after the domes', or -1:
+        # kernels/lights.py's rect_texel_* rows).
+        self.portal = (*dome.portal_record(), np.ascontiguousarray(dome.portal_start, dtype=np.int64),
+                       np.ascontiguousarray(dome.portal_count, dtype=np.int64))
+        self.texrect = np.ascontiguousarray(np.where(rl.tex >= 0, rl.tex + dome.images.count, -1), dtype=np.int64)
         # The vertex kernel's scene arguments, in its order (fixed for the render).
         # The per-light estimators (see the module docstring): token, alpha, samples per light.
         self.est_tok = np.ascontiguousarray(integ.est_token, dtype=np.int64)
@@ -229,7 +230,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux, self.fcalc, self.mult)
+            self.lux, self.fcalc, self.mult, self.portal, self.texrect)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()

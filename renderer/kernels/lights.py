@@ -385,23 +385,29 @@ def _rect_pdf_row(pr, w, c, nl, exd_i, eyd_i, e1, e2, xh, yh, lx, ly, area_i, te
 
 @njit(cache=True, nogil=True)
 def rect_sample_kernel(
-    idx, p, u, center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, tex, is_rect, tex_ab,
-    tex_pdf_area, min_sa, graz, out_L, out_wi, out_pdf, out_dist, out_pl,
+    idx, p, u, center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, tex, is_rect, exd, eyd, IM,
+    min_sa, graz, out_L, out_wi, out_pdf, out_dist, out_pl,
 ):
-    """RectLight.sample_li. Textured rows read their (a, b) and area pdf from tex_ab (n, 2) and
-    tex_pdf_area (n,) (texel sampling, done by the caller); their L still lacks the texel colour.
-    x_hat, y_hat (count, 3) and edge_len (count, 2) are ex, ey as unit vectors and lengths."""
+    """RectLight.sample_li. Textured rows (tex >= 0) sample a texel of their image in the
+    ImageSet record IM (ImageSet.kernel_record) and take its colour (rect_texel_sample_row,
+    rect_radiance_row). x_hat, y_hat (count, 3) and edge_len (count, 2) are ex, ey as unit
+    vectors and lengths; exd, eyd the duals."""
     for r in range(idx.shape[0]):
         i = idx[r]
         textured = tex[i] >= 0
+        ta = tb = t_pdf = 0.0
+        if textured:
+            ta, tb, t_pdf = rect_texel_sample_row(tex[i], u[r, 0], u[r, 1], area[i], IM)
         wi, dist, pdf, pl, ok = _rect_sample_row(
             _row(p, r), u[r, 0], u[r, 1], _row(center, i), _row(ex, i), _row(ey, i), _row(x_hat, i),
             _row(y_hat, i), edge_len[i, 0], edge_len[i, 1], _row(nrm, i), area[i], textured, is_rect[i],
-            tex_ab[r, 0] if textured else 0.0, tex_ab[r, 1] if textured else 0.0,
-            tex_pdf_area[r] if textured else 0.0, min_sa, graz)
+            ta, tb, t_pdf, min_sa, graz)
         out_pdf[r] = pdf
+        Le = _row(radiance, i)
+        if textured and ok:
+            Le = rect_radiance_row(Le, tex[i], pl, _row(center, i), _row(exd, i), _row(eyd, i), IM)
         for k in range(3):
-            out_L[r, k] = radiance[i, k] if ok else 0.0
+            out_L[r, k] = Le[k] if ok else 0.0
         _put(out_wi, r, wi)
         out_dist[r] = dist
         _put(out_pl, r, pl)
@@ -409,18 +415,83 @@ def rect_sample_kernel(
 
 @njit(cache=True, nogil=True)
 def rect_pdf_kernel(
-    idx, p, wi, center, ex, ey, x_hat, y_hat, edge_len, nrm, area, exd, eyd, tex, is_rect, tex_pdf_area,
+    idx, p, wi, center, ex, ey, x_hat, y_hat, edge_len, nrm, area, exd, eyd, tex, is_rect, IM,
     min_sa, graz, out_pdf,
 ):
-    """RectLight.pdf_li. Textured rows take their area pdf from tex_pdf_area (n,). x_hat, y_hat,
-    edge_len as in rect_sample_kernel."""
+    """RectLight.pdf_li. Textured rows take the texel pmf where wi meets the plane
+    (rect_texel_pdf_row). x_hat, y_hat, edge_len as in rect_sample_kernel."""
     for r in range(idx.shape[0]):
         i = idx[r]
         textured = tex[i] >= 0
+        t_pdf = 0.0
+        if textured:
+            _t, a, b, _hit = _rect_hit(_row(p, r), _row(wi, r), _row(center, i), _row(nrm, i), _row(exd, i),
+                                       _row(eyd, i))
+            t_pdf = rect_texel_pdf_row(tex[i], a, b, area[i], IM)
         out_pdf[r] = _rect_pdf_row(
             _row(p, r), _row(wi, r), _row(center, i), _row(nrm, i), _row(exd, i), _row(eyd, i), _row(ex, i),
             _row(ey, i), _row(x_hat, i), _row(y_hat, i), edge_len[i, 0], edge_len[i, 1], area[i], textured,
-            is_rect[i], tex_pdf_area[r] if textured else 0.0, min_sa, graz)
+            is_rect[i], t_pdf, min_sa, graz)
+
+
+@njit(cache=True, nogil=True)
+def rect_radiance_kernel(idx, q, center, exd, eyd, radiance, tex, IM, out_L):
+    """RectLight's front-side radiance at points q (n, 3) on lights idx (n,): the texel's colour
+    times L on textured rows (rect_radiance_row), L elsewhere."""
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        Le = _row(radiance, i)
+        if tex[i] >= 0:
+            Le = rect_radiance_row(Le, tex[i], _row(q, r), _row(center, i), _row(exd, i), _row(eyd, i), IM)
+        _put(out_L, r, Le)
+
+
+# --------------------------------------------------------------------------------------
+# Textured rect light, per row (renderer/lights/rect.py's texture rule: uv = 1/2 - (a, b),
+# image column floor(u W), row floor((1 - v) H), nearest texel; texels picked by the image's
+# luminance distribution, area pdf pmf H W / A). IM: ImageSet.kernel_record().
+# --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def rect_texel_row(img, a, b, IM):
+    """The flat index of the texel of image img at the rect's edge coordinates (a, b)."""
+    offset, height, width = IM[1], IM[2], IM[3]
+    h = height[img]
+    w = width[img]
+    u = min(max(0.5 - a, 0.0), 1.0)
+    v = min(max(0.5 - b, 0.0), 1.0)
+    col = min(int(math.floor(u * w)), w - 1)
+    row = min(int(math.floor((1.0 - v) * h)), h - 1)
+    return offset[img] + row * w + col
+
+
+@njit(cache=True, nogil=True)
+def rect_radiance_row(Le, img, q, c, exd, eyd, IM):
+    """Le (3-tuple) times the colour of image img's texel at the point q of the rect centred at
+    c (duals exd, eyd)."""
+    rel = _sub(q, c)
+    k = rect_texel_row(img, _dot(rel, exd), _dot(rel, eyd), IM)
+    texels = IM[0]
+    return (Le[0] * texels[k, 0], Le[1] * texels[k, 1], Le[2] * texels[k, 2])
+
+
+@njit(cache=True, nogil=True)
+def rect_texel_sample_row(img, u0, u1, area_i, IM):
+    """A texel of image img picked by its luminance (u1 the row, u0 the column) and a point in
+    it: (a, b, area pdf) on the rect of area area_i."""
+    texels, offset, height, width, weight, total, row_cdf, row_cdf_start, col_cdf, col_cdf_start = IM
+    row, col, s, t = _image_sample_row(img, u0, u1, height, width, row_cdf, row_cdf_start, col_cdf, col_cdf_start)
+    h = height[img]
+    w = width[img]
+    pmf = weight[_texel_flat(img, row, col, offset, height, width)] / total[img]
+    return 0.5 - (col + s) / w, (row + t) / h - 0.5, (pmf * (h * w) / area_i if area_i > 0.0 else 0.0)
+
+
+@njit(cache=True, nogil=True)
+def rect_texel_pdf_row(img, a, b, area_i, IM):
+    """The area pdf of rect_texel_sample_row at the edge coordinates (a, b)."""
+    weight, total, height, width = IM[4], IM[5], IM[2], IM[3]
+    k = rect_texel_row(img, a, b, IM)
+    return weight[k] / total[img] * (height[img] * width[img]) / area_i if area_i > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True)

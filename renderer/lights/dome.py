@@ -74,18 +74,15 @@ disk of the scene's radius R, pi R^2 * integral over the sphere of lum(Le) d ome
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from renderer.color import luminance
 from renderer.description import LightDesc
 from renderer.errors import StageError
+from renderer.kernels import portal as portal_kernels
 from renderer.lights import portal as portal_tables
-from renderer.lights import spherical_rect
 from renderer.lights._common import (
     SHAPE_RTOL,
-    direction_and_distance,
     emission_normal,
     far_distance,
     invalid_sample,
@@ -94,6 +91,7 @@ from renderer.lights._common import (
 )
 from renderer.lights.base import LightLiSample, ShadingContext
 from renderer.lights.radiometry import emitted_radiance
+from renderer.lights.spherical_rect import GRAZING_NZ2, MIN_SOLID_ANGLE
 from renderer.lights.texture import ImageSet, load_texture_rgb
 from renderer.sampling import INV_4PI, sample_uniform_sphere
 
@@ -103,8 +101,6 @@ from renderer.sampling import INV_4PI, sample_uniform_sphere
 # for 0.5 / 0.75 / 0.9 (0.103 without portals); 0.75 keeps a quarter of texel samples for
 # openings the portals do not cover.
 TEXTURED_PORTAL_FRACTION = 0.75
-# Largest float below 1 (remapped random numbers stay in [0, 1)).
-ONE_MINUS_EPSILON = 1.0 - 2.0**-53
 
 
 def latlong_texel_solid_angles(h: int, w: int) -> np.ndarray:
@@ -128,27 +124,6 @@ def texel_to_direction(u: np.ndarray, cos_theta: np.ndarray) -> np.ndarray:
     lon = np.pi - 2.0 * np.pi * u
     sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
     return np.stack([np.sin(lon) * sin_t, cos_theta, np.cos(lon) * sin_t], axis=1)
-
-
-@dataclass(frozen=True)
-class _PortalPairs:
-    """(row, portal) pairs of the rows whose dome has portals (m pairs, n rows).
-
-    row, portal, table: (m,) int64 (table: windowed luminance table or -1 for a constant dome);
-    window: (a0, a1, b0, b1) each (m,), the portal-angle window p sees through the portal
-    (lights/portal.py); weight: (m,) the pair's pick weight, 0 where the portal is unusable from
-    p (solid angle for constant domes, the window's luminance integral for textured ones);
-    total: (n,) per-row sum; sr: spherical_rect setup of the constant-dome pairs ``const``.
-    """
-
-    row: np.ndarray
-    portal: np.ndarray
-    table: np.ndarray
-    window: tuple
-    weight: np.ndarray
-    total: np.ndarray
-    sr: object
-    const: np.ndarray
 
 
 class DomeLight:
@@ -301,84 +276,56 @@ class DomeLight:
         self.portal_fraction = np.where(self.tex >= 0, TEXTURED_PORTAL_FRACTION, 1.0)
         self.warnings.extend(warns)
 
-    def _portal_pairs(self, idx: np.ndarray, p: np.ndarray) -> "_PortalPairs":
-        """Every (row, portal) pair of the rows (local dome indices idx, points p) whose dome has
-        portals, with each pair's window and weight (see _PortalPairs)."""
-        n = idx.size
-        cnt = self.portal_count[idx]
-        pair_row = np.repeat(np.arange(n), cnt)
-        first = np.repeat(np.cumsum(cnt) - cnt, cnt)
-        portal = np.repeat(self.portal_start[idx], cnt) + (np.arange(pair_row.size) - first)
-        pp = p[pair_row]
-        c = self.portal_center[portal]
-        fr = self.portal_frame[portal]
-        rel = np.einsum("mij,mj->mi", fr, pp - c)  # p in portal coordinates (x, y, z out)
-        dz = -rel[:, 2]
-        inside = dz > 0.0
-        dzs = np.where(inside, dz, 1.0)
-        ha, hb = self.portal_half[portal, 0], self.portal_half[portal, 1]
-        window = (np.arctan2(-ha - rel[:, 0], dzs), np.arctan2(ha - rel[:, 0], dzs),
-                  np.arctan2(-hb - rel[:, 1], dzs), np.arctan2(hb - rel[:, 1], dzs))
-        table = self.portal_table[portal]
-        textured = table >= 0
-        weight = np.zeros(pair_row.size)
-        sr = None
-        k = np.nonzero(~textured)[0]
-        if k.size:
-            # Constant dome: uniform in the portal's solid angle (Urena's spherical rectangle).
-            ex, ey = self.portal_ex[portal[k]], self.portal_ey[portal[k]]
-            sr = spherical_rect.setup(pp[k], c[k] - 0.5 * ex - 0.5 * ey, ex, ey)
-            weight[k] = np.where(inside[k] & sr.usable, sr.solid_angle, 0.0)
-        k = np.nonzero(textured)[0]
-        if k.size:
-            # Textured dome: the window's integral of the luminance table (lights/portal.py).
-            W = portal_tables.window_integral(self.portal_sat, table[k], *(x[k] for x in window))
-            weight[k] = np.where(inside[k] & (W > 0.0) & np.isfinite(W), W, 0.0)
-        total = np.bincount(pair_row, weights=weight, minlength=n) if pair_row.size else np.zeros(n)
-        return _PortalPairs(pair_row, portal, table, window, weight, total, sr, np.nonzero(~textured)[0])
+    def portal_record(self) -> tuple:
+        """The portals as the compiled rows read them (renderer/kernels/portal.py): (PP (P, NPP)
+        a row per portal, columns PP_*; PT (3 T, N + 1, N + 1) the windowed tables, f, sat and
+        col of table t at 3 t, 3 t + 1 and 3 t + 2). Dome j's portals are rows portal_start[j]
+        .. + portal_count[j]."""
+        if getattr(self, "_portal_record", None) is None:
+            P = self.portal_center.shape[0]
+            PP = np.zeros((P, portal_kernels.NPP))
+            PP[:, portal_kernels.PP_C:portal_kernels.PP_C + 3] = self.portal_center
+            PP[:, portal_kernels.PP_EX:portal_kernels.PP_EX + 3] = self.portal_ex
+            PP[:, portal_kernels.PP_EY:portal_kernels.PP_EY + 3] = self.portal_ey
+            PP[:, portal_kernels.PP_FR:portal_kernels.PP_FR + 9] = self.portal_frame.reshape(P, 9)
+            PP[:, portal_kernels.PP_HALF:portal_kernels.PP_HALF + 2] = self.portal_half
+            PP[:, portal_kernels.PP_TABLE] = self.portal_table
+            PP[:, portal_kernels.PP_FRACTION] = np.repeat(self.portal_fraction, self.portal_count)
+            n = portal_tables.N_CELLS
+            PT = np.zeros((3 * self.portal_f.shape[0], n + 1, n + 1))
+            PT[0::3, :n, :n] = self.portal_f
+            PT[1::3] = self.portal_sat
+            PT[2::3, :n, :] = self.portal_col
+            self._portal_record = (np.ascontiguousarray(PP), np.ascontiguousarray(PT))
+        return self._portal_record
 
-    def _portal_pdf(self, idx, p, wi, pairs: "_PortalPairs") -> np.ndarray:
-        """(n,) density of the portal part along wi: sum over the usable portals wi crosses of
-        (1 for a constant dome's, f / J for a textured one's) / total weight."""
-        n = idx.size
-        if not pairs.row.size:
-            return np.zeros(n)
-        w = np.einsum("mij,mj->mi", self.portal_frame[pairs.portal], wi[pairs.row])
-        front = w[:, 2] > 0.0
-        alpha = np.arctan2(w[:, 0], np.where(front, w[:, 2], 1.0))
-        beta = np.arctan2(w[:, 1], np.where(front, w[:, 2], 1.0))
-        a0, a1, b0, b1 = pairs.window
-        through = front & (pairs.weight > 0.0) & (alpha >= a0) & (alpha <= a1) & (beta >= b0) & (beta <= b1)
-        num = through.astype(np.float64)
-        tex = np.nonzero(through & (pairs.table >= 0))[0]
-        if tex.size:
-            num[tex] = portal_tables.density(self.portal_f, pairs.table[tex], alpha[tex], beta[tex])
-        s = np.bincount(pairs.row, weights=num, minlength=n)
-        return np.divide(s, pairs.total, out=np.zeros(n), where=pairs.total > 0.0)
+    def _portal_sample(self, i: np.ndarray, p: np.ndarray, u: np.ndarray):
+        """(wi (m, 3), pdf (m,), L (m, 3)) of domes i (m,) with portals from p (m, 3) with u (m, 2):
+        the compiled rows (kernels/portal.py portal_dome_sample_row)."""
+        m = i.size
+        wi, pdf, kt = np.empty((m, 3)), np.empty(m), np.empty(m, dtype=np.int64)
+        _tx, off, h, w, wt, tot, rc, rcs, cc, ccs = self.images.kernel_record()
+        portal_kernels.portal_dome_sample_kernel(
+            np.ascontiguousarray(i, dtype=np.int64), np.ascontiguousarray(p, dtype=np.float64),
+            np.ascontiguousarray(u, dtype=np.float64), *self.portal_record(), self.portal_start, self.portal_count,
+            self.tex, np.ascontiguousarray(self.rot, dtype=np.float64), h, w, rc, rcs, cc, ccs, wt, tot, off,
+            MIN_SOLID_ANGLE,
+            GRAZING_NZ2, wi, pdf, kt)
+        L = self.L[i].copy()
+        tex = kt >= 0
+        L[tex] *= self.images.texels[kt[tex]]
+        return wi, pdf, np.where((pdf > 0.0)[:, None], L, 0.0)
 
-    def _sample_portals(self, p: np.ndarray, pairs: "_PortalPairs", pick: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Directions (m, 3) through the picked pairs (m,) from the points p (m, 3); u (m, 2)."""
-        m = pick.size
-        wi = np.zeros((m, 3))
-        tex = pairs.table[pick] >= 0
-        k = np.nonzero(~tex)[0]
-        if k.size:
-            # pairs.sr holds the constant-dome pairs in pairs.const order.
-            at = np.searchsorted(pairs.const, pick[k])
-            sr = pairs.sr
-            srp = spherical_rect.SphericalRect(**{name: getattr(sr, name)[at] for name in sr.__dataclass_fields__})
-            q = spherical_rect.sample(srp, u[k])
-            wi[k], _ = direction_and_distance(p[k], q)
-        k = np.nonzero(tex)[0]
-        if k.size:
-            pk = pick[k]
-            a0, a1, b0, b1 = (x[pk] for x in pairs.window)
-            alpha, beta = portal_tables.sample_window(self.portal_sat, self.portal_col, pairs.table[pk],
-                                                      a0, a1, b0, b1, u[k])
-            local = np.stack([np.tan(alpha), np.tan(beta), np.ones(k.size)], axis=1)
-            local /= np.linalg.norm(local, axis=1, keepdims=True)
-            wi[k] = np.einsum("mji,mj->mi", self.portal_frame[pairs.portal[pk]], local)
-        return wi
+    def _portal_pdf(self, i: np.ndarray, p: np.ndarray, wi: np.ndarray) -> np.ndarray:
+        """pdf_li (m,) of domes i (m,) with portals from p along wi (m, 3) (portal_dome_pdf_row)."""
+        pdf = np.empty(i.size)
+        _tx, off, h, w, wt, tot = self.images.kernel_record()[:6]
+        portal_kernels.portal_dome_pdf_kernel(
+            np.ascontiguousarray(i, dtype=np.int64), np.ascontiguousarray(p, dtype=np.float64),
+            np.ascontiguousarray(wi, dtype=np.float64), *self.portal_record(), self.portal_start, self.portal_count,
+            self.tex, np.ascontiguousarray(self.rot, dtype=np.float64), h, w, wt, tot, off, MIN_SOLID_ANGLE,
+            GRAZING_NZ2, pdf)
+        return pdf
 
     @staticmethod
     def _irradiance_table(desc: LightDesc, img: np.ndarray):
@@ -413,54 +360,12 @@ class DomeLight:
         portal_rows = np.nonzero(self.has_portals[idx])[0] if self.count else np.zeros(0, np.int64)
         if not portal_rows.size:
             return self._sample_dome(idx, ctx, u)
-        u = np.array(u, dtype=np.float64, copy=True)
-        i = idx[portal_rows]
-        p = ctx.p[portal_rows]
-        pairs = self._portal_pairs(i, p)
-        active = pairs.total > 0.0
-        f = np.where(active, self.portal_fraction[i], 0.0)
-        u0 = u[portal_rows, 0]
-        through = u0 < f
-        # Reuse u0 for the remaining choices (remapped to [0, 1) in each branch).
-        u0 = np.where(through, u0 / np.where(f > 0.0, f, 1.0), (u0 - f) / np.where(f < 1.0, 1.0 - f, 1.0))
-        u0 = np.clip(u0, 0.0, ONE_MINUS_EPSILON)
-        u[portal_rows, 0] = u0
         s = self._sample_dome(idx, ctx, u)
-        wi = s.wi
-        sel = np.nonzero(through)[0]
-        if sel.size:
-            # Pick a usable portal in proportion to its weight, then a direction through it.
-            weight, pair_row = pairs.weight, pairs.row
-            cum = np.cumsum(weight)
-            per_row = np.bincount(pair_row, minlength=i.size)
-            row_first = np.cumsum(per_row) - per_row
-            base = np.where(row_first > 0, cum[np.maximum(row_first - 1, 0)], 0.0)
-            target = u0 * pairs.total
-            below = (cum - base[pair_row]) <= target[pair_row]
-            k = np.bincount(pair_row, weights=below.astype(np.float64), minlength=i.size).astype(np.int64)
-            last = row_first + self.portal_count[i] - 1
-            pick = np.minimum(row_first + k, last)[sel]
-            prev = np.where(pick > row_first[sel], cum[np.maximum(pick - 1, 0)] - base[sel], 0.0)
-            u_in = np.clip((target[sel] - prev) / np.where(weight[pick] > 0.0, weight[pick], 1.0), 0.0,
-                           ONE_MINUS_EPSILON)
-            w = self._sample_portals(p[sel], pairs, pick, np.stack([u_in, u[portal_rows[sel], 1]], axis=1))
-            good = (weight[pick] > 0.0) & (np.linalg.norm(w, axis=1) > 0.0)
-            wi[portal_rows[sel]] = np.where(good[:, None], w, wi[portal_rows[sel]])
-        # The mixture's density at every returned direction, exactly as pdf_li computes it.
-        pdf = s.pdf.copy()
-        pdf[portal_rows] = self._mixture_pdf(i, p, wi[portal_rows], pairs, active)
-        L = s.L.copy()
-        L[portal_rows] = self.le_escaped(i, wi[portal_rows])
-        L = np.where((pdf > 0.0)[:, None], L, 0.0)
-        far = far_distance(ctx.p, self.scene_center, self.scene_radius)
-        return LightLiSample(L=L, wi=wi, pdf=pdf, dist=np.full(n_rows, np.inf), p_light=ctx.p + wi * far[:, None])
-
-    def _mixture_pdf(self, i, p, wi, pairs, active) -> np.ndarray:
-        """f * portal density + (1 - f) * dome density where portals face p, else the dome's."""
-        f = self.portal_fraction[i]
-        dome = self._pdf_dome(i, wi)
-        mix = f * self._portal_pdf(i, p, wi, pairs) + (1.0 - f) * np.where(f < 1.0, dome, 0.0)
-        return np.where(active, mix, dome)
+        wi, pdf, L = s.wi.copy(), s.pdf.copy(), s.L.copy()
+        wi[portal_rows], pdf[portal_rows], L[portal_rows] = self._portal_sample(
+            idx[portal_rows], ctx.p[portal_rows], np.asarray(u, dtype=np.float64)[portal_rows])
+        return LightLiSample(L=L, wi=wi, pdf=pdf, dist=s.dist, p_light=ctx.p + wi * far_distance(
+            ctx.p, self.scene_center, self.scene_radius)[:, None])
 
     def _sample_dome(self, idx: np.ndarray, ctx: ShadingContext, u: np.ndarray) -> LightLiSample:
         """The dome's own sampling: texel importance (textured) or the uniform sphere."""
@@ -494,10 +399,7 @@ class DomeLight:
         pdf = self._pdf_dome(idx, wi)
         portal_rows = np.nonzero(self.has_portals[idx])[0] if self.count else np.zeros(0, np.int64)
         if portal_rows.size:
-            i = idx[portal_rows]
-            p = ctx.p[portal_rows]
-            pairs = self._portal_pairs(i, p)
-            pdf[portal_rows] = self._mixture_pdf(i, p, wi[portal_rows], pairs, pairs.total > 0.0)
+            pdf[portal_rows] = self._portal_pdf(idx[portal_rows], ctx.p[portal_rows], wi[portal_rows])
         return pdf
 
     def _pdf_dome(self, idx: np.ndarray, wi: np.ndarray) -> np.ndarray:

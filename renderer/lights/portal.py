@@ -46,11 +46,11 @@ _DELTA = np.pi / N_CELLS
 
 
 def jacobian(alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
-    """d omega / (d alpha d beta) at (alpha, beta) (n,)."""
-    ta, tb = np.tan(alpha), np.tan(beta)
-    ca2, cb2 = np.cos(alpha) ** 2, np.cos(beta) ** 2
-    den = ca2 * cb2 * (1.0 + ta * ta + tb * tb) ** 1.5
-    return np.divide(1.0, den, out=np.zeros_like(den), where=den > 0.0)
+    """d omega / (d alpha d beta) at (alpha, beta) (n,) (kernels/portal.inverse_jacobian_row)."""
+    a = np.ascontiguousarray(alpha, dtype=np.float64).ravel()
+    out = np.empty(a.size)
+    kern.jacobian_kernel(a, np.ascontiguousarray(beta, dtype=np.float64).ravel(), out)
+    return out.reshape(np.shape(alpha))
 
 
 def build_table(frame: np.ndarray, radiance) -> np.ndarray:
@@ -159,12 +159,3 @@ def sample_window_reference(sat, col, t, a0, a1, b0, b1, u) -> tuple[np.ndarray,
     G = column(b1) - c0
     beta = _invert(lambda b: column(b) - c0, b0, b1, u[:, 1] * G)
     return alpha, beta
-
-
-def density(f: np.ndarray, t: np.ndarray, alpha: np.ndarray, beta: np.ndarray) -> np.ndarray:
-    """f_t / J at (alpha, beta) (n,): the solid-angle density times the window integral W."""
-    i, _ = _coord(alpha)
-    j, _ = _coord(beta)
-    J = jacobian(alpha, beta)
-    v = f[t, i, j]
-    return np.divide(v, J, out=np.zeros_like(v), where=J > 0.0)

@@ -14,10 +14,10 @@ Sampling (decided from the (light, point) pair only, so pdf_li always matches):
   sampling, pdf_w = 1 / Omega (see ``spherical_rect``);
 * otherwise (tiny, grazing, or sheared): uniform area sampling, pdf_w = d^2 / (A |cos theta_l|).
 
-Implementation: sample_li, pdf_li and intersect run as fused numba kernels
-(``renderer.kernels.lights``): one pass per row gathers the light, chooses the strategy and
-samples from a single spherical-rectangle setup. Texel sampling and texel colours (textured
-rects only) stay in numpy around the kernels.
+Implementation: sample_li, pdf_li, intersect and the textured radiance run as fused numba
+kernels (``renderer.kernels.lights``): one pass per row gathers the light, chooses the strategy
+and samples from a single spherical-rectangle setup; textured rows pick their texel and take its
+colour by the same kernels' rect_texel_* rows, which the compiled path's vertex kernel calls too.
 
 Texture orientation: the UsdLux doc puts the "texture min coordinates at (+X, +Y), max at
 (-X, -Y)". illum reads "min coordinates" as uv = (0, 0), with uv in the OpenGL convention
@@ -58,15 +58,6 @@ def rect_edges(desc: LightDesc) -> tuple[np.ndarray, np.ndarray]:
     """World edge vectors (ex, ey) (3,) each: the images of (width, 0, 0) and (0, height, 0)."""
     m3 = linear_part(desc.light_to_world)
     return m3 @ np.array([float(desc.width), 0.0, 0.0]), m3 @ np.array([0.0, float(desc.height), 0.0])
-
-
-def uv_to_ab(uv: np.ndarray) -> np.ndarray:
-    """Texture uv (n, 2) -> edge parameters (a, b) (n, 2) in [-1/2, 1/2] (see module doc)."""
-    return 0.5 - uv
-
-
-def ab_to_uv(ab: np.ndarray) -> np.ndarray:
-    return 0.5 - ab
 
 
 class RectLight:
@@ -149,24 +140,12 @@ class RectLight:
         rel = q - self.center[idx]
         return np.stack([dot(rel, self.ex_dual[idx]), dot(rel, self.ey_dual[idx])], axis=1)
 
-    def _texel_rc(self, idx: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        img = np.maximum(self.tex[idx], 0)
-        h = self.images.height[img] if self.images.count else np.ones(idx.size, dtype=np.int64)
-        w = self.images.width[img] if self.images.count else np.ones(idx.size, dtype=np.int64)
-        col = np.clip(np.floor(uv[:, 0] * w).astype(np.int64), 0, w - 1)
-        row = np.clip(np.floor((1.0 - uv[:, 1]) * h).astype(np.int64), 0, h - 1)
-        return row, col
-
     def _radiance_at(self, idx: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Front-side radiance (n, 3) at world points q on the light (texture applied)."""
-        L = self.L[idx].copy()
-        textured = self.tex[idx] >= 0
-        if textured.any():
-            rows = np.nonzero(textured)[0]
-            i = idx[rows]
-            uv = ab_to_uv(self._ab(i, q[rows]))
-            r, c = self._texel_rc(i, uv)
-            L[rows] *= self.images.lookup(self.tex[i], r, c)
+        """Front-side radiance (n, 3) at world points q on the light (texture applied:
+        kernels/lights.py rect_radiance_row)."""
+        L = np.empty((idx.size, 3))
+        kern.rect_radiance_kernel(np.ascontiguousarray(idx, dtype=np.int64), as_points(q), self.center,
+                                  self.ex_dual, self.ey_dual, self.L, self.tex, self.images.kernel_record(), L)
         return L
 
     # ----------------------------------------------------------------------------------
@@ -180,7 +159,6 @@ class RectLight:
             return invalid_sample(0)
         p = as_points(ctx.p)
         u = as_points(u, 2)
-        tex_ab, tex_pdf_area, rows = self._texel_samples(idx, u)
         L = np.empty((n_rows, 3))
         wi = np.empty((n_rows, 3))
         pdf = np.empty(n_rows)
@@ -188,37 +166,10 @@ class RectLight:
         p_l = np.empty((n_rows, 3))
         kern.rect_sample_kernel(
             idx, p, u, self.center, self.ex, self.ey, self.x_hat, self.y_hat, self.edge_len, self.n, self.area,
-            self.L, self.tex, self.is_rectangle, tex_ab, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2,
-            L, wi, pdf, dist, p_l,
+            self.L, self.tex, self.is_rectangle, self.ex_dual, self.ey_dual, self.images.kernel_record(),
+            MIN_SOLID_ANGLE, GRAZING_NZ2, L, wi, pdf, dist, p_l,
         )
-        if rows is not None:
-            # Texel colour at the sampled point (L is already 0 where the sample failed).
-            i = idx[rows]
-            r, c = self._texel_rc(i, ab_to_uv(self._ab(i, p_l[rows])))
-            L[rows] *= self.images.lookup(self.tex[i], r, c)
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
-
-    def _texel_samples(self, idx: np.ndarray, u: np.ndarray):
-        """Texel importance sampling for the textured rows: (ab (n, 2), area pdf (n,), rows) with
-        only the textured rows filled, or empty arrays and None when no row is textured."""
-        textured = self.tex[idx] >= 0
-        if not textured.any():
-            return np.zeros((0, 2)), np.zeros(0), None
-        n_rows = idx.size
-        tex_ab = np.zeros((n_rows, 2))
-        tex_pdf_area = np.zeros(n_rows)
-        rows = np.nonzero(textured)[0]
-        i = idx[rows]
-        img = self.tex[i]
-        row, col, s, t, pmf = self.images.sample(img, u[rows])
-        h = self.images.height[img]
-        w = self.images.width[img]
-        uv = np.stack([(col + s) / w, 1.0 - (row + t) / h], axis=1)
-        tex_ab[rows] = uv_to_ab(uv)
-        tex_pdf_area[rows] = np.divide(
-            pmf * (h * w), self.area[i], out=np.zeros(rows.size), where=self.area[i] > 0.0
-        )
-        return tex_ab, tex_pdf_area, rows
 
     def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
         """Solid-angle pdf (n,) of sample_li(idx, ctx) producing wi; 0 if wi misses the front."""
@@ -228,25 +179,11 @@ class RectLight:
             return np.zeros(0)
         p = as_points(ctx.p)
         wi = as_points(wi)
-        tex_pdf_area = np.zeros(0)
-        textured = self.tex[idx] >= 0
-        if textured.any():
-            # The texel pmf at the hit point (where wi hits the plane; other rows get pdf 0).
-            rows = np.nonzero(textured)[0]
-            i = idx[rows]
-            _, ab = self._hit(i, p[rows], wi[rows], with_ab=True)
-            img = self.tex[i]
-            r, c = self._texel_rc(i, ab_to_uv(ab))
-            texel_count = self.images.height[img] * self.images.width[img]
-            tex_pdf_area = np.zeros(n_rows)
-            tex_pdf_area[rows] = np.divide(
-                self.images.pmf(img, r, c) * texel_count, self.area[i],
-                out=np.zeros(rows.size), where=self.area[i] > 0.0,
-            )
         pdf = np.empty(n_rows)
         kern.rect_pdf_kernel(
             idx, p, wi, self.center, self.ex, self.ey, self.x_hat, self.y_hat, self.edge_len, self.n, self.area,
-            self.ex_dual, self.ey_dual, self.tex, self.is_rectangle, tex_pdf_area, MIN_SOLID_ANGLE, GRAZING_NZ2, pdf,
+            self.ex_dual, self.ey_dual, self.tex, self.is_rectangle, self.images.kernel_record(), MIN_SOLID_ANGLE,
+            GRAZING_NZ2, pdf,
         )
         return pdf
 

@@ -177,6 +177,34 @@ class ImageSet:
             mean_rgb=np.array(mean, dtype=np.float64).reshape(-1, 3),
         )
 
+    @staticmethod
+    def concat(a: "ImageSet", b: "ImageSet") -> "ImageSet":
+        """The images of a, then those of b, as one set (image i of b is image a.count + i)."""
+        return ImageSet(
+            texels=np.concatenate([a.texels.reshape(-1, 3), b.texels.reshape(-1, 3)]),
+            offset=np.concatenate([a.offset, b.offset + a.texels.reshape(-1, 3).shape[0]]).astype(np.int64),
+            height=np.concatenate([a.height, b.height]).astype(np.int64),
+            width=np.concatenate([a.width, b.width]).astype(np.int64),
+            weight=np.concatenate([a.weight, b.weight]),
+            total=np.concatenate([a.total, b.total]).astype(np.float64),
+            row_cdf=np.concatenate([a.row_cdf, b.row_cdf]),
+            row_cdf_start=np.concatenate([a.row_cdf_start, b.row_cdf_start + a.row_cdf.size]).astype(np.int64),
+            col_cdf=np.concatenate([a.col_cdf, b.col_cdf]),
+            col_cdf_start=np.concatenate([a.col_cdf_start, b.col_cdf_start + a.col_cdf.size]).astype(np.int64),
+            mean_rgb=np.concatenate([a.mean_rgb.reshape(-1, 3), b.mean_rgb.reshape(-1, 3)]),
+        )
+
+    def kernel_record(self) -> tuple:
+        """The set as the compiled rows read it (kernels/lights.py's textured rows): (texels,
+        offset, height, width, weight, total, row_cdf, row_cdf_start, col_cdf, col_cdf_start),
+        C-contiguous float64 / int64."""
+        c = np.ascontiguousarray
+        f64, i64 = np.float64, np.int64
+        return (c(self.texels.reshape(-1, 3), dtype=f64), c(self.offset, dtype=i64), c(self.height, dtype=i64),
+                c(self.width, dtype=i64), c(self.weight, dtype=f64), c(self.total, dtype=f64),
+                c(self.row_cdf, dtype=f64), c(self.row_cdf_start, dtype=i64), c(self.col_cdf, dtype=f64),
+                c(self.col_cdf_start, dtype=i64))
+
     def texel_index(self, img: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         r = np.clip(row, 0, self.height[img] - 1)
         c = np.clip(col, 0, self.width[img] - 1)

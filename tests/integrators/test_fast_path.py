@@ -336,7 +336,7 @@ def test_scenes_without_lights_on_the_fast_path(tmp_path, emissive):
 
 
 @pytest.mark.parametrize("kw,opt,reason", [
-    ({"portal": True}, {}, "dome portals"),
+    ({}, {"fast_path": False}, "disabled (--no-fast-path)"),
 ])
 def test_scenes_the_fast_path_cannot_serve_say_why(tmp_path, kw, opt, reason):
     stage = tmp_path / "room.usda"
