@@ -59,6 +59,7 @@ from renderer.kernels.direct import diffuse_combine_row, shadowed_row
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
+from renderer.kernels.cylinder import CY_DELTA, NCY, cylinder_front_hit_row, cylinder_pdf_row, cylinder_sample_row
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.shaping import shaping_factor_row
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
@@ -415,6 +416,8 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
 # decrement (atomic), and the tuples of tables made those the main cost of a sample. Only a
 # textured dome also reads its image (IMG: i_rot and the ImageSet arrays, vertex_kernel's order).
 K_RECT, K_SPHERE, K_DISK, K_DOME, K_DISTANT = range(5)
+# Cylinder lights (and treatAsLine line lights): finite, after the disks in the kernel's order.
+K_CYL = 5
 LP_KIND = 0
 LP_C = 1  # centre
 LP_A = 4  # rect ex, disk u1, distant axis
@@ -432,7 +435,8 @@ LP_FLAG = 31  # rect is_rect, sphere and distant delta
 LP_TEX = 32  # dome image, -1 for a constant dome
 LP_J = 33  # the row in the light's kind table
 LP_SHAPE = 34  # the light's row in the ShapingAPI table (lights/shaping.py), -1 when unshaped
-NLP = 35
+LP_CY = 35  # a cylinder's packed row (renderer/kernels/cylinder.py, columns CY_*)
+NLP = LP_CY + NCY
 
 
 @njit(cache=True, nogil=True)
@@ -504,6 +508,26 @@ def _shaped(LP, g, SHP, d, Le):
     return (Le[0] * f0, Le[1] * f1, Le[2] * f2)
 
 
+@njit(cache=True, nogil=True)
+def _with_cylinders(LP0, n_fin0, cy_packed, cy_L):
+    """LP0 (_light_table's) with the cylinder lights' rows inserted after its n_fin0 finite
+    lights, before the infinite ones: kind K_CYL, their radiance in LP_L, treatAsLine in LP_FLAG
+    and their packed row (CylinderLight.packed) from column LP_CY."""
+    n_c = cy_packed.shape[0]
+    LP = np.zeros((LP0.shape[0] + n_c, NLP))
+    LP[:n_fin0] = LP0[:n_fin0]
+    LP[n_fin0 + n_c:] = LP0[n_fin0:]
+    for j in range(n_c):
+        g = n_fin0 + j
+        LP[g, LP_KIND] = K_CYL
+        _put3(LP, g, LP_L, cy_L, j)
+        for c in range(NCY):
+            LP[g, LP_CY + c] = cy_packed[j, c]
+        LP[g, LP_FLAG] = cy_packed[j, CY_DELTA]
+        LP[g, LP_J] = j
+    return LP
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _lp(LP, g, c):
     """Columns c..c+2 of LP's row g as a 3-tuple."""
@@ -516,6 +540,10 @@ def _finite_seen(LP, g, o, d):
     the light's emitting side (the back of a one-sided light and a sphere's inside emit nothing)."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
+    if kind == K_CYL:
+        # The side's emitting face, met from outside (a line light is never seen).
+        tl, _s, _phi = cylinder_front_hit_row(LP, g, LP_CY, o, d)
+        return tl, Le, tl < math.inf
     if kind == K_SPHERE:
         c = _lp(LP, g, LP_C)
         tl = _sphere_hit_row(o, d, c, LP[g, LP_P0], LP[g, LP_FLAG] != 0.0)
@@ -539,6 +567,8 @@ def _finite_seen(LP, g, o, d):
 def _finite_pdf(LP, g, p, d, close_ratio, min_sa, graz):
     """The solid-angle pdf with which finite light g's sampler, at p, picks direction d."""
     kind = LP[g, LP_KIND]
+    if kind == K_CYL:
+        return cylinder_pdf_row(LP, g, LP_CY, p, d)
     if kind == K_RECT:
         return _rect_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD),
                              _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0],
@@ -583,6 +613,9 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
                                                   _lp(LP, g, LP_N), LP[g, LP_AREA], False, LP[g, LP_FLAG] != 0.0,
                                                   0.0, 0.0, 0.0, min_sa, graz)
         return wi, dist, (pdf if ok else 0.0), Le, False
+    if kind == K_CYL:
+        Lc, wi, pdf, dist, _x = cylinder_sample_row(LP, g, LP_CY, p, u0, u1)
+        return wi, dist, pdf, Lc, delta
     if kind == K_SPHERE:
         wi, dist, pdf, _pl, ok, sc = _sphere_sample_row(p, u0, u1, _lp(LP, g, LP_C), LP[g, LP_P0], delta)
         return wi, dist, (pdf if ok else 0.0), (Le[0] * sc, Le[1] * sc, Le[2] * sc), delta
@@ -819,7 +852,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, cyl,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -874,9 +907,12 @@ def vertex_kernel(
     light half or estimator (or the picked light's: _light_sample, _direct_pair) and writes the rays compactly.
     """
     Pm, mat_row, emission, bent_ns = surf
+    # The cylinder lights (FastPath.tables' cyl): packed rows (renderer/kernels/cylinder.py),
+    # radiance and global index of each.
+    cy_packed, cy_L, cyl_light = cyl
     n_rect = center.shape[0]
-    n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
-    n_fin = n_rs + d_center.shape[0]
+    n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, cylinder, then infinite lights
+    n_fin = n_rs + d_center.shape[0] + cy_packed.shape[0]
     nl = n_fin + i_radiance.shape[0]
     k_next = 0
     k_sh = 0
@@ -906,14 +942,15 @@ def vertex_kernel(
     surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
     # The lights as one table for the per-light helpers (_finite_seen and the rest), the domes'
     # images, and the samplers' constants.
-    LP = _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, s_center,
-                      s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
-                      d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex)
+    LP = _with_cylinders(_light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd,
+                                      s_center, s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2,
+                                      d_s1, d_s2, d_area, d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance,
+                                      i_tex), n_rs + d_center.shape[0], cy_packed, cy_L)
     IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
            im_col_cdf, im_col_cdf_start)
     lcon = (close_ratio, min_sa, graz)
     # The global index of each light in the kernel's order.
-    glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
+    glob = np.concatenate((rect_light, sphere_light, disk_light, cyl_light, inf_light))
     # ShapingAPI: each light's shaping row in LP, the factor's tables in SHP (_shaped).
     shp_row = lux[0]
     SHP = lux[1]
@@ -1217,4 +1254,4 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
-             "renderer/lights/analytic.py", "renderer/preconvolve.py"])
+             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/cylinder.py"])

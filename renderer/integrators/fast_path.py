@@ -7,7 +7,8 @@ same sampling techniques and MIS weights; the tests (tests/integrators/test_fast
 test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
-* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, DistantLights
+* only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, CylinderLights
+  (treatAsLine included; renderer/kernels/cylinder.py's row functions), DistantLights
   and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
@@ -81,6 +82,9 @@ from . import _vertex_kernels as vk
 # The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
 FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
+# Finite kinds the kernel serves through its light table only (row functions in their own
+# kernels module), after the disks in its order.
+FAST_EXTRA = ("cylinder",)
 CUTOUT_PASSES = ck.CUTOUT_PASSES
 # Rays per Embree call inside trace_kernel (1: rtcIntersect1 / rtcOccluded1; 4, 8, 16: packets).
 TRACE_WIDTH = 8
@@ -183,8 +187,15 @@ class FastPath:
 
         self.picks = not getattr(scene.light_sampler, "exhaustive", False)
         self.sp = pick_tables(scene.light_sampler, lights)
+        # Cylinder lights (treatAsLine included): their packed rows (renderer/kernels/cylinder.py),
+        # radiance and global index, the kernel's cyl record.
+        cy = lights.kinds[KIND_NAMES.index("cylinder")]
+        self.cyl_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("cylinder"))[0],
+                                              dtype=np.int64)
+        self.cyl = (np.ascontiguousarray(cy.packed.reshape(-1, vk.NCY)),
+                    np.ascontiguousarray(np.reshape(cy.L, (-1, 3))), self.cyl_light)
         fast_of = np.full(lights.count, -1, dtype=np.int64)
-        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
+        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.cyl_light, self.inf_light])
         fast_of[order] = np.arange(order.size)
         # The UsdLux record (vertex_kernel's lux): ShapingAPI, each global light's row in the
         # shaping table (-1: unshaped) and the table's kernel arrays (lights/shaping.py).
@@ -222,7 +233,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux, self.fcalc, self.mult)
+            self.lux, self.fcalc, self.mult, self.cyl)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
