@@ -15,6 +15,7 @@ from pxr import Gf, Sdf, UsdGeom, UsdLux
 
 from renderer.render import RenderOptions, render
 from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _pair, _room
+from tests.integrators.test_fast_path_estimators import _pair as _pair_est
 
 
 def _add_cylinders(path):
@@ -86,8 +87,7 @@ def test_cylinder_lights_under_each_lighting_service(cylinder_room, sampler):
 @pytest.mark.parametrize("estimator,samples", [("lightSampling", 2), ("bsdfSampling", 1), ("controlVariate", 3),
                                                ("mis", 3)])
 def test_cylinder_lights_with_each_estimator(cylinder_room, estimator, samples):
-    fast, slow = _pair(cylinder_room, 3, spp=192, rr_depth=1, estimator={"": estimator},
-                       light_samples={"": samples})
+    fast, slow = _pair_est(cylinder_room, estimator, "one", samples, spp=192, res=(48, 36))
     _check(fast, slow)
 
 
