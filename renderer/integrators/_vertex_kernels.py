@@ -60,6 +60,10 @@ from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.cylinder import CY_DELTA, NCY, cylinder_front_hit_row, cylinder_pdf_row, cylinder_sample_row
+from renderer.kernels.mesh_light import (
+    mesh_hit_row, mesh_light_along_row, mesh_light_emission_row, mesh_light_pdf_row, mesh_light_sample_row,
+    plane_distance_row,
+)
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.shaping import shaping_factor_row
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
@@ -416,8 +420,11 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
 # decrement (atomic), and the tuples of tables made those the main cost of a sample. Only a
 # textured dome also reads its image (IMG: i_rot and the ImageSet arrays, vertex_kernel's order).
 K_RECT, K_SPHERE, K_DISK, K_DOME, K_DISTANT = range(5)
-# Cylinder lights (and treatAsLine line lights): finite, after the disks in the kernel's order.
+# Cylinder lights (and treatAsLine line lights): finite, after the disks in the kernel's order;
+# then mesh lights (scene geometry: their emission is found at surface hits, never by a
+# crossing test), before the infinite lights.
 K_CYL = 5
+K_MESH = 6
 LP_KIND = 0
 LP_C = 1  # centre
 LP_A = 4  # rect ex, disk u1, distant axis
@@ -509,14 +516,21 @@ def _shaped(LP, g, SHP, d, Le):
 
 
 @njit(cache=True, nogil=True)
-def _with_cylinders(LP0, n_fin0, cy_packed, cy_L):
-    """LP0 (_light_table's) with the cylinder lights' rows inserted after its n_fin0 finite
-    lights, before the infinite ones: kind K_CYL, their radiance in LP_L, treatAsLine in LP_FLAG
-    and their packed row (CylinderLight.packed) from column LP_CY."""
+def _with_kinds(LP0, n_fin0, cy_packed, cy_L, ms_L):
+    """LP0 (_light_table's) with the cylinder lights' rows, then the mesh lights', inserted
+    after its n_fin0 finite lights, before the infinite ones. Cylinders: kind K_CYL, their
+    radiance in LP_L, treatAsLine in LP_FLAG and their packed row (CylinderLight.packed) from
+    column LP_CY. Mesh lights: kind K_MESH, radiance, LP_J their row in the mesh record."""
     n_c = cy_packed.shape[0]
-    LP = np.zeros((LP0.shape[0] + n_c, NLP))
+    n_m = ms_L.shape[0]
+    LP = np.zeros((LP0.shape[0] + n_c + n_m, NLP))
     LP[:n_fin0] = LP0[:n_fin0]
-    LP[n_fin0 + n_c:] = LP0[n_fin0:]
+    LP[n_fin0 + n_c + n_m:] = LP0[n_fin0:]
+    for j in range(n_m):
+        g = n_fin0 + n_c + j
+        LP[g, LP_KIND] = K_MESH
+        _put3(LP, g, LP_L, ms_L, j)
+        LP[g, LP_J] = j
     for j in range(n_c):
         g = n_fin0 + j
         LP[g, LP_KIND] = K_CYL
@@ -544,6 +558,8 @@ def _finite_seen(LP, g, o, d):
         # The side's emitting face, met from outside (a line light is never seen).
         tl, _s, _phi = cylinder_front_hit_row(LP, g, LP_CY, o, d)
         return tl, Le, tl < math.inf
+    if kind == K_MESH:
+        return math.inf, Le, False  # geometry: seen at the surface hit (vertex_kernel)
     if kind == K_SPHERE:
         c = _lp(LP, g, LP_C)
         tl = _sphere_hit_row(o, d, c, LP[g, LP_P0], LP[g, LP_FLAG] != 0.0)
@@ -569,6 +585,8 @@ def _finite_pdf(LP, g, p, d, close_ratio, min_sa, graz):
     kind = LP[g, LP_KIND]
     if kind == K_CYL:
         return cylinder_pdf_row(LP, g, LP_CY, p, d)
+    if kind == K_MESH:
+        return 0.0  # (its pdf needs the shading normal: vertex_kernel and _light_along ask it)
     if kind == K_RECT:
         return _rect_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD),
                              _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0],
@@ -600,10 +618,12 @@ def _infinite_seen(LP, g, d, IMG):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
-    """A sample of light g from p with uniforms (u0, u1): (wi, dist, pdf, Le, delta), pdf the
-    solid-angle pdf (1 for a delta light) and 0 where the sample is unusable, dist inf for an
-    infinite light (kernels/lights.py's samplers)."""
+def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz, ns):
+    """A sample of light g from p (shading normal ns, for a mesh light's triangle pick) with
+    uniforms (u0, u1): (wi, dist, pdf, Le, delta), pdf the solid-angle pdf (1 for a delta
+    light) and 0 where the sample is unusable, dist inf for an infinite light (kernels/lights.py's
+    samplers; kernels/cylinder.py's and kernels/mesh_light.py's rows). IMG: the domes' images,
+    then (IMG[11]) the mesh lights' record."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
     delta = LP[g, LP_FLAG] != 0.0 and kind != K_RECT
@@ -616,6 +636,9 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     if kind == K_CYL:
         Lc, wi, pdf, dist, _x = cylinder_sample_row(LP, g, LP_CY, p, u0, u1)
         return wi, dist, pdf, Lc, delta
+    if kind == K_MESH:
+        Lm, wi, pdf, dist, _x = mesh_light_sample_row(IMG[11], int(LP[g, LP_J]), p, ns, u0, u1)
+        return wi, dist, pdf, Lm, False
     if kind == K_SPHERE:
         wi, dist, pdf, _pl, ok, sc = _sphere_sample_row(p, u0, u1, _lp(LP, g, LP_C), LP[g, LP_P0], delta)
         return wi, dist, (pdf if ok else 0.0), (Le[0] * sc, Le[1] * sc, Le[2] * sc), delta
@@ -628,7 +651,7 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
     tex = int(LP[g, LP_TEX])
     if kind == K_DOME and tex >= 0:
         (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-         im_col_cdf, im_col_cdf_start) = IMG
+         im_col_cdf, im_col_cdf_start) = IMG[:11]
         wi, pdf, kt = _dome_sample_row(u0, u1, tex, i_rot[int(LP[g, LP_J])], im_height, im_width, im_row_cdf,
                                        im_row_cdf_start, im_col_cdf, im_col_cdf_start, im_weight, im_total, im_offset)
         Le = (Le[0] * im_texels[kt, 0], Le[1] * im_texels[kt, 1], Le[2] * im_texels[kt, 2])
@@ -641,9 +664,12 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
-    """Light g seen from p along unit wi (estimators.base.light_along, then pdf_li where it is
-    seen): (t (inf for an infinite light or a miss), Le (black on a miss), p_l (0 on a miss))."""
+def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz, ns):
+    """Light g seen from p (shading normal ns) along unit wi (estimators.base.light_along, then
+    pdf_li where it is seen): (t (inf for an infinite light or a miss), Le (black on a miss), p_l
+    (0 on a miss))."""
+    if LP[g, LP_KIND] == K_MESH:
+        return mesh_light_along_row(IMG[11], int(LP[g, LP_J]), p, ns, wi)
     if LP[g, LP_KIND] >= K_DOME:
         p_l, Le = _infinite_seen(LP, g, wi, IMG)
         return math.inf, Le, p_l
@@ -750,7 +776,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
         wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
-                                                 IMG, lcon[0], lcon[1], lcon[2])
+                                                 IMG, lcon[0], lcon[1], lcon[2], ns)
         Le = _shaped(LP, g, SHP, wi, Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le, sd, ss)
         above = lz > 0.0 and cos_g > 0.0
@@ -769,7 +795,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
         wy = wl[0] * sf[1] + wl[1] * tf[1] + wl[2] * ns[1]
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
         # Lights are intersected from p itself (estimators.base.bsdf_samples).
-        t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
+        t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2], ns)
         Le = _shaped(LP, g, SHP, (wx, wy, wz), Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le, sd, ss)
         hit = p_b > 0.0 and cos_g > 0.0 and wl[2] > 0.0 and (Le[0] > 0.0 or Le[1] > 0.0 or Le[2] > 0.0)
@@ -852,7 +878,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, cyl,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, cyl, mesh,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -910,9 +936,13 @@ def vertex_kernel(
     # The cylinder lights (FastPath.tables' cyl): packed rows (renderer/kernels/cylinder.py),
     # radiance and global index of each.
     cy_packed, cy_L, cyl_light = cyl
+    # The mesh lights (FastPath.tables' mesh): their record (kernels/mesh_light.py), global
+    # index of each, and per scene triangle its mesh light (global, -1: none), its triangle in the
+    # record (-1: unknown) and whether it absorbs (materialSyncMode noMaterialResponse).
+    MS, mesh_light, prim_light, prim_tri, prim_absorb = mesh
     n_rect = center.shape[0]
-    n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, cylinder, then infinite lights
-    n_fin = n_rs + d_center.shape[0] + cy_packed.shape[0]
+    n_rs = n_rect + s_center.shape[0]  # rect, sphere, disk, cylinder, mesh, then infinite lights
+    n_fin = n_rs + d_center.shape[0] + cy_packed.shape[0] + mesh_light.shape[0]
     nl = n_fin + i_radiance.shape[0]
     k_next = 0
     k_sh = 0
@@ -942,15 +972,15 @@ def vertex_kernel(
     surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
     # The lights as one table for the per-light helpers (_finite_seen and the rest), the domes'
     # images, and the samplers' constants.
-    LP = _with_cylinders(_light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd,
+    LP = _with_kinds(_light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd,
                                       s_center, s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2,
                                       d_s1, d_s2, d_area, d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance,
-                                      i_tex), n_rs + d_center.shape[0], cy_packed, cy_L)
+                                      i_tex), n_rs + d_center.shape[0], cy_packed, cy_L, MS[6])
     IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-           im_col_cdf, im_col_cdf_start)
+           im_col_cdf, im_col_cdf_start, MS)
     lcon = (close_ratio, min_sa, graz)
     # The global index of each light in the kernel's order.
-    glob = np.concatenate((rect_light, sphere_light, disk_light, cyl_light, inf_light))
+    glob = np.concatenate((rect_light, sphere_light, disk_light, cyl_light, mesh_light, inf_light))
     # ShapingAPI: each light's shaping row in LP, the factor's tables in SHP (_shaped).
     shp_row = lux[0]
     SHP = lux[1]
@@ -1067,6 +1097,37 @@ def vertex_kernel(
                     L[pr_path, 1] += b1 * Le[1] * w
                     L[pr_path, 2] += b2 * Le[2] * w
                 continue
+            if prim_light.shape[0] > 0 and prim_light[k] >= 0:
+                # ---- a mesh light's triangle (scene geometry): its emission here, MIS-weighted on
+                # continuation rays with its pdf and pmf at the vertex the ray left (path.py's
+                # _add_mesh_light_hits) ----
+                gl = prim_light[k]
+                # (Nor one that does not illuminate the mesh of the vertex the ray left: lightLink.)
+                if (unsampled[r] or cont_prev[gl]) and not (linked and not unsampled[r]
+                                                             and not illum[gl, int(S[r, PM])]):
+                    j = int(LP[fast_of[gl], LP_J])
+                    Le = _shaped(LP, fast_of[gl], SHP, d, mesh_light_emission_row(
+                        MS, j, -(d[0] * face_normal[k, 0] + d[1] * face_normal[k, 1] + d[2] * face_normal[k, 2])))
+                    if Le[0] != 0.0 or Le[1] != 0.0 or Le[2] != 0.0:
+                        if unsampled[r]:
+                            w = 1.0
+                        else:
+                            pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
+                            pn = (S[r, PN], S[r, PN + 1], S[r, PN + 2])
+                            # The light's first triangle along d from pv (the one hit, or found).
+                            tri = prim_tri[k]
+                            if tri >= 0:
+                                t_l = plane_distance_row(tri, pv, d, MS[0], MS[1])
+                            else:
+                                t_l, tri = mesh_hit_row(pv, d, MS[3][j], MS[4][j], MS[0])
+                            p_l = mesh_light_pdf_row(MS, j, pv, pn, d, tri, t_l)
+                            pmf = pick_pmf_row(sp, gl, pv[0], pv[1], pv[2], pn[0], pn[1], pn[2])
+                            w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
+                        L[pr_path, 0] += b0 * Le[0] * w
+                        L[pr_path, 1] += b1 * Le[1] * w
+                        L[pr_path, 2] += b2 * Le[2] * w
+                if prim_absorb[k]:
+                    continue  # noMaterialResponse: the path ends here (path.py zeroes beta)
             if emission.shape[0] > 0:
                 m = mat_row[r] if mat_row.shape[0] > 0 else tri_mat[k]
                 L[pr_path, 0] += b0 * emission[m, 0]
@@ -1126,7 +1187,7 @@ def vertex_kernel(
                             continue
                 else:
                     wi, dist, pdf_l, Le, delta = _light_sample(LP, g, (px, py, pz), u0, u1, IMG, close_ratio, min_sa,
-                                                               graz)
+                                                               graz, _w3(W, W_N, i))
                     if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
                         continue
                     Le = _shaped(LP, g, SHP, wi, Le)
@@ -1254,4 +1315,5 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
-             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/cylinder.py"])
+             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/cylinder.py",
+             "renderer/kernels/mesh_light.py"])

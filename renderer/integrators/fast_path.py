@@ -8,7 +8,10 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 
 A scene qualifies when it has
 * only RectLights (untextured), SphereLights (treatAsPoint included), DiskLights, CylinderLights
-  (treatAsLine included; renderer/kernels/cylinder.py's row functions), DistantLights
+  (treatAsLine included; renderer/kernels/cylinder.py's row functions), mesh lights (UsdLux
+  MeshLightAPI, with the "oriented" triangle pick: kernels/mesh_light.py's rows; their emission
+  is found where a ray hits one of their triangles, Scene.tri_light, and a noMaterialResponse
+  one ends the path there, Scene.tri_absorb), DistantLights
   and DomeLights (lat-long textured or constant, without portals), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
   general path's), light linking (lightLink: the kernel skips a light at a vertex whose mesh it
@@ -38,7 +41,7 @@ A scene qualifies when it has
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); no mesh lights, and a maximum depth of at least 2. With K emitter samples the K - 1
+  each hit); and a maximum depth of at least 2. With K emitter samples the K - 1
   extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
   weighted 1/K by PathIntegrator._trace_camera.
 
@@ -84,7 +87,7 @@ FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
 # Finite kinds the kernel serves through its light table only (row functions in their own
 # kernels module), after the disks in its order.
-FAST_EXTRA = ("cylinder",)
+FAST_EXTRA = ("cylinder", "mesh")
 CUTOUT_PASSES = ck.CUTOUT_PASSES
 # Rays per Embree call inside trace_kernel (1: rtcIntersect1 / rtcOccluded1; 4, 8, 16: packets).
 TRACE_WIDTH = 8
@@ -194,8 +197,12 @@ class FastPath:
                                               dtype=np.int64)
         self.cyl = (np.ascontiguousarray(cy.packed.reshape(-1, vk.NCY)),
                     np.ascontiguousarray(np.reshape(cy.L, (-1, 3))), self.cyl_light)
+        self.mesh_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("mesh"))[0],
+                                               dtype=np.int64)
+        self.mesh = self._mesh_record(lights.kinds[KIND_NAMES.index("mesh")])
         fast_of = np.full(lights.count, -1, dtype=np.int64)
-        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.cyl_light, self.inf_light])
+        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.cyl_light, self.mesh_light,
+                                self.inf_light])
         fast_of[order] = np.arange(order.size)
         # The UsdLux record (vertex_kernel's lux): ShapingAPI, each global light's row in the
         # shaping table (-1: unshaped) and the table's kernel arrays (lights/shaping.py).
@@ -233,7 +240,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux, self.fcalc, self.mult, self.cyl)
+            self.lux, self.fcalc, self.mult, self.cyl, self.mesh)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
@@ -301,6 +308,32 @@ class FastPath:
             emb = (*scene.accel.packet_handles(TRACE_WIDTH), TRACE_WIDTH)
             self._kernel = (emb, self.surf, self.tables, self.plan, self.walk if self.cutouts else None)
         return self._kernel
+
+    def _mesh_record(self, ml) -> tuple:
+        """The kernel's mesh record: (MeshLight.compiled_record(), global index of each mesh
+        light, and per scene triangle (T,): its mesh light's global index or -1
+        (Scene.tri_light), its triangle in the record or -1 where the light's triangles are not
+        its mesh's one for one (the kernel then finds it by exact tests), and whether it absorbs
+        (Scene.tri_absorb))."""
+        scene = self.integ.scene
+        T = scene.geometry.vertices.shape[0]
+        if scene.tri_light is None:
+            return (ml.compiled_record(), self.mesh_light, np.zeros(0, np.int64), np.zeros(0, np.int64),
+                    np.zeros(0, bool))
+        prim_light = np.ascontiguousarray(scene.tri_light, dtype=np.int64)
+        prim_tri = np.full(T, -1, dtype=np.int64)
+        local = self.integ.lights.local_of
+        for gl in self.mesh_light:
+            j = int(local[gl])
+            prims = np.nonzero(prim_light == gl)[0]
+            s, c = int(ml.start[j]), int(ml.tri_count[j])
+            # The reader hands the light its mesh's triangles in order (lights/mesh.py).
+            if prims.size == c and np.allclose(scene.geometry.vertices[prims], ml.tris[s:s + c], rtol=1e-6,
+                                               atol=1e-6 * max(float(ml.size[j]), 1e-30)):
+                prim_tri[prims] = s + np.arange(c)
+        absorb = (np.ascontiguousarray(scene.tri_absorb, dtype=bool) if scene.tri_absorb is not None
+                  else np.zeros(T, bool))
+        return ml.compiled_record(), self.mesh_light, prim_light, prim_tri, absorb
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:
