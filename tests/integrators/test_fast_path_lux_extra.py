@@ -1,5 +1,6 @@
 """The compiled vertex kernel (renderer/integrators/fast_path.py) on the UsdLux kinds it serves
-through their own row functions: CylinderLights (treatAsLine included; renderer/kernels/cylinder.py).
+through their own row functions: CylinderLights (treatAsLine included; renderer/kernels/cylinder.py)
+and mesh lights (MeshLightAPI; renderer/kernels/mesh_light.py).
 
 The rect-lit room of test_fast_path.py gets a ceiling tube the camera and the continuation rays
 see, a sheared, non-uniformly scaled tube (an oblique elliptic cylinder) and a line light; the
@@ -106,3 +107,84 @@ def test_the_comparison_sees_a_wrong_cylinder_emission(cylinder_room, monkeypatc
     fast, slow = _pair(cylinder_room, 3, spp=192, rr_depth=1)
     z, _ = _block_z(fast, slow)
     assert abs(z) > Z_MAX, f"doubled tube emission went unseen (z = {z:.2f})"
+
+
+# ---- mesh lights ---------------------------------------------------------------------------
+MESH_STAGE = "stages/lux_extra/mesh_light_room.usda"
+
+
+def _add_mesh_lights(path):
+    """Two mesh lights added to the room stage at path: a one-sided panel of two triangles
+    (exact F for the control variate, the per-point triangle pick) and a box of twelve that
+    ends paths (materialSyncMode noMaterialResponse)."""
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(path))
+    panel = UsdGeom.Mesh.Define(stage, "/World/Panel")
+    panel.CreatePointsAttr([(-2.2, 0.6, -1.0), (-1.4, 0.6, -1.4), (-1.4, 1.6, -1.4), (-2.2, 1.6, -1.0)])
+    panel.CreateFaceVertexCountsAttr([4])
+    panel.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    panel.CreateSubdivisionSchemeAttr("none")
+    box = UsdGeom.Mesh.Define(stage, "/World/Box")
+    c, h = np.array([1.7, 0.35, 1.2]), 0.25
+    corners = [tuple(c + h * np.array([x, y, z])) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    box.CreatePointsAttr(corners)
+    box.CreateFaceVertexCountsAttr([4] * 6)
+    box.CreateFaceVertexIndicesAttr([0, 1, 3, 2, 4, 6, 7, 5, 0, 4, 5, 1, 2, 3, 7, 6, 0, 2, 6, 4, 1, 5, 7, 3])
+    box.CreateSubdivisionSchemeAttr("none")
+    for prim, intensity, color in ((panel, 3.0, (1.0, 0.7, 0.4)), (box, 2.0, (0.5, 0.8, 1.0))):
+        UsdLux.MeshLightAPI.Apply(prim.GetPrim())
+        prim.GetPrim().GetAttribute("inputs:intensity").Set(intensity)
+        prim.GetPrim().GetAttribute("inputs:color").Set(Gf.Vec3f(*color))
+    UsdLux.LightAPI(box.GetPrim()).GetMaterialSyncModeAttr().Set("noMaterialResponse")
+    stage.GetRootLayer().Save()
+
+
+@pytest.fixture
+def mesh_room(tmp_path):
+    stage = tmp_path / "room.usda"
+    _room(stage)
+    _add_mesh_lights(stage)
+    return stage
+
+
+def _pair_res(stage, res, **kw):
+    common = dict(max_depth=4, rr_depth=1, threads=1, estimator={"": "mis"}, spp=256, resolution=res,
+                  pixel_filter_mode="importance", **kw)
+    return (render(str(stage), RenderOptions(seed=1, **common)),
+            render(str(stage), RenderOptions(seed=8, fast_path=False, **common)))
+
+
+@pytest.mark.parametrize("sampler", ["exhaustive", "uniform", "power", "bvh"])
+def test_mesh_light_room_under_each_lighting_service(sampler):
+    """The neon ring (768 triangles: its triangle BVH), the two-sided lampshade and the tube."""
+    fast, slow = _pair_res(MESH_STAGE, (48, 36), light_sampler=sampler)
+    _check(fast, slow)
+
+
+@pytest.mark.parametrize("max_depth", [2, 5])
+def test_mesh_lights_on_the_fast_path(mesh_room, max_depth):
+    fast, slow = _pair(mesh_room, max_depth, spp=256, rr_depth=1)
+    _check(fast, slow)
+
+
+@pytest.mark.parametrize("estimator,samples", [("lightSampling", 2), ("bsdfSampling", 1), ("controlVariate", 3)])
+def test_mesh_lights_with_each_estimator(mesh_room, estimator, samples):
+    fast, slow = _pair_est(mesh_room, estimator, "one", samples, spp=192, res=(48, 36))
+    _check(fast, slow)
+
+
+def test_the_comparison_sees_a_wrong_mesh_light_sample(mesh_room, monkeypatch):
+    """The comparison can fail: the mesh lights' radiance doubled in the kernel's record (their
+    samples and the emission rays meet), which moves the image by a few per cent."""
+    from renderer.integrators import fast_path as fp_mod
+
+    orig = fp_mod.FastPath._mesh_record
+
+    def doubled(self, ml):
+        MS, light, prim_light, prim_tri, absorb = orig(self, ml)
+        return (MS[:6] + (2.0 * MS[6],) + MS[7:], light, prim_light, prim_tri, absorb)
+    monkeypatch.setattr(fp_mod.FastPath, "_mesh_record", doubled)
+    fast, slow = _pair(mesh_room, 3, spp=192, rr_depth=1)
+    z, _ = _block_z(fast, slow)
+    assert abs(z) > Z_MAX, f"doubled mesh-light samples went unseen (z = {z:.2f})"
