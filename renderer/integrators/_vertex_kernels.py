@@ -30,8 +30,10 @@ state, no isfinite (LLVM does not widen it), and only scalar-argument helpers nu
 by the unit that does divisions and square roots, so the helpers avoid the ones they can.
 
 The maths is not restated here: it calls the per-row helpers of the surface interaction
-(renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py) and the BSDF
-(renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels use. numba's
+(renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py), the
+cylinder lights (renderer/kernels/cylinder.py), the mesh lights (renderer/kernels/mesh_light.py)
+and the BSDF (renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels
+use. numba's
 on-disk cache is keyed on this file only, so ``guard_cache`` (renderer/kernels/__init__.py) flushes
 this file's cache whenever any of the files it inlines from changes.
 
@@ -670,7 +672,7 @@ def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz, ns):
     (0 on a miss))."""
     if LP[g, LP_KIND] == K_MESH:
         return mesh_light_along_row(IMG[11], int(LP[g, LP_J]), p, ns, wi)
-    if LP[g, LP_KIND] >= K_DOME:
+    if LP[g, LP_KIND] == K_DOME or LP[g, LP_KIND] == K_DISTANT:
         p_l, Le = _infinite_seen(LP, g, wi, IMG)
         return math.inf, Le, p_l
     tl, Le, seen = _finite_seen(LP, g, p, wi)
@@ -902,14 +904,18 @@ def vertex_kernel(
     DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
     its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
-    light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
-    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); lux: the UsdLux
+    light's index in the kernel's order (rect, sphere, disk, cylinder, mesh, then infinite
+    lights); sp: the lighting service's record (kernels/light_pick.py;
+    light_samplers.pick_tables); lux: the UsdLux
     record (FastPath.lux: each global light's ShapingAPI row, -1 unshaped, and
     ShapingTable.kernel_record(); lightLink: each triangle's mesh (T,) int64 and illum (lights,
     meshes) bool, or (0, 0) without light linking); fcalc: the
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
-    continuation MIS: their estimators apply them, _split_at). L (m, 3)
+    continuation MIS: their estimators apply them, _split_at); cyl: the CylinderLights' record
+    (packed rows (k, kernels.cylinder.NCY), radiance (k, 3), global index (k,)); mesh: the mesh
+    lights' record (FastPath._mesh_record: MeshLight.compiled_record(), global index (k,), and
+    per scene triangle its mesh light, its triangle in the record and whether it absorbs). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
