@@ -12,11 +12,12 @@ sample, pdf or crossing test fails.
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, UsdGeom, UsdLux
+from pxr import Gf, UsdGeom, UsdLux
 
 from renderer.render import RenderOptions, render
 from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _pair, _room
 from tests.integrators.test_fast_path_estimators import _pair as _pair_est
+from tests.integrators.test_fast_path_materials import _check
 
 
 def _add_cylinders(path):
@@ -54,21 +55,17 @@ def _add_cylinders(path):
     stage.GetRootLayer().Save()
 
 
-@pytest.fixture
-def cylinder_room(tmp_path):
+def _room_with(tmp_path, add):
+    """test_fast_path's room with the lights ``add`` writes into it."""
     stage = tmp_path / "room.usda"
     _room(stage)
-    _add_cylinders(stage)
+    add(stage)
     return stage
 
 
-def _check(fast, slow, n_lights=6):
-    assert fast.stats["fast_path"] == "on", fast.stats["fast_path"]
-    assert slow.stats["fast_path"].startswith("disabled")
-    z, zs = _block_z(fast, slow)
-    assert abs(z) < Z_MAX, f"whole image: fast - general = {z:.2f} sigma"
-    assert max(abs(x) for x in zs) < Z_BLOCK, f"blocks: {np.round(zs, 2)}"
-    assert fast.film.nonfinite_dropped == 0 and fast.film.mean().sum() > 0.0
+@pytest.fixture
+def cylinder_room(tmp_path):
+    return _room_with(tmp_path, _add_cylinders)
 
 
 @pytest.mark.parametrize("max_depth", [2, 5])
@@ -142,10 +139,7 @@ def _add_mesh_lights(path):
 
 @pytest.fixture
 def mesh_room(tmp_path):
-    stage = tmp_path / "room.usda"
-    _room(stage)
-    _add_mesh_lights(stage)
-    return stage
+    return _room_with(tmp_path, _add_mesh_lights)
 
 
 def _pair_res(stage, res, **kw):
