@@ -442,8 +442,9 @@ def mesh_pick_pmf_kernel(idx, tri, p, ns, start, count, tris, nrm, area, two_sid
 # pair_c, pair_b (light j's pairs at pair_start[j]:pair_start[j + 1], child indices local to
 # it), slot, depth, trail (rows of light j's triangles: its leaves), root_light, root_c, root_b,
 # p_inf (k,) per light, is_inf (T,) all False, infinite (0,)), which light_bvh's rows take as
-# slices; consts: (horizon_pad, floor, min_sa, max_sa). The same pick, sample and pdf as MeshLight.sample_li / pdf_li with the
-# "oriented" pick (the numpy route's kernels above, and light_bvh's rows for the large lights).
+# slices; consts: (horizon_pad, floor, min_sa, max_sa). The same pick, sample and pdf as
+# MeshLight.sample_li / pdf_li with the "oriented" pick (the numpy route's kernels above, and
+# light_bvh's rows for the large lights).
 @njit(cache=True, nogil=True)
 def mesh_light_pick_row(MS, j, p, ns, u0):
     """Light j's triangle pick at p with shading normal ns from u0: (global triangle or -1,
