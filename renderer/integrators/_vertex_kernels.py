@@ -63,7 +63,7 @@ from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.cylinder import CY_DELTA, NCY, cylinder_front_hit_row, cylinder_pdf_row, cylinder_sample_row
 from renderer.kernels.mesh_light import (
-    mesh_hit_row, mesh_light_along_row, mesh_light_emission_row, mesh_light_pdf_row, mesh_light_sample_row,
+    mesh_G_row, mesh_hit_row, mesh_light_along_row, mesh_light_emission_row, mesh_light_pdf_row, mesh_light_sample_row,
     plane_distance_row,
 )
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
@@ -687,8 +687,9 @@ def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
     the control variate's F = c(wo) E: lights/irradiance.py's rule per kind, by the same compiled
     rows (lights/analytic.py's rect_F, sphere_F, disk_F on the radius s1, distant_F and
     dome_constant_F; a textured dome's preconvolved table by preconvolve.irradiance_row at
-    R^T ns). fcalc: FastPath.fcalc (exact flags, the distant lights' theta_max, the quadrature
-    switches, the domes' packed tables); E means something only where fcalc[0][g] is set."""
+    R^T ns; a mesh light's Lambert sum by kernels/mesh_light.mesh_G_row). fcalc: FastPath.fcalc
+    (exact flags, the distant lights' theta_max, the quadrature switches, the domes' packed
+    tables); E means something only where fcalc[0][g] is set."""
     _exact, theta, far_ratio, kappa_max, PK = fcalc
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
@@ -701,6 +702,12 @@ def _light_F(LP, g, p, ns, fcalc, IMG, tbuf):
         G = disk_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_N), LP[g, LP_P0], far_ratio, kappa_max)
     elif kind == K_DISTANT:
         G = distant_F(ns, _lp(LP, g, LP_A), theta[g])
+    elif kind == K_MESH:
+        MS = IMG[11]
+        j = int(LP[g, LP_J])
+        G = mesh_G_row(p, ns, MS[3][j], MS[4][j], MS[0], MS[1], MS[5][j], far_ratio, kappa_max)
+    elif kind == K_CYL:
+        G = 0.0  # (no exact F: lights/irradiance.py; its estimators fall back to MIS)
     elif LP[g, LP_TEX] < 0:
         G = dome_constant_F()
     else:

@@ -36,7 +36,9 @@ import math
 import numpy as np
 from numba import njit
 
+from renderer.kernels import guard_cache, guarded_sources, module_dispatchers
 from renderer.kernels.light_bvh import bvh_pick_row, bvh_pmf_row
+from renderer.lights.analytic import polygon_F
 
 _PI = math.pi
 
@@ -520,3 +522,29 @@ def mesh_light_along_row(MS, j, p, ns, wi):
         return math.inf, (0.0, 0.0, 0.0), 0.0
     Le = mesh_light_emission_row(MS, j, -_dot(wi, _row(nrm, t)))
     return t_hit, Le, mesh_light_pdf_row(MS, j, p, ns, wi, t, t_hit)
+
+
+@njit(cache=True, nogil=True)
+def mesh_G_row(p, ns, s, c, tris, nrm, ts, far_ratio, kappa_max):
+    """Projected solid angle [sr] of triangles s..s+c seen from p about the shading normal ns:
+    Lambert's polygon formula per triangle (lights/analytic.polygon_F, one-sided about its front
+    normal unless ts), summed in triangle order. Times the light's radiance: its irradiance."""
+    G = 0.0
+    for t in range(s, s + c):
+        G += polygon_F(p, ns, (_vert(tris, t, 0), _vert(tris, t, 1), _vert(tris, t, 2)), _row(nrm, t), not ts,
+                       far_ratio, kappa_max)
+    return G
+
+
+@njit(cache=True, nogil=True)
+def mesh_G_kernel(idx, p, ns, start, count, tris, nrm, two_sided, far_ratio, kappa_max, out):
+    """mesh_G_row for rows (light idx[r] at p[r], ns[r]) into out (n,)."""
+    for r in range(idx.shape[0]):
+        li = idx[r]
+        out[r] = mesh_G_row(_row(p, r), _row(ns, r), start[li], count[li], tris, nrm, two_sided[li], far_ratio,
+                            kappa_max)
+
+
+# The row functions inline light_bvh's walks and analytic.polygon_F (see renderer/kernels/__init__.py).
+guard_cache(__name__, module_dispatchers(globals()),
+            ["renderer/kernels/light_bvh.py", *guarded_sources("renderer.lights.analytic")])

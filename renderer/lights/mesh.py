@@ -463,8 +463,10 @@ class MeshLight:
         return np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
 
     def irradiance(self, idx: np.ndarray, ctx: ShadingContext) -> tuple[np.ndarray, np.ndarray]:
-        """Unshadowed irradiance (n, 3) about ctx.ns and exact (n,) bool (see the module docstring)."""
-        from renderer.lights.analytic import projected_solid_angle_polygon
+        """Unshadowed irradiance (n, 3) about ctx.ns and exact (n,) bool (see the module docstring):
+        Lambert's polygon formula per triangle (kernels/mesh_light.mesh_G_row, the compiled
+        path's F too)."""
+        from renderer.lights.analytic import FAR_RATIO, KAPPA_MAX
 
         idx = np.asarray(idx, dtype=np.int64)
         n = idx.size
@@ -472,18 +474,9 @@ class MeshLight:
         exact = self.tri_count[idx] <= EXACT_MAX_TRIANGLES
         rows = np.nonzero(exact)[0]
         if rows.size:
-            cnt = self.tri_count[idx[rows]]
-            pair_row = np.repeat(rows, cnt)
-            offs = np.arange(pair_row.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-            tri = np.repeat(self.start[idx[rows]], cnt) + offs
-            two = self.two_sided[idx[pair_row]]
-            G = np.zeros(pair_row.size)
-            for sided in (False, True):  # one-sided and two-sided triangles
-                k = np.nonzero(two == sided)[0]
-                if k.size:
-                    G[k] = projected_solid_angle_polygon(
-                        ctx.p[pair_row[k]], ctx.ns[pair_row[k]], self.tris[tri[k]],
-                        None if sided else self.nrm[tri[k]])
-            g = np.bincount(pair_row, weights=G, minlength=n)
-            E[rows] = g[rows][:, None] * self.L[idx[rows]]
+            G = np.zeros(rows.size)
+            kern.mesh_G_kernel(np.ascontiguousarray(idx[rows]), np.ascontiguousarray(ctx.p[rows], dtype=np.float64),
+                               np.ascontiguousarray(ctx.ns[rows], dtype=np.float64), self.start, self.tri_count,
+                               self.tris, self.nrm, self.two_sided, float(FAR_RATIO), float(KAPPA_MAX), G)
+            E[rows] = G[:, None] * self.L[idx[rows]]
         return E, exact
