@@ -85,9 +85,8 @@ from . import _vertex_kernels as vk
 # The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
 FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
-# Finite kinds the kernel serves through its light table only (row functions in their own
-# kernels module), after the disks in its order.
-FAST_EXTRA = ("cylinder", "mesh")
+# (Cylinder and mesh lights, after the disks in its order, it serves through its light table
+# only: their row functions in kernels/cylinder.py and kernels/mesh_light.py.)
 CUTOUT_PASSES = ck.CUTOUT_PASSES
 # Rays per Embree call inside trace_kernel (1: rtcIntersect1 / rtcOccluded1; 4, 8, 16: packets).
 TRACE_WIDTH = 8
@@ -102,8 +101,6 @@ def fast_path_reason(integ) -> str:
     if not integ.has_lights:
         return "no lights"
     rect = KIND_NAMES.index("rect")
-    if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
-        return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
     rl = lights.kinds[rect]
     if np.any(rl.tex >= 0):
         return "a textured RectLight"
