@@ -107,8 +107,10 @@ def fast_path_reason(integ) -> str:
     dome = lights.kinds[KIND_NAMES.index("dome")]
     if np.any(getattr(dome, "has_portals", np.zeros(dome.count, bool))):
         return "dome portals"
-    if scene.tri_light is not None or scene.tri_absorb is not None:
-        return "mesh lights"
+    mesh = lights.kinds[KIND_NAMES.index("mesh")]
+    if mesh.count and getattr(mesh, "pick_mode", "oriented") != "oriented":
+        # (The kernel's rows replay the oriented triangle pick only; "area" is a test setting.)
+        return "mesh lights with the area pick"
     if opt.max_depth <= 1:
         # Direct lighting only: the general path traces no extension rays at all there, where
         # this one would trace one per pixel for the BSDF half (module docstring).
