@@ -902,7 +902,8 @@ def vertex_kernel(
     rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
     (Pm, mat_row, emission, bent_ns) of FastPath._surfaces: Pm (materials, K) packed BSDF rows,
     or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
-    (if not empty) the radiance its surface emits (added in full: emitting surfaces are reached
+    (if not empty; (materials, 3) by the hit's material where mat_row is empty: constant
+    emission) the radiance its surface emits (added in full: emitting surfaces are reached
     by BSDF samples only, as in the general path) and bent_ns (hits, 3) (if not empty) its
     normal-mapped shading normal; light tables: the
     RectLight arrays (all untextured), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and

@@ -161,11 +161,12 @@ class FastPath:
             (im.weight, f64), (im.total, f64), (im.row_cdf, f64), (im.row_cdf_start, i64), (im.col_cdf, f64),
             (im.col_cdf_start, i64)))
         mats = scene.materials
-        # Textured inputs, emission or normal maps: the material is evaluated per hit (st
-        # needed) and the kernel reads per-hit rows; otherwise one packed row per material (cut-
-        # outs alone change no row: presence is the walks' business).
-        self.per_hit = bool(mats.params_needed and (mats.has_emission or mats.has_normal_map
-                                                    or not mats.bsdf_is_constant))
+        # Textured inputs, textured emission or normal maps: the material is evaluated per hit
+        # (st needed) and the kernel reads per-hit rows; otherwise one packed row per material
+        # (cut-outs alone change no row: presence is the walks' business), and constant emission
+        # one radiance per material, which the kernel reads by the hit's material as it does Pm.
+        self.per_hit = bool(mats.params_needed and ((mats.has_emission and not mats.emission_is_constant)
+                                                    or mats.has_normal_map or not mats.bsdf_is_constant))
         self.cutouts = bool(mats.has_cutout)
         # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
         self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
@@ -173,7 +174,9 @@ class FastPath:
         self.no_emission = np.zeros((0, 3))
         self.no_normals = np.zeros((0, 3))
         # The kernel's surface record (vertex_kernel's surf) where it is fixed for the render.
-        self.surf = (self.Pm, self.no_rows, self.no_emission, self.no_normals)
+        self.surf = (self.Pm, self.no_rows, (np.ascontiguousarray(mats.const["emission"], dtype=np.float64)
+                                             if mats.has_emission and not self.per_hit else self.no_emission),
+                     self.no_normals)
         g = scene.geometry
         f64 = np.float64
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
