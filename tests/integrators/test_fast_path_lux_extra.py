@@ -183,3 +183,38 @@ def test_the_comparison_sees_a_wrong_mesh_light_sample(mesh_room, monkeypatch):
     fast, slow = _pair(mesh_room, 3, spp=192, rr_depth=1)
     z, _ = _block_z(fast, slow)
     assert abs(z) > Z_MAX, f"doubled mesh-light samples went unseen (z = {z:.2f})"
+
+
+# ---- inside the compiled bounce loop -------------------------------------------------------
+def _both_kinds(path):
+    _add_cylinders(path)
+    _add_mesh_lights(path)
+
+
+@pytest.mark.parametrize("opt", [{}, dict(estimator={"": "controlVariate", "/World/Line": "lightSampling"},
+                                          light_samples={"": 2}, light_sampler="bvh")])
+def test_cylinder_and_mesh_lights_inside_the_compiled_loop(tmp_path, monkeypatch, opt):
+    """The room with both kinds (and the neon stage) runs as one trace_kernel call, which gives the
+    Python bounce loop's image bit for bit: continuation MIS, and per-light estimators (the
+    mesh panel's exact F taken in the kernel) under the bvh service."""
+    from tests.integrators.test_fast_path_kernel import _render, _same
+
+    stage = _room_with(tmp_path, _both_kinds)
+    _same(_render(stage, False, monkeypatch, **opt), _render(stage, True, monkeypatch, **opt))
+
+
+@pytest.mark.parametrize("stage", [MESH_STAGE, None])
+def test_one_compiled_call_serves_them(tmp_path, stage):
+    """FastPath.kernel_reason is '' for the neon stage (its lampshade's constant glow is read per
+    material, no per-hit rows) and the room with both kinds."""
+    from renderer.camera import Camera
+    from renderer.integrators.path import IntegratorOptions, PathIntegrator
+    from renderer.scene import build_scene
+    from renderer.usd import load_stage
+
+    scene = build_scene(load_stage(str(stage or _room_with(tmp_path, _both_kinds))), threads=1)
+    try:
+        integ = PathIntegrator(scene, Camera(scene.desc.camera, 8, 8), IntegratorOptions(threads=1))
+        assert integ.fast is not None and integ.fast.kernel_reason() == ""
+    finally:
+        scene.close()
