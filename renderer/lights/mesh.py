@@ -302,6 +302,16 @@ class MeshLight:
                 ok = (g >= 0) & np.isfinite(tp)
                 t[rows] = np.where(ok, tp, np.inf)
                 tri[rows] = np.where(ok, g, -1)
+                # Embree's hit on the triangle the ray starts on (kernels/mesh_light.SELF_HIT_REL):
+                # the first hit past it by the exact tests.
+                redo = rows[(g >= 0) & ~ok]
+                if redo.size:
+                    ts = np.empty(redo.size)
+                    trs = np.empty(redo.size, dtype=np.int64)
+                    kern.mesh_hit_kernel(np.ascontiguousarray(idx[redo]), np.ascontiguousarray(o[redo]),
+                                         np.ascontiguousarray(d[redo]), self.start, self.tri_count, self.tris, ts,
+                                         trs)
+                    t[redo], tri[redo] = ts, trs
         return t, tri
 
     def _triangle_at(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
