@@ -396,6 +396,12 @@ class MaterialTable:
         return not any(np.any(self._varies[f]) for f in BSDF_FIELDS if f in self._varies)
 
     @property
+    def emission_is_constant(self) -> bool:
+        """No material's emission is textured or primvar-fed: const["emission"] (m, 3) is each
+        material's radiance at every hit."""
+        return not np.any(self._varies.get("emission", False))
+
+    @property
     def params_needed(self) -> bool:
         """Whether a renderer needs ``evaluate`` at hits at all: for emission, cutouts, normal
         maps or a textured BSDF input (otherwise ``bsdf(mat)`` alone describes the surface)."""

@@ -30,8 +30,10 @@ state, no isfinite (LLVM does not widen it), and only scalar-argument helpers nu
 by the unit that does divisions and square roots, so the helpers avoid the ones they can.
 
 The maths is not restated here: it calls the per-row helpers of the surface interaction
-(renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py) and the BSDF
-(renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels use. numba's
+(renderer/geometry.py), the rect, sphere and disk lights (renderer/kernels/lights.py), the
+cylinder lights (renderer/kernels/cylinder.py), the mesh lights (renderer/kernels/mesh_light.py)
+and the BSDF (renderer/bsdfs/_preview_kernels.py), the same functions the general path's kernels
+use. numba's
 on-disk cache is keyed on this file only, so ``guard_cache`` (renderer/kernels/__init__.py) flushes
 this file's cache whenever any of the files it inlines from changes.
 
@@ -59,6 +61,11 @@ from renderer.kernels.direct import diffuse_combine_row, shadowed_row
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
+from renderer.kernels.cylinder import CY_DELTA, NCY, cylinder_front_hit_row, cylinder_pdf_row, cylinder_sample_row
+from renderer.kernels.mesh_light import (
+    mesh_G_row, mesh_hit_row, mesh_light_along_row, mesh_light_emission_row, mesh_light_pdf_row, mesh_light_sample_row,
+    plane_distance_row,
+)
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.portal import portal_dome_pdf_row, portal_dome_sample_row
 from renderer.kernels.shaping import shaping_factor_row
@@ -417,6 +424,11 @@ def _cross_pass(lo, hi, S, hit_t, hit_prim, center, nrm, exd, eyd, s_center, s_r
 # decrement (atomic), and the tuples of tables made those the main cost of a sample. Only a
 # textured dome also reads its image (IMG: i_rot and the ImageSet arrays, vertex_kernel's order).
 K_RECT, K_SPHERE, K_DISK, K_DOME, K_DISTANT = range(5)
+# Cylinder lights (and treatAsLine line lights): finite, after the disks in the kernel's order;
+# then mesh lights (scene geometry: their emission is found at surface hits, never by a
+# crossing test), before the infinite lights.
+K_CYL = 5
+K_MESH = 6
 LP_KIND = 0
 LP_C = 1  # centre
 LP_A = 4  # rect ex, disk u1, distant axis
@@ -434,17 +446,19 @@ LP_FLAG = 31  # rect is_rect, sphere and distant delta
 LP_TEX = 32  # dome image, -1 for a constant dome
 LP_J = 33  # the row in the light's kind table
 LP_SHAPE = 34  # the light's row in the ShapingAPI table (lights/shaping.py), -1 when unshaped
-NLP = 35
+LP_CY = 35  # a cylinder's packed row (renderer/kernels/cylinder.py, columns CY_*)
+NLP = LP_CY + NCY
 # A dome's first portal row and portal count (vertex_kernel sets them from the portal record; a
 # dome has no sizes in LP_P0, LP_P1). A rect's image is in LP_TEX (-1 untextured), set from the
 # texrect record: the rects' images follow the domes' in IMG's ImageSet.
 LP_PORTAL0 = LP_P0
 LP_PORTALS = LP_P1
-# After the images in IMG (vertex_kernel): the portal record's two arrays (DomeLight.portal_record,
-# kernels/portal.py). Only two: numba counts references to each array of IMG at every call that
-# passes it.
-IMG_PORTAL = 11
-IMG_PORTAL_T = 12
+# After the images in IMG (vertex_kernel): the mesh lights' record (IMG_MESH), then the portal
+# record's two arrays (DomeLight.portal_record, kernels/portal.py). Only two: numba counts
+# references to each array of IMG at every call that passes it.
+IMG_MESH = 11
+IMG_PORTAL = 12
+IMG_PORTAL_T = 13
 
 
 @njit(cache=True, nogil=True)
@@ -519,6 +533,33 @@ def _shaped(LP, g, SHP, d, Le):
     return (Le[0] * f0, Le[1] * f1, Le[2] * f2)
 
 
+@njit(cache=True, nogil=True)
+def _with_kinds(LP0, n_fin0, cy_packed, cy_L, ms_L):
+    """LP0 (_light_table's) with the cylinder lights' rows, then the mesh lights', inserted
+    after its n_fin0 finite lights, before the infinite ones. Cylinders: kind K_CYL, their
+    radiance in LP_L, treatAsLine in LP_FLAG and their packed row (CylinderLight.packed) from
+    column LP_CY. Mesh lights: kind K_MESH, radiance, LP_J their row in the mesh record."""
+    n_c = cy_packed.shape[0]
+    n_m = ms_L.shape[0]
+    LP = np.zeros((LP0.shape[0] + n_c + n_m, NLP))
+    LP[:n_fin0] = LP0[:n_fin0]
+    LP[n_fin0 + n_c + n_m:] = LP0[n_fin0:]
+    for j in range(n_m):
+        g = n_fin0 + n_c + j
+        LP[g, LP_KIND] = K_MESH
+        _put3(LP, g, LP_L, ms_L, j)
+        LP[g, LP_J] = j
+    for j in range(n_c):
+        g = n_fin0 + j
+        LP[g, LP_KIND] = K_CYL
+        _put3(LP, g, LP_L, cy_L, j)
+        for c in range(NCY):
+            LP[g, LP_CY + c] = cy_packed[j, c]
+        LP[g, LP_FLAG] = cy_packed[j, CY_DELTA]
+        LP[g, LP_J] = j
+    return LP
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _lp(LP, g, c):
     """Columns c..c+2 of LP's row g as a 3-tuple."""
@@ -531,6 +572,12 @@ def _finite_seen(LP, g, o, d):
     the light's emitting side (the back of a one-sided light and a sphere's inside emit nothing)."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
+    if kind == K_CYL:
+        # The side's emitting face, met from outside (a line light is never seen).
+        tl, _s, _phi = cylinder_front_hit_row(LP, g, LP_CY, o, d)
+        return tl, Le, tl < math.inf
+    if kind == K_MESH:
+        return math.inf, Le, False  # geometry: seen at the surface hit (vertex_kernel)
     if kind == K_SPHERE:
         c = _lp(LP, g, LP_C)
         tl = _sphere_hit_row(o, d, c, LP[g, LP_P0], LP[g, LP_FLAG] != 0.0)
@@ -554,6 +601,10 @@ def _finite_seen(LP, g, o, d):
 def _finite_pdf(LP, g, p, d, close_ratio, min_sa, graz):
     """The solid-angle pdf with which finite light g's sampler, at p, picks direction d."""
     kind = LP[g, LP_KIND]
+    if kind == K_CYL:
+        return cylinder_pdf_row(LP, g, LP_CY, p, d)
+    if kind == K_MESH:
+        return 0.0  # (its pdf needs the shading normal: vertex_kernel and _light_along ask it)
     if kind == K_RECT:
         return _rect_pdf_row(p, d, _lp(LP, g, LP_C), _lp(LP, g, LP_N), _lp(LP, g, LP_EXD), _lp(LP, g, LP_EYD),
                              _lp(LP, g, LP_A), _lp(LP, g, LP_B), _lp(LP, g, LP_XH), _lp(LP, g, LP_YH), LP[g, LP_P0],
@@ -660,10 +711,12 @@ def _portal_pdf(LP, g, p, d, IMG, min_sa, graz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
-    """A sample of light g from p with uniforms (u0, u1): (wi, dist, pdf, Le, delta), pdf the
-    solid-angle pdf (1 for a delta light) and 0 where the sample is unusable, dist inf for an
-    infinite light (kernels/lights.py's samplers)."""
+def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz, ns):
+    """A sample of light g from p (shading normal ns, for a mesh light's triangle pick) with
+    uniforms (u0, u1): (wi, dist, pdf, Le, delta), pdf the solid-angle pdf (1 for a delta
+    light) and 0 where the sample is unusable, dist inf for an infinite light (kernels/lights.py's
+    samplers; kernels/cylinder.py's and kernels/mesh_light.py's rows). IMG: the domes' images,
+    then (IMG[IMG_MESH]) the mesh lights' record."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
     delta = LP[g, LP_FLAG] != 0.0 and kind != K_RECT
@@ -677,6 +730,12 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
                                                   _lp(LP, g, LP_N), LP[g, LP_AREA], False, LP[g, LP_FLAG] != 0.0,
                                                   0.0, 0.0, 0.0, min_sa, graz)
         return wi, dist, (pdf if ok else 0.0), Le, False
+    if kind == K_CYL:
+        Lc, wi, pdf, dist, _x = cylinder_sample_row(LP, g, LP_CY, p, u0, u1)
+        return wi, dist, pdf, Lc, delta
+    if kind == K_MESH:
+        Lm, wi, pdf, dist, _x = mesh_light_sample_row(IMG[IMG_MESH], int(LP[g, LP_J]), p, ns, u0, u1)
+        return wi, dist, pdf, Lm, False
     if kind == K_SPHERE:
         wi, dist, pdf, _pl, ok, sc = _sphere_sample_row(p, u0, u1, _lp(LP, g, LP_C), LP[g, LP_P0], delta)
         return wi, dist, (pdf if ok else 0.0), (Le[0] * sc, Le[1] * sc, Le[2] * sc), delta
@@ -702,10 +761,13 @@ def _light_sample(LP, g, p, u0, u1, IMG, close_ratio, min_sa, graz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz):
-    """Light g seen from p along unit wi (estimators.base.light_along, then pdf_li where it is
-    seen): (t (inf for an infinite light or a miss), Le (black on a miss), p_l (0 on a miss))."""
-    if LP[g, LP_KIND] >= K_DOME:
+def _light_along(LP, g, p, wi, IMG, close_ratio, min_sa, graz, ns):
+    """Light g seen from p (shading normal ns) along unit wi (estimators.base.light_along, then
+    pdf_li where it is seen): (t (inf for an infinite light or a miss), Le (black on a miss), p_l
+    (0 on a miss))."""
+    if LP[g, LP_KIND] == K_MESH:
+        return mesh_light_along_row(IMG[IMG_MESH], int(LP[g, LP_J]), p, ns, wi)
+    if LP[g, LP_KIND] == K_DOME or LP[g, LP_KIND] == K_DISTANT:
         p_l, Le = _infinite_seen(LP, g, wi, IMG)
         if LP[g, LP_KIND] == K_DOME and LP[g, LP_PORTALS] > 0.0:
             p_l = _portal_pdf(LP, g, p, wi, IMG, min_sa, graz)
@@ -723,9 +785,9 @@ def _light_F(LP, g, p, ns, theta_g, far_ratio, kappa_max):
     """Light g's unshadowed irradiance E (3-tuple) at p (3-tuple) about the shading normal ns,
     the control variate's F = c(wo) E: lights/irradiance.py's rule per kind, by the same compiled
     rows (lights/analytic.py's rect_F, sphere_F, disk_F on the radius s1, distant_F of the cone
-    theta_g and dome_constant_F), for every light but a textured dome (_dome_table_F). far_ratio,
-    kappa_max: the quadrature switches (FastPath.fcalc). Only LP crosses the call: each array
-    argument of a call costs numba an atomic reference count increment and decrement, and the
+    theta_g and dome_constant_F), for every light but a textured dome (_dome_table_F) and a mesh
+    light (_mesh_F). far_ratio, kappa_max: the quadrature switches (FastPath.fcalc). Only LP
+    crosses the call: each array argument of a call costs numba an atomic reference count increment and decrement, and the
     per-light estimators call this once per (vertex, light) pair."""
     kind = LP[g, LP_KIND]
     Le = _lp(LP, g, LP_L)
@@ -738,6 +800,8 @@ def _light_F(LP, g, p, ns, theta_g, far_ratio, kappa_max):
         G = disk_F(p, ns, _lp(LP, g, LP_C), _lp(LP, g, LP_N), LP[g, LP_P0], far_ratio, kappa_max)
     elif kind == K_DISTANT:
         G = distant_F(ns, _lp(LP, g, LP_A), theta_g)
+    elif kind == K_CYL:
+        G = 0.0  # (no exact F: lights/irradiance.py; its estimators fall back to MIS)
     else:
         G = dome_constant_F()
     return (G * Le[0], G * Le[1], G * Le[2])
@@ -754,6 +818,16 @@ def _dome_table_F(LP, g, ns, R, PK, tbuf):
                    ns[0] * R[0, 1] + ns[1] * R[1, 1] + ns[2] * R[2, 1],
                    ns[0] * R[0, 2] + ns[1] * R[1, 2] + ns[2] * R[2, 2], tbuf)
     return (e[0] * Le[0], e[1] * Le[1], e[2] * Le[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mesh_F(LP, g, p, ns, MS, far_ratio, kappa_max):
+    """_light_F of mesh light g: Lambert's polygon sum over its triangles about ns
+    (kernels/mesh_light.mesh_G_row on its record MS, IMG[IMG_MESH]) times its radiance."""
+    Le = _lp(LP, g, LP_L)
+    j = int(LP[g, LP_J])
+    G = mesh_G_row(p, ns, MS[3][j], MS[4][j], MS[0], MS[1], MS[5][j], far_ratio, kappa_max)
+    return (G * Le[0], G * Le[1], G * Le[2])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -834,7 +908,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
         wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
-                                                 IMG, lcon[0], lcon[1], lcon[2])
+                                                 IMG, lcon[0], lcon[1], lcon[2], ns)
         if LP[g, LP_SHAPE] >= 0.0:
             Le = _shaped(LP, g, SHP, wi, Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le, sd, ss)
@@ -854,7 +928,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
         wy = wl[0] * sf[1] + wl[1] * tf[1] + wl[2] * ns[1]
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
         # Lights are intersected from p itself (estimators.base.bsdf_samples).
-        t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2])
+        t_l, Le, p_l = _light_along(LP, g, p, (wx, wy, wz), IMG, lcon[0], lcon[1], lcon[2], ns)
         if LP[g, LP_SHAPE] >= 0.0:
             Le = _shaped(LP, g, SHP, (wx, wy, wz), Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wx, wy, wz, Le, sd, ss)
@@ -937,7 +1011,8 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, portal, texrect,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, cyl, mesh,
+    portal, texrect,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -952,7 +1027,8 @@ def vertex_kernel(
     rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
     (Pm, mat_row, emission, bent_ns) of FastPath._surfaces: Pm (materials, K) packed BSDF rows,
     or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
-    (if not empty) the radiance its surface emits (added in full: emitting surfaces are reached
+    (if not empty; (materials, 3) by the hit's material where mat_row is empty: constant
+    emission) the radiance its surface emits (added in full: emitting surfaces are reached
     by BSDF samples only, as in the general path) and bent_ns (hits, 3) (if not empty) its
     normal-mapped shading normal; light tables: the
     RectLight arrays (their textures in texrect), the SphereLight arrays (s_*), the DiskLight arrays (d_*) and
@@ -961,19 +1037,22 @@ def vertex_kernel(
     DistantLight with i_axis, i_omc = 1 - cos theta_max, i_delta), with rect_light / sphere_light / disk_light /
     inf_light (count,) the global light index of each (which picks the light's uniforms in U and
     its power flag); power: (lights,) bool heuristic; fast_of (lights,) int64: each global
-    light's index in the kernel's order (rect, sphere, disk, then infinite lights); sp: the
-    lighting service's record (kernels/light_pick.py; light_samplers.pick_tables); lux: the UsdLux
+    light's index in the kernel's order (rect, sphere, disk, cylinder, mesh, then infinite
+    lights); sp: the lighting service's record (kernels/light_pick.py;
+    light_samplers.pick_tables); lux: the UsdLux
     record (FastPath.lux: each global light's ShapingAPI row, -1 unshaped, and
     ShapingTable.kernel_record(); lightLink: each triangle's mesh (T,) int64 and illum (lights,
     meshes) bool, or (0, 0) without light linking); fcalc: the
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
-    continuation MIS: their estimators apply them, _split_at); portal: the domes' portals
-    (DomeLight.portal_record's PP and PT, kernels/portal.py; each dome's first row and count:
-    a dome with portals samples and weighs through them, _portal_sample and _portal_pdf);
-    texrect: (rects,) int64 each rect's image in the im_* set (after the domes'), -1 untextured
-    (_texrect_*). L (m, 3)
-    receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
+    continuation MIS: their estimators apply them, _split_at); cyl: the CylinderLights' record
+    (packed rows (k, kernels.cylinder.NCY), radiance (k, 3), global index (k,)); mesh: the mesh
+    lights' record (FastPath._mesh_record: MeshLight.compiled_record(), global index (k,), and
+    per scene triangle its mesh light, its triangle in the record and whether it absorbs);
+    portal: the domes' portals (DomeLight.portal_record's PP and PT, kernels/portal.py; each
+    dome's first row and count: a dome with portals samples and weighs through them,
+    _portal_sample and _portal_pdf); texrect: (rects,) int64 each rect's image in the im_* set
+    (after the domes'), -1 untextured (_texrect_*). L (m, 3) receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
     being the radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]:
@@ -996,9 +1075,16 @@ def vertex_kernel(
     light half or estimator (or the picked light's: _light_sample, _direct_pair) and writes the rays compactly.
     """
     Pm, mat_row, emission, bent_ns = surf
+    # The cylinder lights (FastPath.tables' cyl): packed rows (renderer/kernels/cylinder.py),
+    # radiance and global index of each.
+    cy_packed, cy_L, cyl_light = cyl
+    # The mesh lights (FastPath.tables' mesh): their record (kernels/mesh_light.py), global
+    # index of each, and per scene triangle its mesh light (global, -1: none), its triangle in the
+    # record (-1: unknown) and whether it absorbs (materialSyncMode noMaterialResponse).
+    MS, mesh_light, prim_light, prim_tri, prim_absorb = mesh
     n_rect = center.shape[0]
-    n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
-    n_fin = n_rs + d_center.shape[0]
+    n_rs = n_rect + s_center.shape[0]  # rect, sphere, disk, cylinder, mesh, then infinite lights
+    n_fin = n_rs + d_center.shape[0] + cy_packed.shape[0] + mesh_light.shape[0]
     nl = n_fin + i_radiance.shape[0]
     k_next = 0
     k_sh = 0
@@ -1028,11 +1114,12 @@ def vertex_kernel(
     surfaces = vertices.shape[0] > 0 and Pm.shape[0] > 0
     # The lights as one table for the per-light helpers (_finite_seen and the rest), the domes'
     # images, and the samplers' constants.
-    LP = _light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, s_center,
-                      s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2, d_s1, d_s2, d_area,
-                      d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance, i_tex)
+    LP = _with_kinds(_light_table(center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd,
+                                      s_center, s_radius, s_radiance, s_delta, d_center, d_nrm, d_u1, d_u2, d_e1, d_e2,
+                                      d_s1, d_s2, d_area, d_radiance, i_dome, i_axis, i_omc, i_delta, i_radiance,
+                                      i_tex), n_rs + d_center.shape[0], cy_packed, cy_L, MS[6])
     IMG = (i_rot, im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start,
-           im_col_cdf, im_col_cdf_start, portal[0], portal[1])
+           im_col_cdf, im_col_cdf_start, MS, portal[0], portal[1])
     # Each dome's portal rows and each rect's image (-1: untextured) into LP (LP_PORTAL0,
     # LP_PORTALS, LP_TEX).
     portal_start = portal[2]
@@ -1046,7 +1133,7 @@ def vertex_kernel(
             LP[g, LP_TEX] = rect_tex[int(LP[g, LP_J])]
     lcon = (close_ratio, min_sa, graz)
     # The global index of each light in the kernel's order.
-    glob = np.concatenate((rect_light, sphere_light, disk_light, inf_light))
+    glob = np.concatenate((rect_light, sphere_light, disk_light, cyl_light, mesh_light, inf_light))
     # ShapingAPI: each light's shaping row in LP, the factor's tables in SHP (_shaped).
     shp_row = lux[0]
     SHP = lux[1]
@@ -1176,6 +1263,37 @@ def vertex_kernel(
                     L[pr_path, 1] += b1 * Le[1] * w
                     L[pr_path, 2] += b2 * Le[2] * w
                 continue
+            if prim_light.shape[0] > 0 and prim_light[k] >= 0:
+                # ---- a mesh light's triangle (scene geometry): its emission here, MIS-weighted on
+                # continuation rays with its pdf and pmf at the vertex the ray left (path.py's
+                # _add_mesh_light_hits) ----
+                gl = prim_light[k]
+                # (Nor one that does not illuminate the mesh of the vertex the ray left: lightLink.)
+                if (unsampled[r] or cont_prev[gl]) and not (linked and not unsampled[r]
+                                                             and not illum[gl, int(S[r, PM])]):
+                    j = int(LP[fast_of[gl], LP_J])
+                    Le = _shaped(LP, fast_of[gl], SHP, d, mesh_light_emission_row(
+                        MS, j, -(d[0] * face_normal[k, 0] + d[1] * face_normal[k, 1] + d[2] * face_normal[k, 2])))
+                    if Le[0] != 0.0 or Le[1] != 0.0 or Le[2] != 0.0:
+                        if unsampled[r]:
+                            w = 1.0
+                        else:
+                            pv = (S[r, PP], S[r, PP + 1], S[r, PP + 2])
+                            pn = (S[r, PN], S[r, PN + 1], S[r, PN + 2])
+                            # The light's first triangle along d from pv (the one hit, or found).
+                            tri = prim_tri[k]
+                            if tri >= 0:
+                                t_l = plane_distance_row(tri, pv, d, MS[0], MS[1])
+                            else:
+                                t_l, tri = mesh_hit_row(pv, d, MS[3][j], MS[4][j], MS[0])
+                            p_l = mesh_light_pdf_row(MS, j, pv, pn, d, tri, t_l)
+                            pmf = pick_pmf_row(sp, gl, pv[0], pv[1], pv[2], pn[0], pn[1], pn[2])
+                            w = _mis_weight(S[r, PB], p_l * pmf, power[gl])
+                        L[pr_path, 0] += b0 * Le[0] * w
+                        L[pr_path, 1] += b1 * Le[1] * w
+                        L[pr_path, 2] += b2 * Le[2] * w
+                if prim_absorb[k]:
+                    continue  # noMaterialResponse: the path ends here (path.py zeroes beta)
             if emission.shape[0] > 0:
                 m = mat_row[r] if mat_row.shape[0] > 0 else tri_mat[k]
                 L[pr_path, 0] += b0 * emission[m, 0]
@@ -1220,6 +1338,8 @@ def vertex_kernel(
                         # F only for the pairs whose estimate uses it (this light's own, not every light's).
                         if _table_F(LP, g):
                             E = _dome_table_F(LP, g, V[4], i_rot[int(LP[g, LP_J])], f_pk, tbuf)
+                        elif LP[g, LP_KIND] == K_MESH:
+                            E = _mesh_F(LP, g, V[0], V[4], MS, far_ratio, kappa_max)
                         else:
                             E = _light_F(LP, g, V[0], V[4], f_theta[g], far_ratio, kappa_max)
                     first = k_sh
@@ -1247,7 +1367,7 @@ def vertex_kernel(
                             continue
                 else:
                     wi, dist, pdf_l, Le, delta = _light_sample(LP, g, (px, py, pz), u0, u1, IMG, close_ratio, min_sa,
-                                                               graz)
+                                                               graz, _w3(W, W_N, i))
                     if not (pdf_l > 0.0 and math.isfinite(pdf_l)):
                         continue
                     if LP[g, LP_SHAPE] >= 0.0:
@@ -1376,4 +1496,6 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
-             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/portal.py"])
+             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/cylinder.py",
+             "renderer/kernels/mesh_light.py",
+             "renderer/kernels/portal.py"])

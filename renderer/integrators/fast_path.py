@@ -9,7 +9,11 @@ test_fast_path_estimators.py per estimator) z-test the two against each other.
 A scene qualifies when it has
 * no lights (emissive surfaces only, or black: the extension rays go on only where a surface
   emits, _trace_kernel.extension_useful), or only RectLights (textured ones by kernels/lights.py's
-  rect_texel_* rows, off the vectorised batch sampler), SphereLights (treatAsPoint included), DiskLights, DistantLights
+  rect_texel_* rows, off the vectorised batch sampler), SphereLights (treatAsPoint included),
+  DiskLights, CylinderLights (treatAsLine included; renderer/kernels/cylinder.py's row functions),
+  mesh lights (UsdLux MeshLightAPI, with the "oriented" triangle pick: kernels/mesh_light.py's
+  rows; their emission is found where a ray hits one of their triangles, Scene.tri_light, and a
+  noMaterialResponse one ends the path there, Scene.tri_absorb), DistantLights
   and DomeLights (lat-long textured or constant, with portals: kernels/portal.py's rows sample
   through them and give an escaped ray's pdf, as DomeLight does), ShapingAPI included (the kernel
   multiplies every light sample and every emission a ray sees by kernels/shaping.py's factor, the
@@ -41,7 +45,7 @@ A scene qualifies when it has
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
   surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
   kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); no mesh lights; any maximum depth. With K emitter samples the K - 1
+  each hit); any maximum depth. With K emitter samples the K - 1
   extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
   weighted 1/K by PathIntegrator._trace_camera.
 
@@ -93,6 +97,8 @@ from . import _vertex_kernels as vk
 # The light kinds the vertex kernel serves: the finite ones in its order, then the infinite ones.
 FAST_KINDS = ("rect", "sphere", "disk")
 FAST_INFINITE = ("dome", "distant")
+# (Cylinder and mesh lights, after the disks in its order, it serves through its light table
+# only: their row functions in kernels/cylinder.py and kernels/mesh_light.py.)
 CUTOUT_PASSES = ck.CUTOUT_PASSES
 # Rays per Embree call inside trace_kernel (1: rtcIntersect1 / rtcOccluded1; 4, 8, 16: packets).
 TRACE_WIDTH = 8
@@ -104,10 +110,10 @@ def fast_path_reason(integ) -> str:
     scene, lights, opt = integ.scene, integ.lights, integ.opt
     if not getattr(opt, "fast_path", True):
         return "disabled (--no-fast-path)"
-    if not np.all(np.isin(lights.kind_of, [KIND_NAMES.index(k) for k in FAST_KINDS + FAST_INFINITE])):
-        return "a light other than a Rect, Sphere, Disk, Distant or DomeLight"
-    if scene.tri_light is not None or scene.tri_absorb is not None:
-        return "mesh lights"
+    mesh = lights.kinds[KIND_NAMES.index("mesh")]
+    if mesh.count and getattr(mesh, "pick_mode", "oriented") != "oriented":
+        # (The kernel's rows replay the oriented triangle pick only; "area" is a test setting.)
+        return "mesh lights with the area pick"
     mats = scene.materials
     if not mats.params_needed and mats.packed_bsdf() is None:
         return "no packed UsdPreviewSurface rows"
@@ -154,11 +160,12 @@ class FastPath:
         im = ImageSet.concat(dome.images, rl.images) if rl.images.count else dome.images
         self.images = im.kernel_record()
         mats = scene.materials
-        # Textured inputs, emission or normal maps: the material is evaluated per hit (st
-        # needed) and the kernel reads per-hit rows; otherwise one packed row per material (cut-
-        # outs alone change no row: presence is the walks' business).
-        self.per_hit = bool(mats.params_needed and (mats.has_emission or mats.has_normal_map
-                                                    or not mats.bsdf_is_constant))
+        # Textured inputs, textured emission or normal maps: the material is evaluated per hit
+        # (st needed) and the kernel reads per-hit rows; otherwise one packed row per material
+        # (cut-outs alone change no row: presence is the walks' business), and constant emission
+        # one radiance per material, which the kernel reads by the hit's material as it does Pm.
+        self.per_hit = bool(mats.params_needed and ((mats.has_emission and not mats.emission_is_constant)
+                                                    or mats.has_normal_map or not mats.bsdf_is_constant))
         self.cutouts = bool(mats.has_cutout)
         # (The kernel reads the albedo tables as its own constants; packed_bsdf's are the same.)
         self.Pm = np.zeros((0, 0)) if self.per_hit else mats.packed_bsdf()[0]
@@ -166,7 +173,9 @@ class FastPath:
         self.no_emission = np.zeros((0, 3))
         self.no_normals = np.zeros((0, 3))
         # The kernel's surface record (vertex_kernel's surf) where it is fixed for the render.
-        self.surf = (self.Pm, self.no_rows, self.no_emission, self.no_normals)
+        self.surf = (self.Pm, self.no_rows, (np.ascontiguousarray(mats.const["emission"], dtype=np.float64)
+                                             if mats.has_emission and not self.per_hit else self.no_emission),
+                     self.no_normals)
         g = scene.geometry
         f64 = np.float64
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
@@ -184,8 +193,19 @@ class FastPath:
         sampler = scene.light_sampler if lights.count else make_light_sampler("exhaustive", lights)
         self.picks = not getattr(sampler, "exhaustive", False)
         self.sp = pick_tables(sampler, lights)
+        # Cylinder lights (treatAsLine included): their packed rows (renderer/kernels/cylinder.py),
+        # radiance and global index, the kernel's cyl record.
+        cy = lights.kinds[KIND_NAMES.index("cylinder")]
+        self.cyl_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("cylinder"))[0],
+                                              dtype=np.int64)
+        self.cyl = (np.ascontiguousarray(cy.packed.reshape(-1, vk.NCY)),
+                    np.ascontiguousarray(np.reshape(cy.L, (-1, 3))), self.cyl_light)
+        self.mesh_light = np.ascontiguousarray(np.nonzero(lights.kind_of == KIND_NAMES.index("mesh"))[0],
+                                               dtype=np.int64)
+        self.mesh = self._mesh_record(lights.kinds[KIND_NAMES.index("mesh")])
         fast_of = np.full(lights.count, -1, dtype=np.int64)
-        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.inf_light])
+        order = np.concatenate([self.rect_light, self.sphere_light, self.disk_light, self.cyl_light, self.mesh_light,
+                                self.inf_light])
         fast_of[order] = np.arange(order.size)
         # The UsdLux record (vertex_kernel's lux): ShapingAPI, each global light's row in the
         # shaping table (-1: unshaped) and the table's kernel arrays (lights/shaping.py).
@@ -230,7 +250,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux, self.fcalc, self.mult, self.portal, self.texrect)
+            self.lux, self.fcalc, self.mult, self.cyl, self.mesh, self.portal, self.texrect)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
@@ -345,6 +365,32 @@ class FastPath:
         scene.accel.count_traced(tally[tk.T_INTERSECT], tally[tk.T_OCCLUDED])
         for g, a in enumerate(scene.shadow_accels):
             a.count_traced(tally[tk.N_TALLY + 2 * g], tally[tk.N_TALLY + 2 * g + 1])
+
+    def _mesh_record(self, ml) -> tuple:
+        """The kernel's mesh record: (MeshLight.compiled_record(), global index of each mesh
+        light, and per scene triangle (T,): its mesh light's global index or -1
+        (Scene.tri_light), its triangle in the record or -1 where the light's triangles are not
+        its mesh's one for one (the kernel then finds it by exact tests), and whether it absorbs
+        (Scene.tri_absorb))."""
+        scene = self.integ.scene
+        T = scene.geometry.vertices.shape[0]
+        if scene.tri_light is None:
+            return (ml.compiled_record(), self.mesh_light, np.zeros(0, np.int64), np.zeros(0, np.int64),
+                    np.zeros(0, bool))
+        prim_light = np.ascontiguousarray(scene.tri_light, dtype=np.int64)
+        prim_tri = np.full(T, -1, dtype=np.int64)
+        local = self.integ.lights.local_of
+        for gl in self.mesh_light:
+            j = int(local[gl])
+            prims = np.nonzero(prim_light == gl)[0]
+            s, c = int(ml.start[j]), int(ml.tri_count[j])
+            # The reader hands the light its mesh's triangles in order (lights/mesh.py).
+            if prims.size == c and np.allclose(scene.geometry.vertices[prims], ml.tris[s:s + c], rtol=1e-6,
+                                               atol=1e-6 * max(float(ml.size[j]), 1e-30)):
+                prim_tri[prims] = s + np.arange(c)
+        absorb = (np.ascontiguousarray(scene.tri_absorb, dtype=bool) if scene.tri_absorb is not None
+                  else np.zeros(T, bool))
+        return ml.compiled_record(), self.mesh_light, prim_light, prim_tri, absorb
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
               max_depth: int) -> np.ndarray:

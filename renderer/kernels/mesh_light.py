@@ -36,6 +36,10 @@ import math
 import numpy as np
 from numba import njit
 
+from renderer.kernels import guard_cache, guarded_sources, module_dispatchers
+from renderer.kernels.light_bvh import bvh_pick_row, bvh_pmf_row
+from renderer.lights.analytic import polygon_F
+
 _PI = math.pi
 
 
@@ -77,9 +81,23 @@ def _row(a, r):
     return (a[r, 0], a[r, 1], a[r, 2])
 
 
+# A ray leaving a point of a mesh light (a BSDF sample from its own surface, or the previous
+# vertex of a continuation ray that hits the light) meets the triangle it starts on at t ~ 1e-16
+# about half the time: no ray the scene traces (offset origins) sees that hit, and its pdf is ~0,
+# which left the general path's emission weight at 1 (about 1 % too bright on the mesh-light
+# room). Hits closer than this, relative to the origin's magnitude, are not hits.
+SELF_HIT_REL = 1e-9
+
+
+@njit(cache=True, nogil=True)
+def _t_min(o):
+    """The nearest distance (SELF_HIT_REL) at which a ray from o counts a hit."""
+    return SELF_HIT_REL * (1.0 + max(abs(o[0]), abs(o[1]), abs(o[2])))
+
+
 @njit(cache=True, nogil=True)
 def _tri_hit(o, d, v0, v1, v2):
-    """Moller-Trumbore, both sides: hit distance t > 0 or inf."""
+    """Moller-Trumbore, both sides: hit distance t > _t_min(o) or inf."""
     e1 = _sub(v1, v0)
     e2 = _sub(v2, v0)
     pv = _cross(d, e2)
@@ -96,9 +114,22 @@ def _tri_hit(o, d, v0, v1, v2):
     if v < 0.0 or u + v > 1.0:
         return math.inf
     t = _dot(e2, qv) * inv
-    if t > 0.0:
+    if t > _t_min(o):
         return t
     return math.inf
+
+
+@njit(cache=True, nogil=True)
+def mesh_hit_row(o, d, s, c, tris):
+    """First hit (t, global triangle) of the ray o + t d with triangles s..s+c (inf, -1: none)."""
+    best = math.inf
+    which = -1
+    for t in range(s, s + c):
+        th = _tri_hit(o, d, _vert(tris, t, 0), _vert(tris, t, 1), _vert(tris, t, 2))
+        if th < best:
+            best = th
+            which = t
+    return best, which
 
 
 @njit(cache=True, nogil=True)
@@ -106,35 +137,27 @@ def mesh_hit_kernel(idx, o, d, start, count, tris, out_t, out_tri):
     """First hit (t, global triangle) of rays o + t d with light idx's triangles (inf, -1: none)."""
     for r in range(idx.shape[0]):
         li = idx[r]
-        orr = _row(o, r)
-        dr = _row(d, r)
-        best = math.inf
-        which = -1
-        s = start[li]
-        for t in range(s, s + count[li]):
-            th = _tri_hit(orr, dr, _vert(tris, t, 0), _vert(tris, t, 1), _vert(tris, t, 2))
-            if th < best:
-                best = th
-                which = t
-        out_t[r] = best
-        out_tri[r] = which
+        out_t[r], out_tri[r] = mesh_hit_row(_row(o, r), _row(d, r), start[li], count[li], tris)
+
+
+@njit(cache=True, nogil=True)
+def plane_distance_row(t, o, d, tris, nrm):
+    """Distance along o + t d to the plane of triangle t (inf where parallel / below _t_min)."""
+    if t < 0:
+        return math.inf
+    nn = _row(nrm, t)
+    den = _dot(nn, d)
+    if den == 0.0:
+        return math.inf
+    x = _dot(nn, _sub(_vert(tris, t, 0), o)) / den
+    return x if (x > _t_min(o) and math.isfinite(x)) else math.inf
 
 
 @njit(cache=True, nogil=True)
 def plane_distance_kernel(tri, o, d, tris, nrm, out_t):
     """Distance t (n,) along o + t d to the plane of triangle tri[r] (inf where parallel / none)."""
     for r in range(tri.shape[0]):
-        t = tri[r]
-        if t < 0:
-            out_t[r] = math.inf
-            continue
-        nn = _row(nrm, t)
-        den = _dot(nn, _row(d, r))
-        if den == 0.0:
-            out_t[r] = math.inf
-            continue
-        x = _dot(nn, _sub(_vert(tris, t, 0), _row(o, r))) / den
-        out_t[r] = x if (x > 0.0 and math.isfinite(x)) else math.inf
+        out_t[r] = plane_distance_row(tri[r], _row(o, r), _row(d, r), tris, nrm)
 
 
 @njit(cache=True, nogil=True)
@@ -236,63 +259,70 @@ def _store(r, L, k, w, pdf, d, x, out_L, out_wi, out_pdf, out_dist, out_p):
 
 
 @njit(cache=True, nogil=True)
+def mesh_sample_row(pr, t, pick, u0, u1, tris, nrm, area, ts, Lrad, min_sa, max_sa):
+    """A point of triangle t (global index, picked with probability pick; two-sided ts) seen
+    from pr with fresh uniforms (u0, u1): (L (3-tuple), wi, pdf, dist, x). A failed sample has
+    pdf 0 and L 0."""
+    none = ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, 0.0, pr)
+    if t < 0 or not (pick > 0.0):
+        return none
+    v0 = _vert(tris, t, 0)
+    v1 = _vert(tris, t, 1)
+    v2 = _vert(tris, t, 2)
+    nn = _row(nrm, t)
+    h = _dot(nn, _sub(pr, v0))
+    if area[t] <= 0.0 or h == 0.0 or (h < 0.0 and not ts):
+        return none
+    a = _unit(_sub(v0, pr))[0]
+    b = _unit(_sub(v1, pr))[0]
+    c = _unit(_sub(v2, pr))[0]
+    om = _solid_angle(a, b, c)
+    if om >= min_sa and om <= max_sa:
+        w = _sph_tri_sample(a, b, c, u0, u1)
+        den = _dot(nn, w)
+        if den == 0.0:
+            return none
+        dist = -h / den
+        if not (dist > 0.0 and math.isfinite(dist)):
+            return none
+        x = (pr[0] + dist * w[0], pr[1] + dist * w[1], pr[2] + dist * w[2])
+        pdf = pick / om
+    else:
+        su = math.sqrt(u0)
+        b0 = 1.0 - su
+        b1 = u1 * su
+        b2 = 1.0 - b0 - b1
+        x = (b0 * v0[0] + b1 * v1[0] + b2 * v2[0],
+             b0 * v0[1] + b1 * v1[1] + b2 * v2[1],
+             b0 * v0[2] + b1 * v1[2] + b2 * v2[2])
+        w, dist = _unit(_sub(x, pr))
+        if not (dist > 0.0):
+            return none
+        cos_l = abs(h) / dist
+        if cos_l <= 0.0:
+            return none
+        pdf = pick * dist * dist / (area[t] * cos_l)
+        if not math.isfinite(pdf):
+            return none
+    if not (pdf > 0.0):
+        return none
+    return Lrad, w, pdf, dist, x
+
+
+@njit(cache=True, nogil=True)
 def mesh_sample_kernel(idx, tri, pick, p, u, tris, nrm, area, two_sided, Lrad, min_sa, max_sa,
                        out_L, out_wi, out_pdf, out_dist, out_p):
     """Sample a point of triangle tri[r] (already picked, global index, with probability
-    pick[r]) of light idx[r] from p.
+    pick[r]) of light idx[r] from p: mesh_sample_row per row.
 
     u (n, 2) are fresh uniforms (the triangle pick's were remapped by the caller). Outputs are
     fully written; a failed sample has pdf 0, L 0.
     """
     for r in range(idx.shape[0]):
         li = idx[r]
-        t = tri[r]
-        pr = _row(p, r)
-        _store(r, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 1.0), 0.0, 0.0, pr, out_L, out_wi, out_pdf, out_dist, out_p)
-        if t < 0 or not (pick[r] > 0.0):
-            continue
-        v0 = _vert(tris, t, 0)
-        v1 = _vert(tris, t, 1)
-        v2 = _vert(tris, t, 2)
-        nn = _row(nrm, t)
-        h = _dot(nn, _sub(pr, v0))
-        ts = two_sided[li]
-        if area[t] <= 0.0 or h == 0.0 or (h < 0.0 and not ts):
-            continue
-        a = _unit(_sub(v0, pr))[0]
-        b = _unit(_sub(v1, pr))[0]
-        c = _unit(_sub(v2, pr))[0]
-        om = _solid_angle(a, b, c)
-        if om >= min_sa and om <= max_sa:
-            w = _sph_tri_sample(a, b, c, u[r, 0], u[r, 1])
-            den = _dot(nn, w)
-            if den == 0.0:
-                continue
-            dist = -h / den
-            if not (dist > 0.0 and math.isfinite(dist)):
-                continue
-            x = (pr[0] + dist * w[0], pr[1] + dist * w[1], pr[2] + dist * w[2])
-            pdf = pick[r] / om
-        else:
-            su = math.sqrt(u[r, 0])
-            b0 = 1.0 - su
-            b1 = u[r, 1] * su
-            b2 = 1.0 - b0 - b1
-            x = (b0 * v0[0] + b1 * v1[0] + b2 * v2[0],
-                 b0 * v0[1] + b1 * v1[1] + b2 * v2[1],
-                 b0 * v0[2] + b1 * v1[2] + b2 * v2[2])
-            w, dist = _unit(_sub(x, pr))
-            if not (dist > 0.0):
-                continue
-            cos_l = abs(h) / dist
-            if cos_l <= 0.0:
-                continue
-            pdf = pick[r] * dist * dist / (area[t] * cos_l)
-            if not math.isfinite(pdf):
-                continue
-        if not (pdf > 0.0):
-            continue
-        _store(r, _row(Lrad, li), 1.0, w, pdf, dist, x, out_L, out_wi, out_pdf, out_dist, out_p)
+        L, w, pdf, dist, x = mesh_sample_row(_row(p, r), tri[r], pick[r], u[r, 0], u[r, 1], tris, nrm, area,
+                                             two_sided[li], _row(Lrad, li), min_sa, max_sa)
+        _store(r, L, 1.0, w, pdf, dist, x, out_L, out_wi, out_pdf, out_dist, out_p)
 
 
 @njit(cache=True, nogil=True)
@@ -355,48 +385,58 @@ def _pick_weight(p, ns, t, tris, nrm, area, two_sided, horizon_pad, floor):
 
 
 @njit(cache=True, nogil=True)
+def mesh_pick_row(pr, nr, u0, s, c, tris, nrm, area, ts, horizon_pad, floor):
+    """Pick one of triangles s..s+c seen from pr with shading normal nr with probability
+    w_t / sum(w) (``_pick_weight``) by inverting the running sum with u0: (global triangle (-1:
+    none can contribute), its probability (0: none), u0 rescaled into the chosen interval (a
+    fresh uniform)). The weights are computed twice (total, then the walk) rather than stored:
+    the same arithmetic gives the same numbers, and the total is summed in triangle order,
+    exactly as mesh_pick_pmf_row sums it."""
+    total = 0.0
+    for k in range(c):
+        total += _pick_weight(pr, nr, s + k, tris, nrm, area, ts, horizon_pad, floor)
+    if not (total > 0.0) or not math.isfinite(total):
+        return -1, 0.0, 0.0
+    x = u0 * total
+    run = 0.0
+    last = -1
+    last_run = 0.0
+    w_last = 0.0
+    for k in range(c):
+        w = _pick_weight(pr, nr, s + k, tris, nrm, area, ts, horizon_pad, floor)
+        if w <= 0.0:
+            continue
+        last, last_run, w_last = k, run, w
+        if x < run + w:
+            break
+        run += w
+    # (Rounding can leave x past the last interval: the last contributing triangle takes it.)
+    v = (x - last_run) / w_last
+    return s + last, w_last / total, min(max(v, 0.0), 1.0 - 2.0 ** -53)
+
+
+@njit(cache=True, nogil=True)
 def mesh_pick_kernel(idx, p, ns, u0, start, count, tris, nrm, area, two_sided, horizon_pad, floor,
                      out_tri, out_pick, out_u):
-    """Pick a triangle of light idx[r] with probability w_t / sum(w) (``_pick_weight``) by
-    inverting the running sum with u0[r]. Writes the global triangle (-1: none can contribute),
-    its probability (0: none) and u0 rescaled into the chosen interval (a fresh uniform).
-    The total is summed in triangle order, exactly as mesh_pick_pmf_kernel sums it."""
-    most = 0
-    for r in range(idx.shape[0]):
-        most = max(most, count[idx[r]])
-    w = np.empty(most)  # one row's weights, reused
+    """Pick a triangle of light idx[r] (mesh_pick_row per row). Writes the global triangle (-1:
+    none can contribute), its probability (0: none) and u0 rescaled into the chosen interval."""
     for r in range(idx.shape[0]):
         li = idx[r]
-        pr = _row(p, r)
-        nr = _row(ns, r)
-        s = start[li]
-        c = count[li]
-        ts = two_sided[li]
-        total = 0.0
-        for k in range(c):
-            w[k] = _pick_weight(pr, nr, s + k, tris, nrm, area, ts, horizon_pad, floor)
-            total += w[k]
-        out_tri[r] = -1
-        out_pick[r] = 0.0
-        out_u[r] = 0.0
-        if not (total > 0.0) or not math.isfinite(total):
-            continue
-        x = u0[r] * total
-        run = 0.0
-        last = -1
-        last_run = 0.0
-        for k in range(c):
-            if w[k] <= 0.0:
-                continue
-            last, last_run = k, run
-            if x < run + w[k]:
-                break
-            run += w[k]
-        # (Rounding can leave x past the last interval: the last contributing triangle takes it.)
-        out_tri[r] = s + last
-        out_pick[r] = w[last] / total
-        v = (x - last_run) / w[last]
-        out_u[r] = min(max(v, 0.0), 1.0 - 2.0 ** -53)
+        out_tri[r], out_pick[r], out_u[r] = mesh_pick_row(_row(p, r), _row(ns, r), u0[r], start[li], count[li],
+                                                          tris, nrm, area, two_sided[li], horizon_pad, floor)
+
+
+@njit(cache=True, nogil=True)
+def mesh_pick_pmf_row(pr, nr, t, s, c, tris, nrm, area, ts, horizon_pad, floor):
+    """The probability that mesh_pick_row picks global triangle t (0 for -1)."""
+    if t < 0:
+        return 0.0
+    total = 0.0
+    for k in range(s, s + c):
+        total += _pick_weight(pr, nr, k, tris, nrm, area, ts, horizon_pad, floor)
+    if not (total > 0.0) or not math.isfinite(total):
+        return 0.0
+    return _pick_weight(pr, nr, t, tris, nrm, area, ts, horizon_pad, floor) / total
 
 
 @njit(cache=True, nogil=True)
@@ -404,18 +444,121 @@ def mesh_pick_pmf_kernel(idx, tri, p, ns, start, count, tris, nrm, area, two_sid
                          out_pick):
     """The probability (n,) that mesh_pick_kernel picks global triangle tri[r] (0 for -1)."""
     for r in range(idx.shape[0]):
-        t = tri[r]
-        out_pick[r] = 0.0
-        if t < 0:
-            continue
         li = idx[r]
-        pr = _row(p, r)
-        nr = _row(ns, r)
-        s = start[li]
-        ts = two_sided[li]
-        total = 0.0
-        for k in range(s, s + count[li]):
-            total += _pick_weight(pr, nr, k, tris, nrm, area, ts, horizon_pad, floor)
-        if not (total > 0.0) or not math.isfinite(total):
-            continue
-        out_pick[r] = _pick_weight(pr, nr, t, tris, nrm, area, ts, horizon_pad, floor) / total
+        out_pick[r] = mesh_pick_pmf_row(_row(p, r), _row(ns, r), tri[r], start[li], count[li], tris, nrm, area,
+                                        two_sided[li], horizon_pad, floor)
+
+
+# ----------------------------------------------------------------------------------------
+# A whole mesh light per row, for compiled integrators (the fast path's vertex kernel)
+# ----------------------------------------------------------------------------------------
+# The record MS (MeshLight.compiled_record): (tris, nrm, area, start, count, two_sided, L,
+# has_tree (k,) bool, TR, consts). TR: the triangle BVHs of the lights that have one (lights/mesh.py:
+# more than EXACT_PICK_TRIANGLES triangles) concatenated, (pair_start (k + 1,), pair_next,
+# pair_c, pair_b (light j's pairs at pair_start[j]:pair_start[j + 1], child indices local to
+# it), slot, depth, trail (rows of light j's triangles: its leaves), root_light, root_c, root_b,
+# p_inf (k,) per light, is_inf (T,) all False, infinite (0,)), which light_bvh's rows take as
+# slices; consts: (horizon_pad, floor, min_sa, max_sa). The same pick, sample and pdf as
+# MeshLight.sample_li / pdf_li with the "oriented" pick (the numpy route's kernels above, and
+# light_bvh's rows for the large lights).
+@njit(cache=True, nogil=True)
+def mesh_light_pick_row(MS, j, p, ns, u0):
+    """Light j's triangle pick at p with shading normal ns from u0: (global triangle or -1,
+    probability, remapped uniform)."""
+    tris, nrm, area, start, count, two_sided, _L, has_tree, TR, K = MS
+    if has_tree[j]:
+        a, b = TR[0][j], TR[0][j + 1]
+        loc, pr, uu, _tree = bvh_pick_row(u0, p[0], p[1], p[2], ns[0], ns[1], ns[2], True, TR[10][j], TR[12],
+                                          TR[1][a:b], TR[7][j], TR[8][j:j + 1], TR[9][j:j + 1], TR[2][a:b],
+                                          TR[3][a:b])
+        if not (pr > 0.0):
+            return -1, 0.0, 0.0
+        return start[j] + loc, pr, uu
+    return mesh_pick_row(p, ns, u0, start[j], count[j], tris, nrm, area, two_sided[j], K[0], K[1])
+
+
+@njit(cache=True, nogil=True)
+def mesh_light_pick_prob_row(MS, j, p, ns, t):
+    """The probability that mesh_light_pick_row at p, ns picks global triangle t (0 for -1)."""
+    tris, nrm, area, start, count, two_sided, _L, has_tree, TR, K = MS
+    if t < 0:
+        return 0.0
+    if has_tree[j]:
+        a, b = TR[0][j], TR[0][j + 1]
+        s, c = start[j], count[j]
+        return bvh_pmf_row(t - s, p[0], p[1], p[2], ns[0], ns[1], ns[2], True, TR[10][j], TR[11][s:s + c], 0,
+                           TR[4][s:s + c], TR[5][s:s + c], TR[6][s:s + c], TR[1][a:b], TR[7][j], TR[8][j:j + 1],
+                           TR[9][j:j + 1], TR[2][a:b], TR[3][a:b])
+    return mesh_pick_pmf_row(p, ns, t, start[j], count[j], tris, nrm, area, two_sided[j], K[0], K[1])
+
+
+@njit(cache=True, nogil=True)
+def mesh_light_sample_row(MS, j, p, ns, u0, u1):
+    """Light j's sample from p (shading normal ns) with uniforms (u0, u1): (L, wi, pdf, dist, x)
+    as mesh_sample_row; pdf 0 where it fails."""
+    tris, nrm, area, _start, _count, two_sided, L, _has_tree, _TR, K = MS
+    t, pick, uu = mesh_light_pick_row(MS, j, p, ns, u0)
+    return mesh_sample_row(p, t, pick, uu, u1, tris, nrm, area, two_sided[j], (L[j, 0], L[j, 1], L[j, 2]), K[2],
+                           K[3])
+
+
+@njit(cache=True, nogil=True)
+def mesh_light_pdf_row(MS, j, p, ns, wi, t, dist):
+    """The solid-angle pdf with which light j's sampler at p (shading normal ns) gives wi,
+    whose first triangle of the light is t (global, -1: none) at distance dist."""
+    tris, nrm, area, _start, _count, two_sided, _L, _has_tree, _TR, K = MS
+    if t < 0 or not math.isfinite(dist):
+        return 0.0
+    pick = mesh_light_pick_prob_row(MS, j, p, ns, t)
+    x = (p[0] + dist * wi[0], p[1] + dist * wi[1], p[2] + dist * wi[2])
+    return _tri_pdf(p, t, x, dist, tris, nrm, area, pick, two_sided[j], K[2], K[3])
+
+
+@njit(cache=True, nogil=True)
+def mesh_light_emission_row(MS, j, cos_front):
+    """Radiance (3-tuple) of light j toward a viewer at cos_front = -d . n_front of the triangle
+    it sees (MeshLight.surface_emission): its front, or either side when two-sided."""
+    two_sided, L = MS[5], MS[6]
+    if cos_front > 0.0 or (two_sided[j] and cos_front != 0.0):
+        return (L[j, 0], L[j, 1], L[j, 2])
+    return (0.0, 0.0, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def mesh_light_along_row(MS, j, p, ns, wi):
+    """Light j seen from p along wi (estimators.base.light_along, then pdf_li where seen): (t,
+    Le, p_l); (inf, black, 0) where wi misses it. Its first triangle by exact float64 tests
+    (the numpy route asks a large light's own embree BVH)."""
+    tris, nrm = MS[0], MS[1]
+    start, count = MS[3], MS[4]
+    t_hit, t = mesh_hit_row(p, wi, start[j], count[j], tris)
+    if t < 0:
+        return math.inf, (0.0, 0.0, 0.0), 0.0
+    Le = mesh_light_emission_row(MS, j, -_dot(wi, _row(nrm, t)))
+    return t_hit, Le, mesh_light_pdf_row(MS, j, p, ns, wi, t, t_hit)
+
+
+@njit(cache=True, nogil=True)
+def mesh_G_row(p, ns, s, c, tris, nrm, ts, far_ratio, kappa_max):
+    """Projected solid angle [sr] of triangles s..s+c seen from p about the shading normal ns:
+    Lambert's polygon formula per triangle (lights/analytic.polygon_F, one-sided about its front
+    normal unless ts), summed in triangle order. Times the light's radiance: its irradiance."""
+    G = 0.0
+    for t in range(s, s + c):
+        G += polygon_F(p, ns, (_vert(tris, t, 0), _vert(tris, t, 1), _vert(tris, t, 2)), _row(nrm, t), not ts,
+                       far_ratio, kappa_max)
+    return G
+
+
+@njit(cache=True, nogil=True)
+def mesh_G_kernel(idx, p, ns, start, count, tris, nrm, two_sided, far_ratio, kappa_max, out):
+    """mesh_G_row for rows (light idx[r] at p[r], ns[r]) into out (n,)."""
+    for r in range(idx.shape[0]):
+        li = idx[r]
+        out[r] = mesh_G_row(_row(p, r), _row(ns, r), start[li], count[li], tris, nrm, two_sided[li], far_ratio,
+                            kappa_max)
+
+
+# The row functions inline light_bvh's walks and analytic.polygon_F (see renderer/kernels/__init__.py).
+guard_cache(__name__, module_dispatchers(globals()),
+            ["renderer/kernels/light_bvh.py", *guarded_sources("renderer.lights.analytic")])

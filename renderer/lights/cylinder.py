@@ -162,6 +162,25 @@ class CylinderLight:
         self.a = np.ascontiguousarray(self.m3[:, :, 0])
         self.b1 = np.ascontiguousarray(self.m3[:, :, 1] * self.radius[:, None])
         self.b2 = np.ascontiguousarray(self.m3[:, :, 2] * self.radius[:, None])
+        self.packed = self.pack()
+
+    def pack(self) -> np.ndarray:
+        """(count, kern.NCY) float64: each light's row for the compiled row functions
+        (renderer/kernels/cylinder.py, columns CY_*), which both integrators call."""
+        k = self.count
+        out = np.zeros((k, kern.NCY))
+        out[:, kern.CY_C:kern.CY_C + 3] = self.center
+        out[:, kern.CY_M3:kern.CY_M3 + 9] = self.m3.reshape(k, 9)
+        out[:, kern.CY_MI:kern.CY_MI + 9] = self.m3_inv.reshape(k, 9)
+        out[:, kern.CY_NM:kern.CY_NM + 9] = self.normal_m.reshape(k, 9)
+        out[:, kern.CY_A:kern.CY_A + 3] = self.a
+        out[:, kern.CY_B1:kern.CY_B1 + 3] = self.b1
+        out[:, kern.CY_B2:kern.CY_B2 + 3] = self.b2
+        out[:, kern.CY_R] = self.radius
+        out[:, kern.CY_H] = self.half
+        out[:, kern.CY_L:kern.CY_L + 3] = self.L
+        out[:, kern.CY_DELTA] = self.delta
+        return out
 
     # ----------------------------------------------------------------------------------
     # Build
@@ -295,9 +314,7 @@ class CylinderLight:
         pdf = np.empty(n)
         dist = np.empty(n)
         p_l = np.empty((n, 3))
-        kern.cylinder_sample_kernel(idx, as_points(ctx.p), as_points(u, 2), self.center, self.m3, self.m3_inv,
-                                    self.normal_m, self.a, self.b1, self.b2, self.radius, self.half, self.L,
-                                    self.delta, L, wi, pdf, dist, p_l)
+        kern.cylinder_sample_kernel(idx, as_points(ctx.p), as_points(u, 2), self.packed, L, wi, pdf, dist, p_l)
         return LightLiSample(L=L, wi=wi, pdf=pdf, dist=dist, p_light=p_l)
 
     def pdf_li(self, idx: np.ndarray, ctx: ShadingContext, wi: np.ndarray) -> np.ndarray:
@@ -305,8 +322,7 @@ class CylinderLight:
         0 for misses, from inside, and for line lights."""
         idx = np.ascontiguousarray(idx, dtype=np.int64)
         out = np.empty(idx.size)
-        kern.cylinder_pdf_kernel(idx, as_points(ctx.p), as_points(wi), self.center, self.m3_inv, self.normal_m,
-                                 self.a, self.b1, self.b2, self.radius, self.half, self.delta, out)
+        kern.cylinder_pdf_kernel(idx, as_points(ctx.p), as_points(wi), self.packed, out)
         return out
 
     def intersect(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -203,6 +203,45 @@ class MeshLight:
                              self._tri_bvh[i] if self._tri_bvh[i] is not None else self._triangle_bvh(i)
                              for i in range(self.count)]
 
+    def compiled_record(self) -> tuple:
+        """The record MS of the compiled per-row functions (kernels/mesh_light.py
+        mesh_light_*_row, which lists its fields) with the "oriented" pick: the triangle BVHs
+        of the large lights concatenated, each light's pairs at pair_start[j]:pair_start[j + 1]
+        and its leaves' replay tables at its triangles' rows."""
+        k, T = self.count, self.tris.shape[0]
+        trees = [(j, b) for j, b in enumerate(self._tri_bvh) if b is not None]
+        width = max([b.trail.shape[1] for _, b in trees] + [1])
+        pair_start = np.zeros(k + 1, np.int64)
+        slot = np.full(T, -1, np.int32)
+        depth = np.zeros(T, np.int32)
+        trail = np.zeros((T, width), np.uint64)
+        root_light = np.full(k, -1, np.int64)
+        root_c = np.zeros((k, 1, 3))
+        root_b = np.zeros((k, 1, 8), np.float32)
+        p_inf = np.zeros(k)
+        pc, pb, pn = [np.zeros((0, 2, 3))], [np.zeros((0, 2, 8), np.float32)], [np.zeros((0, 2), np.int32)]
+        sizes = np.zeros(k, np.int64)
+        for j, b in trees:
+            s0, m = int(self.start[j]), b.depth.shape[0]
+            sizes[j] = b.pair_c.shape[0]
+            pc.append(b.pair_c)
+            pb.append(b.pair_b)
+            pn.append(b.pair_next)
+            slot[s0:s0 + b.slot.shape[0]] = b.slot
+            depth[s0:s0 + m] = b.depth
+            trail[s0:s0 + m, :b.trail.shape[1]] = b.trail
+            root_light[j] = int(b.root_light)
+            root_c[j], root_b[j], p_inf[j] = b.root_c[0], b.root_b[0], float(b.p_infinite)
+        pair_start[1:] = np.cumsum(sizes)
+        TR = (pair_start, np.ascontiguousarray(np.concatenate(pn), dtype=np.int32),
+              np.ascontiguousarray(np.concatenate(pc), dtype=np.float64),
+              np.ascontiguousarray(np.concatenate(pb), dtype=np.float32), slot, depth, trail, root_light, root_c,
+              root_b, p_inf, np.zeros(T, bool), np.zeros(0, np.int64))
+        has_tree = np.array([b is not None for b in self._tri_bvh], dtype=bool)
+        consts = np.array([HORIZON_PAD, PICK_FLOOR, MIN_SPHERICAL_SOLID_ANGLE, MAX_SPHERICAL_SOLID_ANGLE])
+        return (self.tris, self.nrm, np.ascontiguousarray(self.area), self.start, self.tri_count, self.two_sided,
+                np.ascontiguousarray(self.L), has_tree, TR, consts)
+
     # ----------------------------------------------------------------------------------
     # Build
     # ----------------------------------------------------------------------------------
@@ -263,6 +302,16 @@ class MeshLight:
                 ok = (g >= 0) & np.isfinite(tp)
                 t[rows] = np.where(ok, tp, np.inf)
                 tri[rows] = np.where(ok, g, -1)
+                # Embree's hit on the triangle the ray starts on (kernels/mesh_light.SELF_HIT_REL):
+                # the first hit past it by the exact tests.
+                redo = rows[(g >= 0) & ~ok]
+                if redo.size:
+                    ts = np.empty(redo.size)
+                    trs = np.empty(redo.size, dtype=np.int64)
+                    kern.mesh_hit_kernel(np.ascontiguousarray(idx[redo]), np.ascontiguousarray(o[redo]),
+                                         np.ascontiguousarray(d[redo]), self.start, self.tri_count, self.tris, ts,
+                                         trs)
+                    t[redo], tri[redo] = ts, trs
         return t, tri
 
     def _triangle_at(self, idx: np.ndarray, p_light: np.ndarray, wi: np.ndarray) -> np.ndarray:
@@ -424,8 +473,10 @@ class MeshLight:
         return np.zeros((0, 3, 3)), np.zeros(0, dtype=np.int64)
 
     def irradiance(self, idx: np.ndarray, ctx: ShadingContext) -> tuple[np.ndarray, np.ndarray]:
-        """Unshadowed irradiance (n, 3) about ctx.ns and exact (n,) bool (see the module docstring)."""
-        from renderer.lights.analytic import projected_solid_angle_polygon
+        """Unshadowed irradiance (n, 3) about ctx.ns and exact (n,) bool (see the module docstring):
+        Lambert's polygon formula per triangle (kernels/mesh_light.mesh_G_row, the compiled
+        path's F too)."""
+        from renderer.lights.analytic import FAR_RATIO, KAPPA_MAX
 
         idx = np.asarray(idx, dtype=np.int64)
         n = idx.size
@@ -433,18 +484,9 @@ class MeshLight:
         exact = self.tri_count[idx] <= EXACT_MAX_TRIANGLES
         rows = np.nonzero(exact)[0]
         if rows.size:
-            cnt = self.tri_count[idx[rows]]
-            pair_row = np.repeat(rows, cnt)
-            offs = np.arange(pair_row.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-            tri = np.repeat(self.start[idx[rows]], cnt) + offs
-            two = self.two_sided[idx[pair_row]]
-            G = np.zeros(pair_row.size)
-            for sided in (False, True):  # one-sided and two-sided triangles
-                k = np.nonzero(two == sided)[0]
-                if k.size:
-                    G[k] = projected_solid_angle_polygon(
-                        ctx.p[pair_row[k]], ctx.ns[pair_row[k]], self.tris[tri[k]],
-                        None if sided else self.nrm[tri[k]])
-            g = np.bincount(pair_row, weights=G, minlength=n)
-            E[rows] = g[rows][:, None] * self.L[idx[rows]]
+            G = np.zeros(rows.size)
+            kern.mesh_G_kernel(np.ascontiguousarray(idx[rows]), np.ascontiguousarray(ctx.p[rows], dtype=np.float64),
+                               np.ascontiguousarray(ctx.ns[rows], dtype=np.float64), self.start, self.tri_count,
+                               self.tris, self.nrm, self.two_sided, float(FAR_RATIO), float(KAPPA_MAX), G)
+            E[rows] = G[:, None] * self.L[idx[rows]]
         return E, exact

@@ -20,7 +20,6 @@ ALL_STAGES = sorted(os.path.relpath(os.path.join(d, f), os.path.join(ROOT, "stag
 # Stages whose per-bounce work is not compiled yet (the one-integrator issue): each is an expected
 # failure that must start failing as an xfail (strict) the day its light kind is compiled.
 GENERAL_ROUTE = {
-    "lux_extra/mesh_light_room.usda": "mesh lights",
 }
 
 
