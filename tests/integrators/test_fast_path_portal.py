@@ -136,3 +136,22 @@ def test_the_comparison_detects_a_wrong_portal_density(monkeypatch):
     _broken(monkeypatch, wrong)
     z, _ = _block_z(*_pair(WINDOW, "lightSampling"))
     assert abs(z) > Z_MAX, f"a wrong portal density went unseen (z = {z:.2f})"
+
+
+def test_portal_and_textured_rect_stages_run_as_one_compiled_call(tmp_path):
+    """Neither feature needs numpy work between bounces: the whole bounce loop is one
+    trace_kernel call (FastPath.kernel_reason() == '')."""
+    from renderer.camera import Camera
+    from renderer.integrators.path import IntegratorOptions, PathIntegrator
+    from renderer.scene import build_scene
+    from renderer.usd import load_stage
+
+    stage = tmp_path / "room.usda"
+    _textured_rects(stage, tmp_path, sky=True)
+    for path in (WINDOW, stage):
+        scene = build_scene(load_stage(str(path)), threads=1)
+        try:
+            integ = PathIntegrator(scene, Camera(scene.desc.camera, 8, 8), IntegratorOptions(threads=1))
+            assert integ.fast is not None and integ.fast.kernel_reason() == "", path
+        finally:
+            scene.close()
