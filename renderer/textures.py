@@ -247,6 +247,47 @@ def lookup_row(px, off, h, w, nc, s, t, ws, wt, xf, c, scale, bias, fallback):
 
 
 @njit(cache=True, nogil=True)
+def texture_row(TX, j, s, t, c):
+    """Output channel c of texture j of the packed set TX (TextureCache.pack) at st = (s, t):
+    TextureCache.lookup's rules for one row. A plain texture: its image through lookup_row, or
+    its fallback where the file could not be read. A UDIM texture (module docstring): the st
+    transform, then tile 1001 + floor(s') + 10 floor(t') at the tile-local st through lookup_row
+    (clamped at the tile's edges, no transform), the fallback off the tiles or on a tile that
+    could not be read."""
+    px, off, h, w, nc, img, ws, wt, xf, has_xf, scale, bias, fallback, udim, tile_lo, tile_hi, tile_num, tile_img = TX
+    if not udim[j]:
+        i = img[j]
+        if i < 0:
+            return fallback[j, c]
+        return lookup_row(px, off[i], h[i], w[i], nc[i], s, t, ws[j], wt[j], xf[j] if has_xf[j] else xf[j, :0], c,
+                          scale[j, c], bias[j, c], fallback[j, c])
+    if not (math.isfinite(s) and math.isfinite(t)):
+        return fallback[j, c]
+    if has_xf[j]:
+        s, t = xf[j, 0] * s + xf[j, 1] * t + xf[j, 4], xf[j, 2] * s + xf[j, 3] * t + xf[j, 5]
+    u = math.floor(s)
+    v = math.floor(t)
+    if not (u >= 0.0 and u < 10.0 and v >= 0.0 and v < 1e6):
+        return fallback[j, c]
+    number = int(1001.0 + u + 10.0 * v)
+    i = -2
+    for q in range(tile_lo[j], tile_hi[j]):
+        if tile_num[q] == number:
+            i = tile_img[q]  # the last tile of that number, as _lookup_udim's loop leaves it
+    if i < 0:
+        return fallback[j, c]
+    return lookup_row(px, off[i], h[i], w[i], nc[i], s - u, t - v, 1, 1, xf[j, :0], c, scale[j, c], bias[j, c],
+                      fallback[j, c])
+
+
+@njit(cache=True, nogil=True)
+def _texture_kernel(TX, j, st, out):
+    for r in range(st.shape[0]):
+        for c in range(out.shape[1]):
+            out[r, c] = texture_row(TX, j, st[r, 0], st[r, 1], c)
+
+
+@njit(cache=True, nogil=True)
 def _lookup_kernel(px, h, w, nc, st, ws, wt, xf, scale, bias, fallback, out):
     for i in range(st.shape[0]):
         for c in range(out.shape[1]):
@@ -415,21 +456,69 @@ class TextureCache:
         return _lookup(px, st, *self.wrap_modes(tex), xf, tex.scale, tex.bias, fallback)
 
     def _lookup_udim(self, tex: TextureDesc, st: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-        """lookup for a UDIM texture (module docstring): each tile's rows at tile-local st."""
-        out = np.broadcast_to(fallback, (st.shape[0], 4)).copy()
-        if tex.st_transform:
-            m00, m01, m10, m11, t0, t1 = tex.st_transform
-            st = np.stack([m00 * st[:, 0] + m01 * st[:, 1] + t0, m10 * st[:, 0] + m11 * st[:, 1] + t1], axis=1)
-        with np.errstate(invalid="ignore"):
-            cell = np.floor(np.where(np.isfinite(st), st, -1.0))
-        u, v = cell[:, 0], cell[:, 1]
-        tile = np.where((u >= 0) & (u < 10) & (v >= 0) & (v < 1e6), 1001 + u + 10 * v, -1).astype(np.int64)
-        local = st - cell
-        for i, (number, _file) in enumerate(tex.udim_tiles):
-            rows = np.nonzero(tile == number)[0]
-            if rows.size:
-                out[rows] = self.lookup(self.udim_tile(tex, i), local[rows])
+        """lookup for a UDIM texture (module docstring): texture_row on every row."""
+        out = np.empty((st.shape[0], 4))
+        _texture_kernel(self.pack([tex]), 0, np.ascontiguousarray(st, dtype=np.float64), out)
         return out
+
+    def pack(self, textures: list[TextureDesc]) -> tuple:
+        """The textures (each added) as one record for compiled lookups (texture_row): (pixels
+        (all images flat, float32), offset, height, width, channels (images,) int64; per
+        texture (k,): its image or -1 (not read), wrap_s, wrap_t (WRAP_MODES codes), xf (k, 6)
+        st transform and has_xf bool, scale, bias, fallback (k, 4), udim bool, tile_lo, tile_hi
+        int64 its range in the tile arrays; tile_num (tiles,) the UDIM numbers and tile_img their
+        images or -1)."""
+        images: list[np.ndarray] = []
+
+        def image_of(t: TextureDesc) -> int:
+            px = self.image(t)
+            if px is None:
+                return -1
+            for i, im in enumerate(images):
+                if im is px:
+                    return i
+            images.append(px)
+            return len(images) - 1
+
+        k = len(textures)
+        img = np.full(k, -1, dtype=np.int64)
+        ws = np.zeros(k, dtype=np.int64)
+        wt = np.zeros(k, dtype=np.int64)
+        xf = np.zeros((k, 6))
+        has_xf = np.zeros(k, dtype=np.bool_)
+        udim = np.zeros(k, dtype=np.bool_)
+        tile_lo = np.zeros(k, dtype=np.int64)
+        tile_hi = np.zeros(k, dtype=np.int64)
+        tile_num: list[int] = []
+        tile_img: list[int] = []
+        per = {a: np.zeros((k, 4)) for a in ("scale", "bias", "fallback")}
+        for j, tex in enumerate(textures):
+            self.add(tex)
+            for a in per:
+                per[a][j] = np.ravel(np.asarray(getattr(tex, a), dtype=np.float64))
+            if tex.st_transform:
+                xf[j] = tex.st_transform
+                has_xf[j] = True
+            if tex.udim_tiles:
+                udim[j] = True
+                tile_lo[j] = len(tile_num)
+                for i, (number, _file) in enumerate(tex.udim_tiles):
+                    tile_num.append(int(number))
+                    tile_img.append(image_of(self.udim_tile(tex, i)))
+                tile_hi[j] = len(tile_num)
+                continue
+            img[j] = image_of(tex)
+            a, b = self.wrap_modes(tex)
+            ws[j], wt[j] = WRAP_MODES.index(a), WRAP_MODES.index(b)
+        shapes = np.array([im.shape for im in images], dtype=np.int64).reshape(len(images), 3)
+        sizes = shapes.prod(axis=1)
+        offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if images else np.zeros(0, np.int64)
+        pixels = (np.concatenate([im.reshape(-1) for im in images]).astype(np.float32) if images
+                  else np.zeros(0, np.float32))
+        c = np.ascontiguousarray
+        return (pixels, offset, c(shapes[:, 0]), c(shapes[:, 1]), c(shapes[:, 2]), img, ws, wt, xf, has_xf,
+                per["scale"], per["bias"], per["fallback"], udim, tile_lo, tile_hi,
+                np.array(tile_num, dtype=np.int64), np.array(tile_img, dtype=np.int64))
 
     def lookup_output(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
         """The connected output only: (n, 3) for 'rgb', (n, 1) for 'r' / 'g' / 'b' / 'a'."""

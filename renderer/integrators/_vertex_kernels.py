@@ -61,6 +61,7 @@ from renderer.geometry import _interaction_tri
 from renderer.kernels import NoAliasCompiler, guard_cache, module_dispatchers
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.shaping import shaping_factor_row
+from renderer.materials import surface_hits
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
 from renderer.preconvolve import packed_row
 from renderer.kernels.lights import (
@@ -819,7 +820,7 @@ def vertex_kernel(
     i_dome, i_axis, i_omc, i_delta, i_radiance, inf_light, i_tex, i_rot,
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
-    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult,
+    power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, tex,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -850,7 +851,10 @@ def vertex_kernel(
     meshes) bool, or (0, 0) without light linking); fcalc: the
     analytic integrals' record (FastPath.fcalc, read by _light_F); mult: the lights' (diffuse,
     specular) multipliers, (lights,) each in kernel order (lights with other than 1 are never on
-    continuation MIS: their estimators apply them, _split_at). L (m, 3)
+    continuation MIS: their estimators apply them, _split_at); tex: the per-hit surfaces' record
+    (MaterialTable.hit_record: textured inputs, emission, normal maps), or None where one packed
+    row per material serves: with it, surf's rows are materials.surface_hits' at this bounce's
+    hits (the general path's evaluate, make_bsdf and bent normals, one compiled row a hit). L (m, 3)
     receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
@@ -874,6 +878,9 @@ def vertex_kernel(
     light half or estimator (or the picked light's: _light_sample, _direct_pair) and writes the rays compactly.
     """
     Pm, mat_row, emission, bent_ns = surf
+    if tex is not None:
+        Pm, mat_row, emission, bent_ns = surface_hits(tex, vertices, face_normal, normals, tri_mat, hit_prim, hit_b1,
+                                                      hit_b2, S, D)
     n_rect = center.shape[0]
     n_rs = n_rect + s_center.shape[0]  # rect, then sphere, then disk, then infinite lights
     n_fin = n_rs + d_center.shape[0]
@@ -1217,4 +1224,5 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/estimators/compiled.py", "renderer/bsdfs/microfacet.py",
              "renderer/bsdfs/_ggx_albedo_data.py", "renderer/geometry.py", "renderer/kernels/vmath.py",
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
-             "renderer/lights/analytic.py", "renderer/preconvolve.py"])
+             "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/materials.py",
+             "renderer/textures.py"])

@@ -16,6 +16,7 @@ import pytest
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from renderer.integrators import fast_path as fp_mod
+from renderer.materials import MaterialTable
 from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _pair
 from tests.materials.test_normal_map import _add_normal_map, _floor
 from tests.stage_builders import add_camera, add_floor, add_settings, bind, new_stage, preview_material
@@ -138,9 +139,10 @@ def test_the_comparison_sees_a_missing_material_feature(tmp_path, monkeypatch, w
     """Unbent normals, or cut-outs left solid for camera and bounce rays, fail the same test."""
     if which == "normals":
         stage = _bumpy_floor_stage(tmp_path / "bumps.usda", tmp_path)
-        orig = fp_mod.FastPath._surfaces
-        monkeypatch.setattr(fp_mod.FastPath, "_surfaces",
-                            lambda self, *a: orig(self, *a)[:3] + (self.no_normals,))
+        # The fast path's hit record without the normal maps' tangent frames: normals unbent.
+        orig = MaterialTable.hit_record
+        monkeypatch.setattr(MaterialTable, "hit_record",
+                            lambda self, g: orig(self, g)[:2] + (np.zeros((0, 3)), np.zeros(0)) + orig(self, g)[4:])
     else:
         stage = _card_stage(tmp_path / "card.usda", tmp_path, True)
         monkeypatch.setattr(fp_mod.FastPath, "_through_cutouts", lambda self, *a: None)
