@@ -35,9 +35,9 @@ A scene qualifies when it has
   in the kernel for each (vertex, light) pair whose estimate uses it (_vertex_kernels._light_F:
   lights/irradiance.py's rule by the same compiled rows, about the bent shading normal);
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
-  surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
-  kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); no mesh lights, and a maximum depth of at least 2. With K emitter samples the K - 1
+  surfaces emit or normals are mapped, rows evaluated per hit by the vertex kernel itself
+  (materials.surface_hits on FastPath.tex: the BSDF row, the emission and the bent shading normal
+  of each hit, by the compiled rows MaterialTable.evaluate also runs); no mesh lights, and a maximum depth of at least 2. With K emitter samples the K - 1
   extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
   weighted 1/K by PathIntegrator._trace_camera.
 
@@ -51,7 +51,7 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
-Where no bounce needs numpy work (no per-hit surface rows, no shadow groups: ``kernel_reason``),
+Where no bounce needs numpy work (no shadow groups: ``kernel_reason``),
 the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
 inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
 so render threads running chunks side by side scale; it makes the Python loop's calls with the
@@ -264,8 +264,6 @@ class FastPath:
     def kernel_reason(self) -> str:
         """'' when trace runs as one compiled call (_trace_kernel.trace_kernel), else why this
         scene keeps the Python bounce loop (numpy work between the compiled calls)."""
-        if self.per_hit:
-            return "per-hit surfaces (textured inputs, emission or normal maps) are evaluated in numpy"
         if self.lux_shadows:
             return "shadow links, ShadowAPI settings or shadow colours are traced per group from Python"
         if self.integ.scene.accel.backend != "native":
