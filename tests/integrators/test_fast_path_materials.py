@@ -145,6 +145,8 @@ def test_the_comparison_sees_a_missing_material_feature(tmp_path, monkeypatch, w
                             lambda self, g: orig(self, g)[:2] + (np.zeros((0, 3)), np.zeros(0)) + orig(self, g)[4:])
     else:
         stage = _card_stage(tmp_path / "card.usda", tmp_path, True)
+        # (On the Python bounce loop, whose walk can be switched off.)
+        monkeypatch.setattr(fp_mod.FastPath, "kernel_reason", lambda self: "forced by the test")
         monkeypatch.setattr(fp_mod.FastPath, "_through_cutouts", lambda self, *a: None)
     z, zs = _block_z(*_pair(stage, 4, spp=256, rr_depth=1))
     assert max(abs(x) for x in zs) > Z_BLOCK, f"a missing {which} went unseen (blocks {np.round(zs, 2)})"
