@@ -589,19 +589,6 @@ class MaterialTable:
         _presence_at_kernel(self.surface_record(), mat, self._st_rows(st, mat.shape[0]), out)
         return out
 
-    @property
-    def presence_compiled(self) -> bool:
-        """Whether presence_table describes presence exactly: no primvar reader feeds an
-        opacity, and every opacity texture is one image (not UDIM tiles) read at the hits'
-        first st set (columns 0-1)."""
-        if any(fname == "opacity" for fname, _ in self._primvar):
-            return False
-        if any(any(b.field == "opacity" for b in binds) and self.textures[s].udim_tiles
-               for s, (_, binds) in enumerate(self._by_texture)):
-            return False  # presence_hit reads one image per texture, not UDIM tiles
-        return not any(any(b.field == "opacity" for b in binds) and self.textures[s].st_primvar in self.primvar_layout
-                       for s, (_, binds) in enumerate(self._by_texture))
-
     @staticmethod
     def presence(params: SurfaceParams) -> np.ndarray:
         """Same as the module-level ``presence``."""

@@ -112,8 +112,6 @@ def fast_path_reason(integ) -> str:
     mats = scene.materials
     if not mats.params_needed and mats.packed_bsdf() is None:
         return "no packed UsdPreviewSurface rows"
-    if mats.has_cutout and not mats.presence_compiled:
-        return "cut-outs fed by a primvar reader or a second st set"
     return ""
 
 

@@ -58,9 +58,10 @@ def _bumpy_floor_stage(path, tmp_path):
     return str(path)
 
 
-def _card_stage(path, tmp_path, textured):
+def _card_stage(path, tmp_path, textured, primvar=False):
     """A floor lit by a rect light and a dim sky through a 2 x 2 m card at y = 1: its alpha (a
-    4 x 4 checker, threshold 0.5) or a constant opacity 0.4 (threshold 0, stochastic) cuts it."""
+    4 x 4 checker, threshold 0.5), a constant opacity 0.4 (threshold 0, stochastic) or (primvar)
+    a UsdPrimvarReader_float's per-vertex opacity from 0.1 to 0.9 across it cuts it."""
     stage = new_stage(path)
     add_camera(stage, pos=(0, 2.5, 4.0), tilt_x=-30)
     add_settings(stage, (32, 24))
@@ -93,6 +94,14 @@ def _card_stage(path, tmp_path, textured):
         tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
         pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "a")
         pbr.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    elif primvar:
+        UsdGeom.PrimvarsAPI(card).CreatePrimvar("cut", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+            [0.1, 0.9, 0.9, 0.1])
+        reader = UsdShade.Shader.Define(stage, "/World/Looks/Card/Cut")
+        reader.CreateIdAttr("UsdPrimvarReader_float")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("cut")
+        pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(
+            reader.CreateOutput("result", Sdf.ValueTypeNames.Float))
     else:
         pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(0.4)
     bind(card.GetPrim(), look)
@@ -126,6 +135,12 @@ def test_normal_mapped_floor_matches_general_path(tmp_path, max_depth):
 @pytest.mark.parametrize("textured", [True, False])
 def test_cutout_card_matches_general_path(tmp_path, textured):
     stage = _card_stage(tmp_path / "card.usda", tmp_path, textured)
+    _check(*_pair(stage, 4, spp=256, rr_depth=1))
+
+
+def test_primvar_fed_cutout_matches_general_path(tmp_path):
+    """Opacity from a primvar reader: the compiled walks read it per hit (materials.presence_hit)."""
+    stage = _card_stage(tmp_path / "card.usda", tmp_path, False, primvar=True)
     _check(*_pair(stage, 4, spp=256, rr_depth=1))
 
 
