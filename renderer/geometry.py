@@ -211,7 +211,7 @@ def offset_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, eps: np.ndarray 
 # --------------------------------------------------------------------------------------
 # Surface interaction from a hit (prim, barycentrics)
 # --------------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz):
     """The hit of direction d = (dx, dy, dz) on triangle k at barycentrics (w1, w2): point p,
     geometric normal ng and shading normal ns as 3-tuples, both normals facing wo = -d
@@ -264,7 +264,7 @@ def _interaction_tri(v0, v1, v2, n0, n1, n2, fn, w1, w2, dx, dy, dz):
     return (px, py, pz), (gx, gy, gz), (sx, sy, sz)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def st_row(st_tab, k, w1, w2, out):
     """Every column of the per-corner table st_tab (T, 3, C) (st and the primvars materials
     read) interpolated at barycentrics (w1, w2) of triangle k, into out (C,)."""
@@ -389,7 +389,7 @@ def _visible_reflection_normal(mx, my, mz, gx, gy, gz, ox, oy, oz):
     return a * xx + b * gx, a * xy + b * gy, a * xz + b * gz
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def perturb_row(nx, ny, nz, gx, gy, gz, ox, oy, oz, x, y, z, k, tangent, handed, face_normal):
     """One hit's shading normal n = (nx, ny, nz) on triangle k, bent by the tangent-space
     normal (x, y, z) (ng = (gx, gy, gz) and wo = (ox, oy, oz) as perturb_normals takes them):

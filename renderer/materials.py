@@ -173,53 +173,70 @@ def _presence(opacity: np.ndarray, threshold: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
-def input_row(R, m, col, stv):
-    """Input column col (C_*) of material m at one hit whose per-hit coordinates are stv
-    (MaterialTable.evaluate's st row: st, then the primvars materials read; empty: none), from
-    the record R of MaterialTable.surface_record: a primvar reader's value (its fallback, the
-    constant, where the hit has none or NaN), a texture's channel (textures.texture_row at the
-    texture's own st set where the hit has it, else st; (0, 0) without coordinates), or the
-    constant. The one evaluation of UsdPreviewSurface inputs (evaluate, presence_at and the
-    compiled per-hit rows all call it)."""
-    C, slot, chan, pcol, stc, TX = R[0], R[1], R[2], R[3], R[4], R[5]
+# The per-(material, input column) bindings of MaterialTable.surface_record (MI's last axis).
+B_SLOT, B_CHANNEL, B_PRIMVAR, B_ST = 0, 1, 2, 3
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def columns_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, c0, c1, vals):
+    """Input columns c0..c1 (C_*) of material m at one hit whose per-hit coordinates are stv
+    (MaterialTable.evaluate's st row: st, then the primvars materials read; empty: none), on the
+    record of MaterialTable.surface_record unpacked (C, MI and TextureCache.pack's arrays): a
+    primvar reader's value (its fallback, the constant, where the hit has none or NaN), a
+    texture's channel (textures.texture_row at the texture's own st set where the hit has it,
+    else st; (0, 0) without coordinates), or the constant. Into vals[c0:c1] where vals is not
+    empty; returns column c1 - 1. The one evaluation of UsdPreviewSurface inputs (evaluate,
+    presence_at, the cut-out walks and the compiled per-hit rows all come here).
+
+    The per-hit rows (this one, texture_row, params_row, input_row, presence_hit, and the
+    geometry and BSDF rows surface_hits calls) are compiled without numba's reference counting
+    (_nrt=False: they allocate nothing): counting the arrays of each call cost ~10 ns an array,
+    13 us a hit in all, 50x the evaluation itself."""
     n = stv.shape[0]
-    p = pcol[m, col]
-    if p >= 0:
-        if p < n:
-            x = stv[p]
-            if x == x:
-                return x
-        return C[m, col]
-    j = slot[m, col]
-    if j < 0:
-        return C[m, col]
-    s = 0.0
-    t = 0.0
-    if n >= 2:
-        s = stv[0]
-        t = stv[1]
-    q = stc[j]
-    if q >= 0 and n >= q + 2 and math.isfinite(stv[q]) and math.isfinite(stv[q + 1]):
-        s = stv[q]
-        t = stv[q + 1]
-    return texture_row(TX, j, s, t, chan[m, col])
+    v = 0.0
+    for col in range(c0, c1):
+        v = C[m, col]
+        p = MI[m, col, B_PRIMVAR]
+        j = MI[m, col, B_SLOT]
+        if p >= 0:
+            if p < n and stv[p] == stv[p]:
+                v = stv[p]
+        elif j >= 0:
+            s = stv[0] if n >= 2 else 0.0
+            t = stv[1] if n >= 2 else 0.0
+            q = MI[m, col, B_ST]
+            if q >= 0 and n >= q + 2 and math.isfinite(stv[q]) and math.isfinite(stv[q + 1]):
+                s = stv[q]
+                t = stv[q + 1]
+            v = texture_row(px, IMI, TXI, TXF, tiles, j, s, t, MI[m, col, B_CHANNEL])
+        if vals.shape[0] > 0:
+            vals[col] = v
+    return v
 
 
-@njit(cache=True, nogil=True)
-def params_row(R, m, stv, vals):
-    """Every input column of material m at one hit into vals (N_COLUMNS,) (input_row)."""
-    for col in range(N_COLUMNS):
-        vals[col] = input_row(R, m, col, stv)
+@njit(cache=True, nogil=True, _nrt=False)
+def input_row(R, m, col, stv):
+    """Input column col of material m at one hit (columns_row) from the record R."""
+    C, MI, _, TX, _, _ = R
+    px, IMI, TXI, TXF, tiles = TX
+    return columns_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, col, col + 1, stv[:0])
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def params_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, vals):
+    """Every input column of material m at one hit into vals (N_COLUMNS,) (columns_row)."""
+    columns_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, 0, N_COLUMNS, vals)
 
 
 @njit(cache=True, nogil=True)
 def _params_kernel(R, mat, st, out):
+    C, MI, _, TX, _, _ = R
+    px, IMI, TXI, TXF, tiles = TX
     for i in range(mat.shape[0]):
-        params_row(R, mat[i], st[i], out[i])
+        params_row(C, MI, px, IMI, TXI, TXF, tiles, mat[i], st[i], out[i])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def presence_hit(R, m, stv):
     """presence_at for one hit of material m with per-hit coordinates stv (input_row)."""
     return presence_row(input_row(R, m, C_OPACITY, stv), R[0][m, C_THRESHOLD])
@@ -232,44 +249,18 @@ def _presence_at_kernel(R, mat, st, out):
 
 
 @njit(cache=True, nogil=True)
-def surface_hit_row(H, vertices, face_normal, normals, tri_mat, k, w1, w2, dx, dy, dz, stv, vals, P, q, emission,
-                    bent_ns):
-    """One hit of direction d = (dx, dy, dz) on triangle k at barycentrics (w1, w2), evaluated
-    into row q of P (hits, K) (the packed UsdPreviewSurface row: materials.make_bsdf's), of
-    emission (hits, 3) (if not empty: the radiance it emits) and of bent_ns (hits, 3) (if not
-    empty: its shading normal, bent where its material is normal-mapped: the general path's
-    PathIntegrator.bent_normals). H: MaterialTable.hit_record; stv (columns,), vals
-    (N_COLUMNS,): scratch."""
-    R, st_tab, tangent, handed, ta_avg, tb_avg = H
-    m = tri_mat[k]
-    st_row(st_tab, k, w1, w2, stv)
-    params_row(R, m, stv, vals)
-    inputs_row(P, q, vals[C_DIFFUSE], vals[C_DIFFUSE + 1], vals[C_DIFFUSE + 2], vals[C_SPECULAR],
-               vals[C_SPECULAR + 1], vals[C_SPECULAR + 2], vals[C_WORKFLOW] != 0.0, vals[C_METALLIC],
-               vals[C_ROUGHNESS], vals[C_IOR])
-    init_row(P, q, ta_avg, tb_avg)
-    if emission.shape[0] > 0:
-        for c in range(3):
-            emission[q, c] = vals[C_EMISSION + c]
-    if bent_ns.shape[0] > 0:
-        _, gg, ss = _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz)
-        nx, ny, nz = ss
-        if tangent.shape[0] > 0 and R[6][m]:
-            nx, ny, nz = perturb_row(nx, ny, nz, gg[0], gg[1], gg[2], -dx, -dy, -dz, vals[C_NORMAL],
-                                     vals[C_NORMAL + 1], vals[C_NORMAL + 2], k, tangent, handed, face_normal)
-        bent_ns[q, 0] = nx
-        bent_ns[q, 1] = ny
-        bent_ns[q, 2] = nz
-
-
-@njit(cache=True, nogil=True)
 def surface_hits(H, vertices, face_normal, normals, tri_mat, prim, b1, b2, S, D):
     """The per-hit surface record of the fast path's vertex kernel (its ``surf``): (P (h, K)
     packed rows of the h hits among prim (n,) (-1: missed), row (n,) int64 each ray's row in P or
     -1, emission (h, 3) or (0, 3) where no material emits, bent_ns (h, 3) or (0, 3) where no
-    material is normal-mapped), by surface_hit_row at barycentrics b1, b2 (n,) along the unit
-    directions S[:, D:D + 3]."""
-    R = H[0]
+    material is normal-mapped) at barycentrics b1, b2 (n,) along the unit directions
+    S[:, D:D + 3]. H: MaterialTable.hit_record. Each hit: its per-hit coordinates (st_row), its
+    inputs (params_row), the packed row (the BSDF's inputs_row and init_row: make_bsdf's), the
+    emission, and the shading normal bent where its material is normal-mapped (perturb_row: the
+    general path's PathIntegrator.bent_normals)."""
+    R, st_tab, tangent, handed, ta_avg, tb_avg = H
+    C, MI, mapped, TX, has_emission, has_normal_map = R
+    px, IMI, TXI, TXF, tiles = TX
     n = prim.shape[0]
     row = np.empty(n, dtype=np.int64)
     h = 0
@@ -277,14 +268,38 @@ def surface_hits(H, vertices, face_normal, normals, tri_mat, prim, b1, b2, S, D)
         row[r] = h if prim[r] >= 0 else -1
         h += 1 if prim[r] >= 0 else 0
     P = np.empty((h, P_COLUMNS))
-    emission = np.empty((h if R[7] else 0, 3))
-    bent_ns = np.empty((h if R[8] else 0, 3))
-    stv = np.empty(H[1].shape[2])
+    emission = np.empty((h if has_emission else 0, 3))
+    bent_ns = np.empty((h if has_normal_map else 0, 3))
+    stv = np.empty(st_tab.shape[2])
     vals = np.empty(N_COLUMNS)
+    bend = tangent.shape[0] > 0
     for r in range(n):
-        if row[r] >= 0:
-            surface_hit_row(H, vertices, face_normal, normals, tri_mat, prim[r], float(b1[r]), float(b2[r]),
-                            S[r, D], S[r, D + 1], S[r, D + 2], stv, vals, P, row[r], emission, bent_ns)
+        q = row[r]
+        if q < 0:
+            continue
+        k = prim[r]
+        w1 = float(b1[r])
+        w2 = float(b2[r])
+        m = tri_mat[k]
+        st_row(st_tab, k, w1, w2, stv)
+        params_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, vals)
+        inputs_row(P, q, vals[C_DIFFUSE], vals[C_DIFFUSE + 1], vals[C_DIFFUSE + 2], vals[C_SPECULAR],
+                   vals[C_SPECULAR + 1], vals[C_SPECULAR + 2], vals[C_WORKFLOW] != 0.0, vals[C_METALLIC],
+                   vals[C_ROUGHNESS], vals[C_IOR])
+        init_row(P, q, ta_avg, tb_avg)
+        if has_emission:
+            for c in range(3):
+                emission[q, c] = vals[C_EMISSION + c]
+        if has_normal_map:
+            dx, dy, dz = S[r, D], S[r, D + 1], S[r, D + 2]
+            _, gg, ss = _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz)
+            nx, ny, nz = ss
+            if bend and mapped[m]:
+                nx, ny, nz = perturb_row(nx, ny, nz, gg[0], gg[1], gg[2], -dx, -dy, -dz, vals[C_NORMAL],
+                                         vals[C_NORMAL + 1], vals[C_NORMAL + 2], k, tangent, handed, face_normal)
+            bent_ns[q, 0] = nx
+            bent_ns[q, 1] = ny
+            bent_ns[q, 2] = nz
     return P, row, emission, bent_ns
 
 
@@ -502,11 +517,11 @@ class MaterialTable:
 
     def surface_record(self) -> tuple:
         """The inputs of every material as one record for the compiled rows (input_row; built
-        once): (C (m, N_COLUMNS) the constants; per (material, column): slot (m, N_COLUMNS) int64
-        the texture feeding it or -1 and chan its channel, pcol the per-hit coordinate column of
-        the primvar reader feeding it or -1; stc (textures,) int64 the first column of each
-        texture's own st set, -1 for st; TextureCache.pack of the textures; normal_mapped (m,)
-        bool; has_emission, has_normal_map)."""
+        once): (C (m, N_COLUMNS) the constants; MI (m, N_COLUMNS, 4) int64 per (material,
+        column) its binding (B_*): the texture slot feeding it or -1, that texture's channel, the
+        per-hit coordinate column of the primvar reader feeding it or -1, and the first column of
+        the texture's own st set or -1 (st); normal_mapped (m,) bool; TextureCache.pack of the
+        textures; has_emission, has_normal_map)."""
         if self._record is None:
             m = len(self)
             C = np.zeros((m, N_COLUMNS))
@@ -514,22 +529,20 @@ class MaterialTable:
                 v = np.asarray(self.const[name], dtype=np.float64)
                 w = 3 if v.ndim == 2 else 1
                 C[:, c:c + w] = v.reshape(m, w)
-            slot = np.full((m, N_COLUMNS), -1, dtype=np.int64)
-            chan = np.zeros((m, N_COLUMNS), dtype=np.int64)
+            MI = np.full((m, N_COLUMNS, 4), -1, dtype=np.int64)
+            MI[:, :, B_CHANNEL] = 0
+            own_st = [self.primvar_layout[t.st_primvar][0] if t.st_primvar in self.primvar_layout else -1
+                      for t in self.textures]
             for s, (_, binds) in enumerate(self._by_texture):
                 for b in binds:
                     for i, ch in enumerate(b.channels):
-                        slot[b.material, _COLUMN[b.field] + i] = s
-                        chan[b.material, _COLUMN[b.field] + i] = ch
-            pcol = np.full((m, N_COLUMNS), -1, dtype=np.int64)
+                        MI[b.material, _COLUMN[b.field] + i, [B_SLOT, B_CHANNEL, B_ST]] = (s, ch, own_st[s])
             for (fname, cols), (mats_f, _fallbacks) in self._primvar.items():
                 for i, col in enumerate(cols):
-                    pcol[mats_f, _COLUMN[fname] + i] = col
-            stc = np.array([self.primvar_layout[t.st_primvar][0] if t.st_primvar in self.primvar_layout else -1
-                            for t in self.textures], dtype=np.int64)
+                    MI[mats_f, _COLUMN[fname] + i, B_PRIMVAR] = col
             tx = (self.texture_cache.pack(self.textures) if self.texture_cache is not None
                   else TextureCache().pack([]))
-            self._record = (C, slot, chan, pcol, stc, tx, np.ascontiguousarray(self.normal_mapped, dtype=np.bool_),
+            self._record = (C, MI, np.ascontiguousarray(self.normal_mapped, dtype=np.bool_), tx,
                             bool(self.has_emission), bool(self.has_normal_map))
         return self._record
 

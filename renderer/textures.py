@@ -205,7 +205,9 @@ def _wrap_row(i, n, mode):
     return k, (1.0 if 0 <= i < n else 0.0)  # black: a texel outside contributes 0
 
 
-@njit(cache=True, nogil=True)
+# inline="always" (numba IR): a per-hit caller's texture lookups then cost no calls (each call
+# of a helper taking the texel array cost ~50 ns in reference counting, 4x the bilinear itself).
+@njit(cache=True, nogil=True, inline="always")
 def texel_row(px, off, h, w, nc, s, t, ws, wt, c):
     """Bilinear value (float64) of channel c at (s, t) of an (h, w, nc) image stored flat from
     px[off] (row 0 = t bottom; texel centres at ((i + 0.5)/w, (j + 0.5)/h)), wrap codes ws, wt.
@@ -234,7 +236,7 @@ def texel_row(px, off, h, w, nc, s, t, ws, wt, c):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def lookup_row(px, off, h, w, nc, s, t, ws, wt, xf, c, scale, bias, fallback):
     """UsdUVTexture output channel c at st = (s, t): the st transform xf (6,) (m00, m01, m10,
     m11, t0, t1; empty for none), bilinear (texel_row), then texel * scale + bias; fallback
@@ -246,45 +248,55 @@ def lookup_row(px, off, h, w, nc, s, t, ws, wt, xf, c, scale, bias, fallback):
     return texel_row(px, off, h, w, nc, s, t, ws, wt, c) * scale + bias
 
 
-@njit(cache=True, nogil=True)
-def texture_row(TX, j, s, t, c):
-    """Output channel c of texture j of the packed set TX (TextureCache.pack) at st = (s, t):
-    TextureCache.lookup's rules for one row. A plain texture: its image through lookup_row, or
-    its fallback where the file could not be read. A UDIM texture (module docstring): the st
-    transform, then tile 1001 + floor(s') + 10 floor(t') at the tile-local st through lookup_row
-    (clamped at the tile's edges, no transform), the fallback off the tiles or on a tile that
-    could not be read."""
-    px, off, h, w, nc, img, ws, wt, xf, has_xf, scale, bias, fallback, udim, tile_lo, tile_hi, tile_num, tile_img = TX
-    if not udim[j]:
-        i = img[j]
+# The columns of TextureCache.pack's tables: per image (IMI), per texture (TXI, TXF), per UDIM
+# tile (tiles).
+IM_OFFSET, IM_HEIGHT, IM_WIDTH, IM_CHANNELS = 0, 1, 2, 3
+TX_IMAGE, TX_WRAP_S, TX_WRAP_T, TX_HAS_XF, TX_UDIM, TX_TILE_LO, TX_TILE_HI = 0, 1, 2, 3, 4, 5, 6
+TX_XF, TX_SCALE, TX_BIAS, TX_FALLBACK = 0, 6, 10, 14
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def texture_row(px, IMI, TXI, TXF, tiles, j, s, t, c):
+    """Output channel c of texture j of the packed set (TextureCache.pack: px, IMI, TXI, TXF,
+    tiles) at st = (s, t): TextureCache.lookup's rules for one row. A plain texture: its image
+    through lookup_row, or its fallback where the file could not be read. A UDIM texture (module
+    docstring): the st transform, then tile 1001 + floor(s') + 10 floor(t') at the tile-local st
+    through lookup_row (clamped at the tile's edges, no transform), the fallback off the tiles or
+    on a tile that could not be read."""
+    fb = TXF[j, TX_FALLBACK + c]
+    xf = TXF[j, TX_XF:TX_XF + 6]
+    if TXI[j, TX_UDIM] == 0:
+        i = TXI[j, TX_IMAGE]
         if i < 0:
-            return fallback[j, c]
-        return lookup_row(px, off[i], h[i], w[i], nc[i], s, t, ws[j], wt[j], xf[j] if has_xf[j] else xf[j, :0], c,
-                          scale[j, c], bias[j, c], fallback[j, c])
+            return fb
+        return lookup_row(px, IMI[i, IM_OFFSET], IMI[i, IM_HEIGHT], IMI[i, IM_WIDTH], IMI[i, IM_CHANNELS], s, t,
+                          TXI[j, TX_WRAP_S], TXI[j, TX_WRAP_T], xf if TXI[j, TX_HAS_XF] != 0 else xf[:0], c,
+                          TXF[j, TX_SCALE + c], TXF[j, TX_BIAS + c], fb)
     if not (math.isfinite(s) and math.isfinite(t)):
-        return fallback[j, c]
-    if has_xf[j]:
-        s, t = xf[j, 0] * s + xf[j, 1] * t + xf[j, 4], xf[j, 2] * s + xf[j, 3] * t + xf[j, 5]
+        return fb
+    if TXI[j, TX_HAS_XF] != 0:
+        s, t = xf[0] * s + xf[1] * t + xf[4], xf[2] * s + xf[3] * t + xf[5]
     u = math.floor(s)
     v = math.floor(t)
     if not (u >= 0.0 and u < 10.0 and v >= 0.0 and v < 1e6):
-        return fallback[j, c]
+        return fb
     number = int(1001.0 + u + 10.0 * v)
     i = -2
-    for q in range(tile_lo[j], tile_hi[j]):
-        if tile_num[q] == number:
-            i = tile_img[q]  # the last tile of that number, as _lookup_udim's loop leaves it
+    for q in range(TXI[j, TX_TILE_LO], TXI[j, TX_TILE_HI]):
+        if tiles[q, 0] == number:
+            i = tiles[q, 1]  # the last tile of that number, as a loop over the tiles leaves it
     if i < 0:
-        return fallback[j, c]
-    return lookup_row(px, off[i], h[i], w[i], nc[i], s - u, t - v, 1, 1, xf[j, :0], c, scale[j, c], bias[j, c],
-                      fallback[j, c])
+        return fb
+    return lookup_row(px, IMI[i, IM_OFFSET], IMI[i, IM_HEIGHT], IMI[i, IM_WIDTH], IMI[i, IM_CHANNELS], s - u, t - v,
+                      1, 1, xf[:0], c, TXF[j, TX_SCALE + c], TXF[j, TX_BIAS + c], fb)
 
 
 @njit(cache=True, nogil=True)
 def _texture_kernel(TX, j, st, out):
+    px, IMI, TXI, TXF, tiles = TX
     for r in range(st.shape[0]):
         for c in range(out.shape[1]):
-            out[r, c] = texture_row(TX, j, st[r, 0], st[r, 1], c)
+            out[r, c] = texture_row(px, IMI, TXI, TXF, tiles, j, st[r, 0], st[r, 1], c)
 
 
 @njit(cache=True, nogil=True)
@@ -463,11 +475,11 @@ class TextureCache:
 
     def pack(self, textures: list[TextureDesc]) -> tuple:
         """The textures (each added) as one record for compiled lookups (texture_row): (pixels
-        (all images flat, float32), offset, height, width, channels (images,) int64; per
-        texture (k,): its image or -1 (not read), wrap_s, wrap_t (WRAP_MODES codes), xf (k, 6)
-        st transform and has_xf bool, scale, bias, fallback (k, 4), udim bool, tile_lo, tile_hi
-        int64 its range in the tile arrays; tile_num (tiles,) the UDIM numbers and tile_img their
-        images or -1)."""
+        (all images flat, float32), IMI (images, 4) int64 each image's offset, height, width,
+        channels (IM_*), TXI (k, 7) int64 per texture its image or -1 (not read), wrap codes
+        (WRAP_MODES), st transform and UDIM flags and its range of tiles (TX_*), TXF (k, 18) its
+        st transform (m00, m01, m10, m11, t0, t1), scale, bias and fallback (4 each), tiles
+        (tiles, 2) int64 each UDIM tile's number and image or -1)."""
         images: list[np.ndarray] = []
 
         def image_of(t: TextureDesc) -> int:
@@ -481,44 +493,34 @@ class TextureCache:
             return len(images) - 1
 
         k = len(textures)
-        img = np.full(k, -1, dtype=np.int64)
-        ws = np.zeros(k, dtype=np.int64)
-        wt = np.zeros(k, dtype=np.int64)
-        xf = np.zeros((k, 6))
-        has_xf = np.zeros(k, dtype=np.bool_)
-        udim = np.zeros(k, dtype=np.bool_)
-        tile_lo = np.zeros(k, dtype=np.int64)
-        tile_hi = np.zeros(k, dtype=np.int64)
-        tile_num: list[int] = []
-        tile_img: list[int] = []
-        per = {a: np.zeros((k, 4)) for a in ("scale", "bias", "fallback")}
+        TXI = np.zeros((k, 7), dtype=np.int64)
+        TXF = np.zeros((k, 18))
+        tiles: list[tuple[int, int]] = []
         for j, tex in enumerate(textures):
             self.add(tex)
-            for a in per:
-                per[a][j] = np.ravel(np.asarray(getattr(tex, a), dtype=np.float64))
+            for a, col in (("scale", TX_SCALE), ("bias", TX_BIAS), ("fallback", TX_FALLBACK)):
+                TXF[j, col:col + 4] = np.ravel(np.asarray(getattr(tex, a), dtype=np.float64))
             if tex.st_transform:
-                xf[j] = tex.st_transform
-                has_xf[j] = True
+                TXF[j, TX_XF:TX_XF + 6] = tex.st_transform
+                TXI[j, TX_HAS_XF] = 1
             if tex.udim_tiles:
-                udim[j] = True
-                tile_lo[j] = len(tile_num)
-                for i, (number, _file) in enumerate(tex.udim_tiles):
-                    tile_num.append(int(number))
-                    tile_img.append(image_of(self.udim_tile(tex, i)))
-                tile_hi[j] = len(tile_num)
+                TXI[j, TX_UDIM] = 1
+                TXI[j, TX_TILE_LO] = len(tiles)
+                tiles += [(int(number), image_of(self.udim_tile(tex, i))) for i, (number, _f) in
+                          enumerate(tex.udim_tiles)]
+                TXI[j, TX_TILE_HI] = len(tiles)
                 continue
-            img[j] = image_of(tex)
+            TXI[j, TX_IMAGE] = image_of(tex)
             a, b = self.wrap_modes(tex)
-            ws[j], wt[j] = WRAP_MODES.index(a), WRAP_MODES.index(b)
+            TXI[j, TX_WRAP_S], TXI[j, TX_WRAP_T] = WRAP_MODES.index(a), WRAP_MODES.index(b)
         shapes = np.array([im.shape for im in images], dtype=np.int64).reshape(len(images), 3)
         sizes = shapes.prod(axis=1)
-        offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if images else np.zeros(0, np.int64)
+        IMI = np.zeros((len(images), 4), dtype=np.int64)
+        IMI[:, IM_OFFSET] = np.concatenate([[0], np.cumsum(sizes)[:-1]]) if images else 0
+        IMI[:, IM_HEIGHT:IM_CHANNELS + 1] = shapes
         pixels = (np.concatenate([im.reshape(-1) for im in images]).astype(np.float32) if images
                   else np.zeros(0, np.float32))
-        c = np.ascontiguousarray
-        return (pixels, offset, c(shapes[:, 0]), c(shapes[:, 1]), c(shapes[:, 2]), img, ws, wt, xf, has_xf,
-                per["scale"], per["bias"], per["fallback"], udim, tile_lo, tile_hi,
-                np.array(tile_num, dtype=np.int64), np.array(tile_img, dtype=np.int64))
+        return pixels, IMI, TXI, TXF, np.array(tiles, dtype=np.int64).reshape(len(tiles), 2)
 
     def lookup_output(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
         """The connected output only: (n, 3) for 'rgb', (n, 1) for 'r' / 'g' / 'b' / 'a'."""

@@ -218,7 +218,7 @@ def _clip01(x):
 # --------------------------------------------------------------------------------------
 # Kernels
 # --------------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def inputs_row(P, r, d0, d1, d2, s0, s1, s2, use_spec, metallic, roughness, ior):
     """Row r of P from one point's UsdPreviewSurface inputs (diffuse d0..d2, specular colour
     s0..s2, the workflow flag, metallic, roughness, ior): the RHO, F0, F90 and ALPHA columns
@@ -253,7 +253,7 @@ def inputs_kernel(diffuse, spec, use_spec, metallic, roughness, ior, P):
                    use_spec[r], metallic[r], roughness[r], ior[r])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def init_row(P, r, ta_avg, tb_avg):
     """Fill the derived columns of row r of P from RHO, F0, F90, ALPHA: KD, INV_OMA, J0, FY;
     clear the wo terms (init_kernel's row)."""

@@ -12,7 +12,7 @@ from renderer.camera import Camera
 from renderer.geometry import perturb_normals, surface_interaction
 from renderer.integrators import _vertex_kernels as vk
 from renderer.integrators.path import IntegratorOptions, PathIntegrator
-from renderer.materials import make_bsdf, surface_hits
+from renderer.materials import B_SLOT, make_bsdf, surface_hits
 from renderer.scene import build_scene
 from renderer.usd import load_stage
 from tests.materials.test_udim import FALLBACK, TILES, _emissive_quad_stage, udim_dir  # noqa: F401
@@ -75,7 +75,7 @@ def test_compiled_rows_equal_the_numpy_evaluation(path):
             assert emission.shape == (0, 3)
         # The hits do exercise textures (and, on the plant, normal maps): inputs vary per hit
         # within one material, and bent normals differ from the interpolated ones.
-        textured = np.any(mats.surface_record()[1][g.material[k[hit]]] >= 0, axis=1)
+        textured = np.any(mats.surface_record()[1][g.material[k[hit]], :, B_SLOT] >= 0, axis=1)
         assert textured.sum() > 100
         varied = np.concatenate([params.diffuse, params.roughness[:, None], params.opacity[:, None]], axis=1)
         assert np.unique(varied[textured], axis=0).shape[0] > 50

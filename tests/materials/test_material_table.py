@@ -9,7 +9,7 @@ import pytest
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
 from renderer.description import MaterialDesc, MaterialInput, TextureDesc
 from renderer.errors import StageError
-from renderer.materials import C_METALLIC, C_ROUGHNESS, MaterialTable, SurfaceParams, make_bsdf, presence
+from renderer.materials import B_SLOT, C_METALLIC, C_ROUGHNESS, MaterialTable, SurfaceParams, make_bsdf, presence
 from renderer.textures import TextureCache
 
 
@@ -131,9 +131,9 @@ def test_one_texture_feeding_two_inputs_is_packed_once(rgba_exr):
     mats = [MaterialDesc("/M", metallic=MaterialInput(0.0, t), roughness=MaterialInput(0.0, t))]
     table = MaterialTable.build(mats, TextureCache())
     rec = table.surface_record()
-    slot, tx = rec[1], rec[5]
-    assert len(table.textures) == 1 and tx[1].shape == (1,)
-    assert slot[0, C_METALLIC] == slot[0, C_ROUGHNESS] == 0
+    MI, tx = rec[1], rec[3]
+    assert len(table.textures) == 1 and tx[1].shape[0] == 1 and tx[2].shape[0] == 1  # one image, one texture
+    assert MI[0, C_METALLIC, B_SLOT] == MI[0, C_ROUGHNESS, B_SLOT] == 0
     p = table.evaluate(np.zeros(5, dtype=np.int64), np.tile(RIGHT, (5, 1)))
     np.testing.assert_allclose(p.metallic, 0.7, rtol=1e-6)
     np.testing.assert_allclose(p.roughness, 0.7, rtol=1e-6)
