@@ -2,9 +2,12 @@
 
 ``MaterialTable.build(materials, textures)`` packs the constant inputs of every material into
 arrays indexed by material id and records which inputs are textured.
-``evaluate(mat, st)`` returns ``SurfaceParams`` for a batch of hits: constants are gathered by
-material id, then each *texture* (not each row) overrides the rows of the materials it feeds,
-with one vectorised lookup per texture.
+``evaluate(mat, st)`` returns ``SurfaceParams`` for a batch of hits, each hit's inputs by the
+compiled ``columns_row`` on one record of every material (``surface_record``: constants, each
+input's texture or primvar binding, the textures packed by TextureCache.pack, UDIM tiles
+included). The fast path's vertex kernel calls the same rows at every hit (``surface_hits``:
+the packed BSDF row, the emission and the bent shading normal), and the cut-out walks read
+presence through them (``presence_hit``): one evaluation for every route.
 
 Opacity (UsdPreviewSurface spec) -> ``presence(params)``, the probability that the surface is
 there at a hit (the integrator continues the ray through the surface with probability
@@ -41,7 +44,7 @@ textures are looked up at st = (0, 0), the UsdPrimvarReader_float2 fallback.
 
 Several st sets: where the scene's textures read more than one st primvar (UsdUVTexture.st from
 UsdPrimvarReader_float2 nodes with different varnames), each of those primvars also gets columns
-in the per-hit coordinates, and each texture reads its own (``_texture_st``).
+in the per-hit coordinates, and each texture reads its own (columns_row, MI's B_ST).
 
 Primvar inputs (a UsdPrimvarReader_* connected to an input, ``MaterialInput.primvar``): the
 primvars materials read are laid out after st in the per-hit coordinates (``primvar_layout``:

@@ -74,7 +74,8 @@ def through_cutouts_kernel(fns, key, S, d32, prim, b1, b2, t32, geo, cut, tab, e
         t_hit = float(t32[r])
         dx, dy, dz = S[r, D], S[r, D + 1], S[r, D + 2]
         for q in range(CUTOUT_PASSES):
-            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, splitmix_u01(key, r * CUTOUT_PASSES + q + 1), stv)):
+            u = splitmix_u01(key, r * CUTOUT_PASSES + q + 1)
+            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, u, stv)):
                 break
             ox, oy, oz = _behind(geo, eps, k, w1, w2, dx, dy, dz)
             t0 = (ox - S[r, O]) * dx + (oy - S[r, O + 1]) * dy + (oz - S[r, O + 2]) * dz
@@ -128,7 +129,8 @@ def shadow_cutouts_kernel(fns, key, sh_o, sh_d, sh_t, geo, cut, tab, eps, blocke
             k = rec_i[HIT_PRIM]
             w1 = float(rec[HIT_U])
             w2 = float(rec[HIT_V])
-            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, splitmix_u01(key, i * CUTOUT_PASSES + q + 1), stv)):
+            u = splitmix_u01(key, i * CUTOUT_PASSES + q + 1)
+            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, u, stv)):
                 break  # a present surface
             nx, ny, nz = _behind(geo, eps, k, w1, w2, dx, dy, dz)
             t_left -= (nx - ox) * dx + (ny - oy) * dy + (nz - oz) * dz

@@ -238,7 +238,7 @@ def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, be
         gx, gy, gz = gg
         sx, sy, sz = ss
         if bent:
-            # Normal maps: the shading normal FastPath._surfaces bent (geometry.perturb_normals).
+            # Normal maps: the shading normal materials.surface_hits bent (geometry.perturb_row).
             q = max(mat_row[r], 0)
             sx, sy, sz = bent_ns[q, 0], bent_ns[q, 1], bent_ns[q, 2]
         # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
@@ -833,7 +833,7 @@ def vertex_kernel(
     a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights, or 4 + 3
     with a picking service: the pick's u, then the light sample's two): the
     rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
-    (Pm, mat_row, emission, bent_ns) of FastPath._surfaces: Pm (materials, K) packed BSDF rows,
+    (Pm, mat_row, emission, bent_ns) (materials.surface_hits' with tex): Pm (materials, K) packed BSDF rows,
     or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
     (if not empty) the radiance its surface emits (added in full: emitting surfaces are reached
     by BSDF samples only, as in the general path) and bent_ns (hits, 3) (if not empty) its
