@@ -211,7 +211,7 @@ def offset_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, eps: np.ndarray 
 # --------------------------------------------------------------------------------------
 # Surface interaction from a hit (prim, barycentrics)
 # --------------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz):
     """The hit of direction d = (dx, dy, dz) on triangle k at barycentrics (w1, w2): point p,
     geometric normal ng and shading normal ns as 3-tuples, both normals facing wo = -d
@@ -264,6 +264,15 @@ def _interaction_tri(v0, v1, v2, n0, n1, n2, fn, w1, w2, dx, dy, dz):
     return (px, py, pz), (gx, gy, gz), (sx, sy, sz)
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def st_row(st_tab, k, w1, w2, out):
+    """Every column of the per-corner table st_tab (T, 3, C) (st and the primvars materials
+    read) interpolated at barycentrics (w1, w2) of triangle k, into out (C,)."""
+    w0 = 1.0 - w1 - w2
+    for c in range(out.shape[0]):
+        out[c] = st_tab[k, 0, c] * w0 + st_tab[k, 1, c] * w1 + st_tab[k, 2, c] * w2
+
+
 @njit(cache=True, nogil=True)
 def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d, p, ng, ns, st):
     """One pass per hit: float64 point, normals facing wo = -d (_interaction_row), interpolated st
@@ -272,14 +281,12 @@ def _interaction_kernel(vertices, face_normal, normals, st_tab, prim, b1, b2, d,
         k = prim[i]
         w1 = b1[i]
         w2 = b2[i]
-        w0 = 1.0 - w1 - w2
         pp, gg, ss = _interaction_row(vertices, face_normal, normals, k, w1, w2, d[i, 0], d[i, 1], d[i, 2])
         for c in range(3):
             p[i, c] = pp[c]
             ng[i, c] = gg[c]
             ns[i, c] = ss[c]
-        for c in range(st.shape[1]):
-            st[i, c] = st_tab[k, 0, c] * w0 + st_tab[k, 1, c] * w1 + st_tab[k, 2, c] * w2
+        st_row(st_tab, k, w1, w2, st[i])
 
 
 def surface_interaction(vertices, face_normal, normals, st_tab, prim, b1, b2, d):
@@ -382,57 +389,64 @@ def _visible_reflection_normal(mx, my, mz, gx, gy, gz, ox, oy, oz):
     return a * xx + b * gx, a * xy + b * gy, a * xz + b * gz
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def perturb_row(nx, ny, nz, gx, gy, gz, ox, oy, oz, x, y, z, k, tangent, handed, face_normal):
+    """One hit's shading normal n = (nx, ny, nz) on triangle k, bent by the tangent-space
+    normal (x, y, z) (ng = (gx, gy, gz) and wo = (ox, oy, oz) as perturb_normals takes them):
+    the bent normal as a 3-tuple, or n itself where there is no UV frame. The one normal-map
+    formula (perturb_normals and the per-hit surface rows, renderer/materials.py)."""
+    # No frame (st missing/degenerate), or a map value along +z (or zero): N as it is,
+    # bit for bit, so a flat map renders exactly like no map.
+    if handed[k] == 0.0 or (x == 0.0 and y == 0.0):
+        return nx, ny, nz
+    # T: dp/du made orthogonal to N (Gram-Schmidt).
+    d = tangent[k, 0] * nx + tangent[k, 1] * ny + tangent[k, 2] * nz
+    tx = tangent[k, 0] - d * nx
+    ty = tangent[k, 1] - d * ny
+    tz = tangent[k, 2] - d * nz
+    tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+    if not tl > 1e-12:
+        return nx, ny, nz  # dp/du along N: no usable tangent
+    r = 1.0 / tl
+    tx *= r
+    ty *= r
+    tz *= r
+    # B = h N x T with h the UV handedness seen from the side N faces: the interaction
+    # flipped both normals toward wo, and flipping N flips N x T, so h flips with it and
+    # B keeps following +v on either side.
+    h = handed[k]
+    if gx * face_normal[k, 0] + gy * face_normal[k, 1] + gz * face_normal[k, 2] < 0.0:
+        h = -h
+    bx = h * (ny * tz - nz * ty)
+    by = h * (nz * tx - nx * tz)
+    bz = h * (nx * ty - ny * tx)
+    mx = tx * x + bx * y + nx * z
+    my = ty * x + by * y + ny * z
+    mz = tz * x + bz * y + nz * z
+    ml = np.sqrt(mx * mx + my * my + mz * mz)
+    if not ml > 0.0:
+        return nx, ny, nz
+    r = 1.0 / ml
+    mx *= r
+    my *= r
+    mz *= r
+    # To the geometric normal's side (as _interaction_row), then bent back where wo would
+    # mirror below the surface (_visible_reflection_normal).
+    if mx * gx + my * gy + mz * gz < 0.0:
+        mx, my, mz = -mx, -my, -mz
+    return _visible_reflection_normal(mx, my, mz, gx, gy, gz, ox, oy, oz)
+
+
 @njit(cache=True, nogil=True)
 def _perturb_kernel(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal, out):
     for i in range(ns.shape[0]):
         nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
-        out[i, 0], out[i, 1], out[i, 2] = nx, ny, nz
         if not mapped[i]:
+            out[i, 0], out[i, 1], out[i, 2] = nx, ny, nz
             continue
-        k = prim[i]
-        x, y, z = nmap[i, 0], nmap[i, 1], nmap[i, 2]
-        # No frame (st missing/degenerate), or a map value along +z (or zero): N as it is,
-        # bit for bit, so a flat map renders exactly like no map.
-        if handed[k] == 0.0 or (x == 0.0 and y == 0.0):
-            continue
-        # T: dp/du made orthogonal to N (Gram-Schmidt).
-        d = tangent[k, 0] * nx + tangent[k, 1] * ny + tangent[k, 2] * nz
-        tx = tangent[k, 0] - d * nx
-        ty = tangent[k, 1] - d * ny
-        tz = tangent[k, 2] - d * nz
-        tl = np.sqrt(tx * tx + ty * ty + tz * tz)
-        if not tl > 1e-12:
-            continue  # dp/du along N: no usable tangent
-        r = 1.0 / tl
-        tx *= r
-        ty *= r
-        tz *= r
-        # B = h N x T with h the UV handedness seen from the side N faces: the interaction
-        # flipped both normals toward wo, and flipping N flips N x T, so h flips with it and
-        # B keeps following +v on either side.
-        h = handed[k]
-        if ng[i, 0] * face_normal[k, 0] + ng[i, 1] * face_normal[k, 1] + ng[i, 2] * face_normal[k, 2] < 0.0:
-            h = -h
-        bx = h * (ny * tz - nz * ty)
-        by = h * (nz * tx - nx * tz)
-        bz = h * (nx * ty - ny * tx)
-        mx = tx * x + bx * y + nx * z
-        my = ty * x + by * y + ny * z
-        mz = tz * x + bz * y + nz * z
-        ml = np.sqrt(mx * mx + my * my + mz * mz)
-        if not ml > 0.0:
-            continue
-        r = 1.0 / ml
-        mx *= r
-        my *= r
-        mz *= r
-        # To the geometric normal's side (as _interaction_row), then bent back where wo would
-        # mirror below the surface (_visible_reflection_normal).
-        gx, gy, gz = ng[i, 0], ng[i, 1], ng[i, 2]
-        if mx * gx + my * gy + mz * gz < 0.0:
-            mx, my, mz = -mx, -my, -mz
-        out[i, 0], out[i, 1], out[i, 2] = _visible_reflection_normal(mx, my, mz, gx, gy, gz, wo[i, 0], wo[i, 1],
-                                                                     wo[i, 2])
+        out[i, 0], out[i, 1], out[i, 2] = perturb_row(nx, ny, nz, ng[i, 0], ng[i, 1], ng[i, 2], wo[i, 0], wo[i, 1],
+                                                      wo[i, 2], nmap[i, 0], nmap[i, 1], nmap[i, 2], prim[i], tangent,
+                                                      handed, face_normal)
 
 
 def perturb_normals(ns, ng, wo, nmap, mapped, prim, tangent, handed, face_normal) -> np.ndarray:

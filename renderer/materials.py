@@ -2,9 +2,12 @@
 
 ``MaterialTable.build(materials, textures)`` packs the constant inputs of every material into
 arrays indexed by material id and records which inputs are textured.
-``evaluate(mat, st)`` returns ``SurfaceParams`` for a batch of hits: constants are gathered by
-material id, then each *texture* (not each row) overrides the rows of the materials it feeds,
-with one vectorised lookup per texture.
+``evaluate(mat, st)`` returns ``SurfaceParams`` for a batch of hits, each hit's inputs by the
+compiled ``columns_row`` on one record of every material (``surface_record``: constants, each
+input's texture or primvar binding, the textures packed by TextureCache.pack, UDIM tiles
+included). The fast path's vertex kernel calls the same rows at every hit (``surface_hits``:
+the packed BSDF row, the emission and the bent shading normal), and the cut-out walks read
+presence through them (``presence_hit``): one evaluation for every route.
 
 Opacity (UsdPreviewSurface spec) -> ``presence(params)``, the probability that the surface is
 there at a hit (the integrator continues the ray through the surface with probability
@@ -41,7 +44,7 @@ textures are looked up at st = (0, 0), the UsdPrimvarReader_float2 fallback.
 
 Several st sets: where the scene's textures read more than one st primvar (UsdUVTexture.st from
 UsdPrimvarReader_float2 nodes with different varnames), each of those primvars also gets columns
-in the per-hit coordinates, and each texture reads its own (``_texture_st``).
+in the per-hit coordinates, and each texture reads its own (columns_row, MI's B_ST).
 
 Primvar inputs (a UsdPrimvarReader_* connected to an input, ``MaterialInput.primvar``): the
 primvars materials read are laid out after st in the per-hit coordinates (``primvar_layout``:
@@ -52,17 +55,21 @@ gets the reader's fallback. Components map to the input as for textures.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Optional
 
 import numpy as np
 from numba import njit
 
+from renderer.bsdfs._preview_kernels import K as P_COLUMNS
+from renderer.bsdfs._preview_kernels import init_row, inputs_row
 from renderer.bsdfs.microfacet import albedo_tables
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
 from renderer.description import MaterialDesc, MaterialInput, TextureDesc, primvar_layout
 from renderer.errors import StageError
-from renderer.textures import TextureCache, lookup_row, output_channels
+from renderer.geometry import _interaction_row, perturb_row, st_row
+from renderer.textures import TextureCache, output_channels, texture_row
 
 # (attribute on MaterialDesc, SurfaceParams field, components, USD input name)
 _TEXTURABLE = (
@@ -76,6 +83,23 @@ _TEXTURABLE = (
 )
 
 _FLAT = (0.0, 0.0, 1.0)  # the tangent-space normal that leaves the shading normal as it is
+
+# The columns of one hit's inputs in the compiled surface rows (input_row, params_row): every
+# SurfaceParams field, use_specular_workflow as 0.0 / 1.0.
+C_DIFFUSE = 0
+C_SPECULAR = 3
+C_WORKFLOW = 6
+C_METALLIC = 7
+C_ROUGHNESS = 8
+C_IOR = 9
+C_OPACITY = 10
+C_EMISSION = 11
+C_THRESHOLD = 14
+C_NORMAL = 15
+N_COLUMNS = 18
+_COLUMN = {"diffuse": C_DIFFUSE, "specular_color": C_SPECULAR, "use_specular_workflow": C_WORKFLOW,
+           "metallic": C_METALLIC, "roughness": C_ROUGHNESS, "ior": C_IOR, "opacity": C_OPACITY,
+           "emission": C_EMISSION, "opacity_threshold": C_THRESHOLD, "normal": C_NORMAL}
 
 
 def texture_inputs(mat: MaterialDesc) -> list[tuple[str, TextureDesc]]:
@@ -152,20 +176,134 @@ def _presence(opacity: np.ndarray, threshold: np.ndarray) -> np.ndarray:
     return out
 
 
+# The per-(material, input column) bindings of MaterialTable.surface_record (MI's last axis).
+B_SLOT, B_CHANNEL, B_PRIMVAR, B_ST = 0, 1, 2, 3
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def columns_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, c0, c1, vals):
+    """Input columns c0..c1 (C_*) of material m at one hit whose per-hit coordinates are stv
+    (MaterialTable.evaluate's st row: st, then the primvars materials read; empty: none), on the
+    record of MaterialTable.surface_record unpacked (C, MI and TextureCache.pack's arrays): a
+    primvar reader's value (its fallback, the constant, where the hit has none or NaN), a
+    texture's channel (textures.texture_row at the texture's own st set where the hit has it,
+    else st; (0, 0) without coordinates), or the constant. Into vals[c0:c1] where vals is not
+    empty; returns column c1 - 1. The one evaluation of UsdPreviewSurface inputs (evaluate,
+    presence_at, the cut-out walks and the compiled per-hit rows all come here).
+
+    The per-hit rows (this one, texture_row, params_row, input_row, presence_hit, and the
+    geometry and BSDF rows surface_hits calls) are compiled without numba's reference counting
+    (_nrt=False: they allocate nothing): counting the arrays of each call cost ~10 ns an array,
+    13 us a hit in all, 50x the evaluation itself."""
+    n = stv.shape[0]
+    v = 0.0
+    for col in range(c0, c1):
+        v = C[m, col]
+        p = MI[m, col, B_PRIMVAR]
+        j = MI[m, col, B_SLOT]
+        if p >= 0:
+            if p < n and stv[p] == stv[p]:
+                v = stv[p]
+        elif j >= 0:
+            s = stv[0] if n >= 2 else 0.0
+            t = stv[1] if n >= 2 else 0.0
+            q = MI[m, col, B_ST]
+            if q >= 0 and n >= q + 2 and math.isfinite(stv[q]) and math.isfinite(stv[q + 1]):
+                s = stv[q]
+                t = stv[q + 1]
+            v = texture_row(px, IMI, TXI, TXF, tiles, j, s, t, MI[m, col, B_CHANNEL])
+        if vals.shape[0] > 0:
+            vals[col] = v
+    return v
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def input_row(R, m, col, stv):
+    """Input column col of material m at one hit (columns_row) from the record R."""
+    C, MI, _, TX, _, _ = R
+    px, IMI, TXI, TXF, tiles = TX
+    return columns_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, col, col + 1, stv[:0])
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def params_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, vals):
+    """Every input column of material m at one hit into vals (N_COLUMNS,) (columns_row)."""
+    columns_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, 0, N_COLUMNS, vals)
+
+
 @njit(cache=True, nogil=True)
-def presence_hit(tab, m, s, t):
-    """presence_at for one hit of material m at st = (s, t), from MaterialTable.presence_table."""
-    op_c, thr, slot, chan, px, off, h, w, nc, ws, wt, xf, has_xf, scale, bias, fallback, loaded = tab
-    op = op_c[m]
-    j = slot[m]
-    if j >= 0:
-        c = chan[m]
-        if not loaded[j]:
-            op = fallback[j, c]
-        else:
-            op = lookup_row(px, off[j], h[j], w[j], nc[j], s, t, ws[j], wt[j], xf[j] if has_xf[j] else xf[j, :0], c,
-                            scale[j, c], bias[j, c], fallback[j, c])
-    return presence_row(op, thr[m])
+def _params_kernel(R, mat, st, out):
+    C, MI, _, TX, _, _ = R
+    px, IMI, TXI, TXF, tiles = TX
+    for i in range(mat.shape[0]):
+        params_row(C, MI, px, IMI, TXI, TXF, tiles, mat[i], st[i], out[i])
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def presence_hit(R, m, stv):
+    """presence_at for one hit of material m with per-hit coordinates stv (input_row)."""
+    return presence_row(input_row(R, m, C_OPACITY, stv), R[0][m, C_THRESHOLD])
+
+
+@njit(cache=True, nogil=True)
+def _presence_at_kernel(R, mat, st, out):
+    for i in range(mat.shape[0]):
+        out[i] = presence_hit(R, mat[i], st[i])
+
+
+@njit(cache=True, nogil=True)
+def surface_hits(H, vertices, face_normal, normals, tri_mat, prim, b1, b2, S, D):
+    """The per-hit surface record of the fast path's vertex kernel (its ``surf``): (P (h, K)
+    packed rows of the h hits among prim (n,) (-1: missed), row (n,) int64 each ray's row in P or
+    -1, emission (h, 3) or (0, 3) where no material emits, bent_ns (h, 3) or (0, 3) where no
+    material is normal-mapped) at barycentrics b1, b2 (n,) along the unit directions
+    S[:, D:D + 3]. H: MaterialTable.hit_record. Each hit: its per-hit coordinates (st_row), its
+    inputs (params_row), the packed row (the BSDF's inputs_row and init_row: make_bsdf's), the
+    emission, and the shading normal bent where its material is normal-mapped (perturb_row: the
+    general path's PathIntegrator.bent_normals)."""
+    R, st_tab, tangent, handed, ta_avg, tb_avg = H
+    C, MI, mapped, TX, has_emission, has_normal_map = R
+    px, IMI, TXI, TXF, tiles = TX
+    n = prim.shape[0]
+    row = np.empty(n, dtype=np.int64)
+    h = 0
+    for r in range(n):
+        row[r] = h if prim[r] >= 0 else -1
+        h += 1 if prim[r] >= 0 else 0
+    P = np.empty((h, P_COLUMNS))
+    emission = np.empty((h if has_emission else 0, 3))
+    bent_ns = np.empty((h if has_normal_map else 0, 3))
+    stv = np.empty(st_tab.shape[2])
+    vals = np.empty(N_COLUMNS)
+    bend = tangent.shape[0] > 0
+    for r in range(n):
+        q = row[r]
+        if q < 0:
+            continue
+        k = prim[r]
+        w1 = float(b1[r])
+        w2 = float(b2[r])
+        m = tri_mat[k]
+        st_row(st_tab, k, w1, w2, stv)
+        params_row(C, MI, px, IMI, TXI, TXF, tiles, m, stv, vals)
+        inputs_row(P, q, vals[C_DIFFUSE], vals[C_DIFFUSE + 1], vals[C_DIFFUSE + 2], vals[C_SPECULAR],
+                   vals[C_SPECULAR + 1], vals[C_SPECULAR + 2], vals[C_WORKFLOW] != 0.0, vals[C_METALLIC],
+                   vals[C_ROUGHNESS], vals[C_IOR])
+        init_row(P, q, ta_avg, tb_avg)
+        if has_emission:
+            for c in range(3):
+                emission[q, c] = vals[C_EMISSION + c]
+        if has_normal_map:
+            dx, dy, dz = S[r, D], S[r, D + 1], S[r, D + 2]
+            _, gg, ss = _interaction_row(vertices, face_normal, normals, k, w1, w2, dx, dy, dz)
+            nx, ny, nz = ss
+            if bend and mapped[m]:
+                nx, ny, nz = perturb_row(nx, ny, nz, gg[0], gg[1], gg[2], -dx, -dy, -dz, vals[C_NORMAL],
+                                         vals[C_NORMAL + 1], vals[C_NORMAL + 2], k, tangent, handed, face_normal)
+            bent_ns[q, 0] = nx
+            bent_ns[q, 1] = ny
+            bent_ns[q, 2] = nz
+    return P, row, emission, bent_ns
 
 
 # The SurfaceParams fields the BSDF reads (the others: emission, opacity, opacity_threshold).
@@ -258,6 +396,7 @@ class MaterialTable:
         self.normal_mapped = np.zeros(0, dtype=bool)
         self.has_normal_map = False
         self._bsdf_rows: Optional[np.ndarray] = None  # (m, K) packed BSDF of each material
+        self._record: Optional[tuple] = None  # surface_record, built on first use
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -360,35 +499,67 @@ class MaterialTable:
     # Evaluate
     # ----------------------------------------------------------------------------------
     def evaluate(self, mat: np.ndarray, st: Optional[np.ndarray] = None) -> SurfaceParams:
-        """SurfaceParams at n hits. mat: (n,) int material ids; st: (n, 2) texture coordinates
-        (or None: textures are looked up at (0, 0))."""
-        mat = np.asarray(mat, dtype=np.int64)
-        # The normal is gathered only where some material bends normals (SurfaceParams.normal).
-        out = {name: arr[mat] for name, arr in self.const.items() if name != "normal" or self.has_normal_map}
-        if self.textures:
-            self._apply_textures(out, mat, st, None)
-        if self._primvar:
-            self._apply_primvars(out, mat, st, None)
-        return SurfaceParams(**out)
+        """SurfaceParams at n hits. mat: (n,) int material ids; st: (n, 2 + K) per-hit
+        coordinates (st, then the primvars materials read: primvar_layout), or None: textures
+        are looked up at (0, 0) and primvar readers give their fallbacks (input_row per hit)."""
+        mat = np.ascontiguousarray(mat, dtype=np.int64)
+        out = np.empty((mat.shape[0], N_COLUMNS))
+        _params_kernel(self.surface_record(), mat, self._st_rows(st, mat.shape[0]), out)
+        cols = {name: (out[:, c:c + 3] if self.const[name].ndim == 2 else out[:, c]) for name, c in _COLUMN.items()
+                if name != "normal" or self.has_normal_map}  # the normal only where some material bends normals
+        cols = {name: np.ascontiguousarray(v) for name, v in cols.items()}
+        cols["use_specular_workflow"] = cols["use_specular_workflow"] != 0.0
+        return SurfaceParams(**cols)
 
-    def _apply_primvars(self, out: dict, mat: np.ndarray, st: Optional[np.ndarray], only: Optional[str]) -> None:
-        """Override primvar-fed inputs in ``out`` from the per-hit coordinates' primvar columns;
-        NaN there (the gprim lacks the primvar) or no coordinates at all give the fallback."""
-        for (fname, cols), (mats_f, fallbacks) in self._primvar.items():
-            if (only is not None and fname != only) or fname not in out:
-                continue
-            rows = np.nonzero(self._has(mats_f)[mat])[0]
-            if rows.size == 0:
-                continue
-            fb = fallbacks[np.searchsorted(mats_f, mat[rows])] if mats_f.size > 1 else \
-                np.broadcast_to(fallbacks[0], (rows.size, fallbacks.shape[1]))
-            if st is None or np.shape(st)[1] <= max(cols):
-                vals = fb
-            else:
-                vals = np.asarray(st, dtype=np.float64)[rows][:, list(cols)]
-                vals = np.where(np.isnan(vals), fb, vals)
-            arr = out[fname]
-            arr[rows] = vals[:, 0] if arr.ndim == 1 else vals
+    @staticmethod
+    def _st_rows(st: Optional[np.ndarray], n: int) -> np.ndarray:
+        """The per-hit coordinates as the compiled rows read them: (n, C) float64, (n, 0) for none."""
+        if st is None:
+            return np.zeros((n, 0))
+        return np.ascontiguousarray(np.reshape(st, (n, -1)), dtype=np.float64)
+
+    def surface_record(self) -> tuple:
+        """The inputs of every material as one record for the compiled rows (input_row; built
+        once): (C (m, N_COLUMNS) the constants; MI (m, N_COLUMNS, 4) int64 per (material,
+        column) its binding (B_*): the texture slot feeding it or -1, that texture's channel, the
+        per-hit coordinate column of the primvar reader feeding it or -1, and the first column of
+        the texture's own st set or -1 (st); normal_mapped (m,) bool; TextureCache.pack of the
+        textures; has_emission, has_normal_map)."""
+        if self._record is None:
+            m = len(self)
+            C = np.zeros((m, N_COLUMNS))
+            for name, c in _COLUMN.items():
+                v = np.asarray(self.const[name], dtype=np.float64)
+                w = 3 if v.ndim == 2 else 1
+                C[:, c:c + w] = v.reshape(m, w)
+            MI = np.full((m, N_COLUMNS, 4), -1, dtype=np.int64)
+            MI[:, :, B_CHANNEL] = 0
+            own_st = [self.primvar_layout[t.st_primvar][0] if t.st_primvar in self.primvar_layout else -1
+                      for t in self.textures]
+            for s, (_, binds) in enumerate(self._by_texture):
+                for b in binds:
+                    for i, ch in enumerate(b.channels):
+                        MI[b.material, _COLUMN[b.field] + i, [B_SLOT, B_CHANNEL, B_ST]] = (s, ch, own_st[s])
+            for (fname, cols), (mats_f, _fallbacks) in self._primvar.items():
+                for i, col in enumerate(cols):
+                    MI[mats_f, _COLUMN[fname] + i, B_PRIMVAR] = col
+            tx = (self.texture_cache.pack(self.textures) if self.texture_cache is not None
+                  else TextureCache().pack([]))
+            self._record = (C, MI, np.ascontiguousarray(self.normal_mapped, dtype=np.bool_), tx,
+                            bool(self.has_emission), bool(self.has_normal_map))
+        return self._record
+
+    def hit_record(self, geometry) -> tuple:
+        """surface_hits' record for the hits on ``geometry`` (GeometryTables): (surface_record,
+        the per-corner coordinates st (T, 3, C), the normal maps' tangent (T, 3) and handed (T,)
+        (empty where no triangle is normal-mapped), the albedo tables' averages a_avg, b_avg)."""
+        f64 = np.float64
+        tables = albedo_tables()
+        tangent = np.zeros((0, 3)) if geometry.tangent is None else geometry.tangent
+        handed = np.zeros(0) if geometry.handed is None else geometry.handed
+        return (self.surface_record(), np.ascontiguousarray(geometry.st, dtype=f64),
+                np.ascontiguousarray(tangent, dtype=f64), np.ascontiguousarray(handed, dtype=f64),
+                np.ascontiguousarray(tables.a_avg, dtype=f64), np.ascontiguousarray(tables.b_avg, dtype=f64))
 
     @property
     def bsdf_is_constant(self) -> bool:
@@ -432,126 +603,13 @@ class MaterialTable:
             raise ValueError("textured BSDF inputs need the SurfaceParams evaluated at the hits")
         return make_bsdf(params)
 
-    def _apply_textures(
-        self, out: dict, mat: np.ndarray, st: Optional[np.ndarray], only: Optional[str]
-    ) -> None:
-        """Override textured inputs in ``out`` (arrays gathered by ``mat``) texture by texture."""
-        for s, tex in enumerate(self.textures):
-            mats_t, binds = self._by_texture[s]
-            if only is not None:
-                binds = [b for b in binds if b.field == only]
-                if not binds:
-                    continue
-                mats_t = np.unique(np.array([b.material for b in binds], dtype=np.int64))
-            rows = np.nonzero(self._has(mats_t)[mat])[0]
-            if rows.size == 0:
-                continue
-            st_rows = self._texture_st(tex, st, rows)
-            rgba = self.texture_cache.lookup(tex, st_rows)
-            mat_rows = mat[rows]
-            # Group the bindings by (field, channels): usually one group covering every row.
-            groups: dict[tuple, list[int]] = {}
-            for b in binds:
-                groups.setdefault((b.field, b.channels), []).append(b.material)
-            for (fname, chans), mats in groups.items():
-                arr = out[fname]  # a fresh array from fancy indexing: safe to write
-                if len(mats) == mats_t.size:
-                    r, vals = rows, rgba[:, list(chans)]
-                else:
-                    sel = self._has(mats)[mat_rows]
-                    r, vals = rows[sel], rgba[sel][:, list(chans)]
-                if arr.ndim == 1:
-                    arr[r] = vals[:, 0]
-                else:
-                    arr[r] = vals
-
-    def _texture_st(self, tex: TextureDesc, st: Optional[np.ndarray], rows: np.ndarray) -> np.ndarray:
-        """(k, 2) texture coordinates of ``tex`` at hits ``rows``: columns 0-1 of the per-hit
-        coordinates, or, where the scene's textures read several st primvars
-        (``primvar_layout``), the texture's own st primvar's columns where the hit's gprim has
-        it (a gprim whose materials read one st set holds it in columns 0-1 only)."""
-        if st is None:
-            return np.zeros((rows.size, 2))
-        st = np.asarray(st, dtype=np.float64)
-        out = st[rows, :2]
-        named = self.primvar_layout.get(tex.st_primvar)
-        if named is not None and st.shape[1] >= named[0] + 2:
-            own = st[rows, named[0]:named[0] + 2]
-            out = np.where(np.isfinite(own).all(axis=1, keepdims=True), own, out)
-        return out
-
-    def _has(self, mats) -> np.ndarray:
-        """(materials,) bool, True at the ids in mats: a gather per hit instead of np.isin's sort."""
-        mask = np.zeros(len(self), dtype=bool)
-        mask[np.asarray(mats, dtype=np.int64)] = True
-        return mask
-
     def presence_at(self, mat: np.ndarray, st: Optional[np.ndarray] = None) -> np.ndarray:
         """(n,) presence probability at hits without evaluating the other inputs (for shadow
-        rays and any-hit style tests)."""
-        mat = np.asarray(mat, dtype=np.int64)
-        out = {"opacity": self.const["opacity"][mat]}
-        if self.textures and np.any(self._slot["opacity"] >= 0):
-            self._apply_textures(out, mat, st, "opacity")
-        if self._primvar:
-            self._apply_primvars(out, mat, st, "opacity")
-        return _presence(out["opacity"], self.const["opacity_threshold"][mat])
-
-    @property
-    def presence_compiled(self) -> bool:
-        """Whether presence_table describes presence exactly: no primvar reader feeds an
-        opacity, and every opacity texture is one image (not UDIM tiles) read at the hits'
-        first st set (columns 0-1)."""
-        if any(fname == "opacity" for fname, _ in self._primvar):
-            return False
-        if any(any(b.field == "opacity" for b in binds) and self.textures[s].udim_tiles
-               for s, (_, binds) in enumerate(self._by_texture)):
-            return False  # presence_hit reads one image per texture, not UDIM tiles
-        return not any(any(b.field == "opacity" for b in binds) and self.textures[s].st_primvar in self.primvar_layout
-                       for s, (_, binds) in enumerate(self._by_texture))
-
-    def presence_table(self) -> tuple:
-        """presence_at's inputs as arrays, for compiled callers (presence_hit): (opacity (m,),
-        threshold (m,), slot (m,) int64 the texture feeding the material's opacity or -1, channel
-        (m,) int64 its channel, then per such texture (k,): pixels (all k images flat, float32),
-        offset, height, width, channels (int64), wrap_s, wrap_t (textures.WRAP_MODES codes), xf
-        (k, 6) st transform and has_xf (k,) bool, scale, bias, fallback (k, 4), loaded (k,) bool
-        (False: the file could not be read, fallback)."""
-        from renderer.textures import WRAP_MODES
-
-        m = len(self)
-        slot = np.full(m, -1, dtype=np.int64)
-        chan = np.zeros(m, dtype=np.int64)
-        texs: list[int] = []
-        for s, (_, binds) in enumerate(self._by_texture):
-            for b in binds:
-                if b.field == "opacity":
-                    if s not in texs:
-                        texs.append(s)
-                    slot[b.material], chan[b.material] = texs.index(s), b.channels[0]
-        k = len(texs)
-        images = [self.texture_cache.image(self.textures[s]) for s in texs]
-        shapes = np.array([im.shape if im is not None else (0, 0, 4) for im in images], dtype=np.int64).reshape(k, 3)
-        sizes = shapes.prod(axis=1)
-        offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if k else np.zeros(0, np.int64)
-        pixels = (np.concatenate([im.reshape(-1) for im in images if im is not None]).astype(np.float32)
-                  if any(im is not None for im in images) else np.zeros(0, np.float32))
-        modes = [self.texture_cache.wrap_modes(self.textures[s]) for s in texs]
-        xf = np.zeros((k, 6))
-        for j, s in enumerate(texs):
-            if self.textures[s].st_transform:
-                xf[j] = self.textures[s].st_transform
-        per_tex = lambda attr: np.array([np.ravel(getattr(self.textures[s], attr)) for s in texs],  # noqa: E731
-                                        dtype=np.float64).reshape(k, 4)
-        return (np.ascontiguousarray(self.const["opacity"], dtype=np.float64),
-                np.ascontiguousarray(self.const["opacity_threshold"], dtype=np.float64), slot, chan, pixels, offset,
-                np.ascontiguousarray(shapes[:, 0]), np.ascontiguousarray(shapes[:, 1]),
-                np.ascontiguousarray(shapes[:, 2]),
-                np.array([WRAP_MODES.index(a) for a, _ in modes], dtype=np.int64),
-                np.array([WRAP_MODES.index(b) for _, b in modes], dtype=np.int64), xf,
-                np.array([bool(self.textures[s].st_transform) for s in texs], dtype=np.bool_),
-                per_tex("scale"), per_tex("bias"), per_tex("fallback"),
-                np.array([im is not None for im in images], dtype=np.bool_))
+        rays and any-hit style tests; presence_hit per hit)."""
+        mat = np.ascontiguousarray(mat, dtype=np.int64)
+        out = np.empty(mat.shape[0])
+        _presence_at_kernel(self.surface_record(), mat, self._st_rows(st, mat.shape[0]), out)
+        return out
 
     @staticmethod
     def presence(params: SurfaceParams) -> np.ndarray:
@@ -559,7 +617,10 @@ class MaterialTable:
         return presence(params)
 
 
-# presence_hit inlines textures.lookup_row: its cache follows that file (renderer/kernels).
+# The compiled rows inline textures.texture_row, geometry's rows and the BSDF's input mapping:
+# their cache follows those files (renderer/kernels).
 from renderer.kernels import guard_cache, module_dispatchers  # noqa: E402
 
-guard_cache(__name__, module_dispatchers(globals()), ["renderer/textures.py"])
+guard_cache(__name__, module_dispatchers(globals()),
+            ["renderer/textures.py", "renderer/geometry.py", "renderer/bsdfs/_preview_kernels.py",
+             "renderer/kernels/vmath.py"])

@@ -205,7 +205,9 @@ def _wrap_row(i, n, mode):
     return k, (1.0 if 0 <= i < n else 0.0)  # black: a texel outside contributes 0
 
 
-@njit(cache=True, nogil=True)
+# inline="always" (numba IR): a per-hit caller's texture lookups then cost no calls (each call
+# of a helper taking the texel array cost ~50 ns in reference counting, 4x the bilinear itself).
+@njit(cache=True, nogil=True, inline="always")
 def texel_row(px, off, h, w, nc, s, t, ws, wt, c):
     """Bilinear value (float64) of channel c at (s, t) of an (h, w, nc) image stored flat from
     px[off] (row 0 = t bottom; texel centres at ((i + 0.5)/w, (j + 0.5)/h)), wrap codes ws, wt.
@@ -234,7 +236,7 @@ def texel_row(px, off, h, w, nc, s, t, ws, wt, c):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def lookup_row(px, off, h, w, nc, s, t, ws, wt, xf, c, scale, bias, fallback):
     """UsdUVTexture output channel c at st = (s, t): the st transform xf (6,) (m00, m01, m10,
     m11, t0, t1; empty for none), bilinear (texel_row), then texel * scale + bias; fallback
@@ -244,6 +246,57 @@ def lookup_row(px, off, h, w, nc, s, t, ws, wt, xf, c, scale, bias, fallback):
     if xf.shape[0] > 0:
         s, t = xf[0] * s + xf[1] * t + xf[4], xf[2] * s + xf[3] * t + xf[5]
     return texel_row(px, off, h, w, nc, s, t, ws, wt, c) * scale + bias
+
+
+# The columns of TextureCache.pack's tables: per image (IMI), per texture (TXI, TXF), per UDIM
+# tile (tiles).
+IM_OFFSET, IM_HEIGHT, IM_WIDTH, IM_CHANNELS = 0, 1, 2, 3
+TX_IMAGE, TX_WRAP_S, TX_WRAP_T, TX_HAS_XF, TX_UDIM, TX_TILE_LO, TX_TILE_HI = 0, 1, 2, 3, 4, 5, 6
+TX_XF, TX_SCALE, TX_BIAS, TX_FALLBACK = 0, 6, 10, 14
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def texture_row(px, IMI, TXI, TXF, tiles, j, s, t, c):
+    """Output channel c of texture j of the packed set (TextureCache.pack: px, IMI, TXI, TXF,
+    tiles) at st = (s, t): TextureCache.lookup's rules for one row. A plain texture: its image
+    through lookup_row, or its fallback where the file could not be read. A UDIM texture (module
+    docstring): the st transform, then tile 1001 + floor(s') + 10 floor(t') at the tile-local st
+    through lookup_row (clamped at the tile's edges, no transform), the fallback off the tiles or
+    on a tile that could not be read."""
+    fb = TXF[j, TX_FALLBACK + c]
+    xf = TXF[j, TX_XF:TX_XF + 6]
+    if TXI[j, TX_UDIM] == 0:
+        i = TXI[j, TX_IMAGE]
+        if i < 0:
+            return fb
+        return lookup_row(px, IMI[i, IM_OFFSET], IMI[i, IM_HEIGHT], IMI[i, IM_WIDTH], IMI[i, IM_CHANNELS], s, t,
+                          TXI[j, TX_WRAP_S], TXI[j, TX_WRAP_T], xf if TXI[j, TX_HAS_XF] != 0 else xf[:0], c,
+                          TXF[j, TX_SCALE + c], TXF[j, TX_BIAS + c], fb)
+    if not (math.isfinite(s) and math.isfinite(t)):
+        return fb
+    if TXI[j, TX_HAS_XF] != 0:
+        s, t = xf[0] * s + xf[1] * t + xf[4], xf[2] * s + xf[3] * t + xf[5]
+    u = math.floor(s)
+    v = math.floor(t)
+    if not (u >= 0.0 and u < 10.0 and v >= 0.0 and v < 1e6):
+        return fb
+    number = int(1001.0 + u + 10.0 * v)
+    i = -2
+    for q in range(TXI[j, TX_TILE_LO], TXI[j, TX_TILE_HI]):
+        if tiles[q, 0] == number:
+            i = tiles[q, 1]  # the last tile of that number, as a loop over the tiles leaves it
+    if i < 0:
+        return fb
+    return lookup_row(px, IMI[i, IM_OFFSET], IMI[i, IM_HEIGHT], IMI[i, IM_WIDTH], IMI[i, IM_CHANNELS], s - u, t - v,
+                      1, 1, xf[:0], c, TXF[j, TX_SCALE + c], TXF[j, TX_BIAS + c], fb)
+
+
+@njit(cache=True, nogil=True)
+def _texture_kernel(TX, j, st, out):
+    px, IMI, TXI, TXF, tiles = TX
+    for r in range(st.shape[0]):
+        for c in range(out.shape[1]):
+            out[r, c] = texture_row(px, IMI, TXI, TXF, tiles, j, st[r, 0], st[r, 1], c)
 
 
 @njit(cache=True, nogil=True)
@@ -415,21 +468,59 @@ class TextureCache:
         return _lookup(px, st, *self.wrap_modes(tex), xf, tex.scale, tex.bias, fallback)
 
     def _lookup_udim(self, tex: TextureDesc, st: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-        """lookup for a UDIM texture (module docstring): each tile's rows at tile-local st."""
-        out = np.broadcast_to(fallback, (st.shape[0], 4)).copy()
-        if tex.st_transform:
-            m00, m01, m10, m11, t0, t1 = tex.st_transform
-            st = np.stack([m00 * st[:, 0] + m01 * st[:, 1] + t0, m10 * st[:, 0] + m11 * st[:, 1] + t1], axis=1)
-        with np.errstate(invalid="ignore"):
-            cell = np.floor(np.where(np.isfinite(st), st, -1.0))
-        u, v = cell[:, 0], cell[:, 1]
-        tile = np.where((u >= 0) & (u < 10) & (v >= 0) & (v < 1e6), 1001 + u + 10 * v, -1).astype(np.int64)
-        local = st - cell
-        for i, (number, _file) in enumerate(tex.udim_tiles):
-            rows = np.nonzero(tile == number)[0]
-            if rows.size:
-                out[rows] = self.lookup(self.udim_tile(tex, i), local[rows])
+        """lookup for a UDIM texture (module docstring): texture_row on every row."""
+        out = np.empty((st.shape[0], 4))
+        _texture_kernel(self.pack([tex]), 0, np.ascontiguousarray(st, dtype=np.float64), out)
         return out
+
+    def pack(self, textures: list[TextureDesc]) -> tuple:
+        """The textures (each added) as one record for compiled lookups (texture_row): (pixels
+        (all images flat, float32), IMI (images, 4) int64 each image's offset, height, width,
+        channels (IM_*), TXI (k, 7) int64 per texture its image or -1 (not read), wrap codes
+        (WRAP_MODES), st transform and UDIM flags and its range of tiles (TX_*), TXF (k, 18) its
+        st transform (m00, m01, m10, m11, t0, t1), scale, bias and fallback (4 each), tiles
+        (tiles, 2) int64 each UDIM tile's number and image or -1)."""
+        images: list[np.ndarray] = []
+
+        def image_of(t: TextureDesc) -> int:
+            px = self.image(t)
+            if px is None:
+                return -1
+            for i, im in enumerate(images):
+                if im is px:
+                    return i
+            images.append(px)
+            return len(images) - 1
+
+        k = len(textures)
+        TXI = np.zeros((k, 7), dtype=np.int64)
+        TXF = np.zeros((k, 18))
+        tiles: list[tuple[int, int]] = []
+        for j, tex in enumerate(textures):
+            self.add(tex)
+            for a, col in (("scale", TX_SCALE), ("bias", TX_BIAS), ("fallback", TX_FALLBACK)):
+                TXF[j, col:col + 4] = np.ravel(np.asarray(getattr(tex, a), dtype=np.float64))
+            if tex.st_transform:
+                TXF[j, TX_XF:TX_XF + 6] = tex.st_transform
+                TXI[j, TX_HAS_XF] = 1
+            if tex.udim_tiles:
+                TXI[j, TX_UDIM] = 1
+                TXI[j, TX_TILE_LO] = len(tiles)
+                tiles += [(int(number), image_of(self.udim_tile(tex, i))) for i, (number, _f) in
+                          enumerate(tex.udim_tiles)]
+                TXI[j, TX_TILE_HI] = len(tiles)
+                continue
+            TXI[j, TX_IMAGE] = image_of(tex)
+            a, b = self.wrap_modes(tex)
+            TXI[j, TX_WRAP_S], TXI[j, TX_WRAP_T] = WRAP_MODES.index(a), WRAP_MODES.index(b)
+        shapes = np.array([im.shape for im in images], dtype=np.int64).reshape(len(images), 3)
+        sizes = shapes.prod(axis=1)
+        IMI = np.zeros((len(images), 4), dtype=np.int64)
+        IMI[:, IM_OFFSET] = np.concatenate([[0], np.cumsum(sizes)[:-1]]) if images else 0
+        IMI[:, IM_HEIGHT:IM_CHANNELS + 1] = shapes
+        pixels = (np.concatenate([im.reshape(-1) for im in images]).astype(np.float32) if images
+                  else np.zeros(0, np.float32))
+        return pixels, IMI, TXI, TXF, np.array(tiles, dtype=np.int64).reshape(len(tiles), 2)
 
     def lookup_output(self, tex: TextureDesc, st: np.ndarray) -> np.ndarray:
         """The connected output only: (n, 3) for 'rgb', (n, 1) for 'r' / 'g' / 'b' / 'a'."""

@@ -218,49 +218,66 @@ def _clip01(x):
 # --------------------------------------------------------------------------------------
 # Kernels
 # --------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True, _nrt=False)
+def inputs_row(P, r, d0, d1, d2, s0, s1, s2, use_spec, metallic, roughness, ior):
+    """Row r of P from one point's UsdPreviewSurface inputs (diffuse d0..d2, specular colour
+    s0..s2, the workflow flag, metallic, roughness, ior): the RHO, F0, F90 and ALPHA columns
+    (PreviewSurfaceBSDF.from_inputs: same formulas and NaN behaviour as the numpy path). The one
+    input mapping: inputs_kernel and the per-hit surface rows (renderer/materials.py) call it."""
+    m = _clip01(metallic)
+    x = ior
+    eta = x if x != x else max(x, 0.0)
+    q = (eta - 1.0) / (eta + 1.0)  # eta + 1 >= 1
+    f0_dielectric = q * q
+    for k in range(3):
+        d = _clip01(d0 if k == 0 else (d1 if k == 1 else d2))
+        if use_spec:
+            P[r, F0 + k] = _clip01(s0 if k == 0 else (s1 if k == 1 else s2))
+            P[r, F90 + k] = 1.0
+            P[r, RHO + k] = d
+        else:
+            P[r, F0 + k] = f0_dielectric * (1.0 - m) + d * m
+            P[r, F90 + k] = (1.0 - m) + d * m
+            P[r, RHO + k] = d * (1.0 - m)
+    rough = _clip01(roughness)
+    a = rough * rough
+    P[r, ALPHA] = a if a != a else max(a, ALPHA_MIN)
+
+
 @njit(cache=True, nogil=True)
 def inputs_kernel(diffuse, spec, use_spec, metallic, roughness, ior, P):
     """PreviewSurfaceBSDF.from_inputs: UsdPreviewSurface inputs (colours (n, 3), the rest (n,))
-    -> the RHO, F0, F90 and ALPHA columns of P (same formulas and NaN behaviour as the numpy path)."""
+    -> the RHO, F0, F90 and ALPHA columns of P (inputs_row per row)."""
     for r in range(P.shape[0]):
-        m = _clip01(metallic[r])
-        x = ior[r]
-        eta = x if x != x else max(x, 0.0)
-        q = (eta - 1.0) / (eta + 1.0)  # eta + 1 >= 1
-        f0_dielectric = q * q
-        for k in range(3):
-            d = _clip01(diffuse[r, k])
-            if use_spec[r]:
-                P[r, F0 + k] = _clip01(spec[r, k])
-                P[r, F90 + k] = 1.0
-                P[r, RHO + k] = d
-            else:
-                P[r, F0 + k] = f0_dielectric * (1.0 - m) + d * m
-                P[r, F90 + k] = (1.0 - m) + d * m
-                P[r, RHO + k] = d * (1.0 - m)
-        rough = _clip01(roughness[r])
-        a = rough * rough
-        P[r, ALPHA] = a if a != a else max(a, ALPHA_MIN)
+        inputs_row(P, r, diffuse[r, 0], diffuse[r, 1], diffuse[r, 2], spec[r, 0], spec[r, 1], spec[r, 2],
+                   use_spec[r], metallic[r], roughness[r], ior[r])
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def init_row(P, r, ta_avg, tb_avg):
+    """Fill the derived columns of row r of P from RHO, F0, F90, ALPHA: KD, INV_OMA, J0, FY;
+    clear the wo terms (init_kernel's row)."""
+    j0, fy = _alpha_coord(P[r, ALPHA])
+    P[r, J0] = j0
+    P[r, FY] = fy
+    a_avg = ta_avg[j0] * (1.0 - fy) + ta_avg[j0 + 1] * fy
+    b_avg = tb_avg[j0] * (1.0 - fy) + tb_avg[j0 + 1] * fy
+    for k in range(3):
+        oma = 1.0 - (P[r, F0 + k] * a_avg + P[r, F90 + k] * b_avg)
+        ok = oma > 1e-9
+        P[r, KD + k] = P[r, RHO + k] * _INV_PI / oma if ok else 0.0
+        P[r, INV_OMA + k] = 1.0 / oma if ok else 0.0
+    P[r, COS_B] = np.nan
+    P[r, AO_B] = 0.0
+    P[r, BO_B] = 0.0
+    P[r, PD_B] = 0.0
 
 
 @njit(cache=True, nogil=True)
 def init_kernel(P, ta_avg, tb_avg):
     """Fill the derived columns of P from RHO, F0, F90, ALPHA: KD, INV_OMA, J0, FY; clear the wo terms."""
     for r in range(P.shape[0]):
-        j0, fy = _alpha_coord(P[r, ALPHA])
-        P[r, J0] = j0
-        P[r, FY] = fy
-        a_avg = ta_avg[j0] * (1.0 - fy) + ta_avg[j0 + 1] * fy
-        b_avg = tb_avg[j0] * (1.0 - fy) + tb_avg[j0 + 1] * fy
-        for k in range(3):
-            oma = 1.0 - (P[r, F0 + k] * a_avg + P[r, F90 + k] * b_avg)
-            ok = oma > 1e-9
-            P[r, KD + k] = P[r, RHO + k] * _INV_PI / oma if ok else 0.0
-            P[r, INV_OMA + k] = 1.0 / oma if ok else 0.0
-        P[r, COS_B] = np.nan
-        P[r, AO_B] = 0.0
-        P[r, BO_B] = 0.0
-        P[r, PD_B] = 0.0
+        init_row(P, r, ta_avg, tb_avg)
 
 
 @njit(cache=True, nogil=True)

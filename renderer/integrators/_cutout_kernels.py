@@ -12,7 +12,7 @@ after the caller's key.
 
 ``geo``: (vertices (T, 3, 3), face_normal (T, 3), normals (T, 3, 3), st (T, 3, 2), tri_mat (T,),
 tri_mag (T,)); ``cut``: (materials,) bool, the material may be absent; ``tab``:
-MaterialTable.presence_table(); ``eps``: Accel.epsilon_terms(); ``fns``: (scene, intersect1,
+MaterialTable.surface_record() (presence_hit); ``eps``: Accel.epsilon_terms(); ``fns``: (scene, intersect1,
 occluded1) of Accel.native_handles().
 """
 
@@ -25,9 +25,9 @@ from numba import njit
 
 from renderer.accel import (HIT_GEOM, HIT_PRIM, HIT_U, HIT_V, INVALID_ID, RAY_TFAR, RAY_WORDS, RAYHIT_WORDS,
                             aligned_record, ray_epsilon_row, rtc_intersect1, rtc_occluded1, set_ray)
-from renderer.geometry import _interaction_row
+from renderer.geometry import _interaction_row, st_row
 from renderer.integrators._vertex_kernels import D, O, TMAX, splitmix_u01
-from renderer.kernels import guard_cache, module_dispatchers
+from renderer.kernels import guard_cache, guarded_sources, module_dispatchers
 from renderer.materials import presence_hit
 
 # Cut-out surfaces one ray may pass (as the general path, which bounds its loops by 64).
@@ -35,14 +35,12 @@ CUTOUT_PASSES = 64
 
 
 @njit(cache=True, nogil=True)
-def _absent(geo, tab, k, w1, w2, u):
+def _absent(geo, tab, k, w1, w2, u, stv):
     """Whether triangle k's surface at barycentrics (w1, w2) is absent for the uniform u (the
-    general path passes through where u >= presence)."""
-    st = geo[3]
-    w0 = 1.0 - w1 - w2
-    s = st[k, 0, 0] * w0 + st[k, 1, 0] * w1 + st[k, 2, 0] * w2
-    t = st[k, 0, 1] * w0 + st[k, 1, 1] * w1 + st[k, 2, 1] * w2
-    return u >= presence_hit(tab, geo[4][k], s, t)
+    general path passes through where u >= presence); stv: scratch for the hit's per-hit
+    coordinates (geo[3]'s columns)."""
+    st_row(geo[3], k, w1, w2, stv)
+    return u >= presence_hit(tab, geo[4][k], stv)
 
 
 @njit(cache=True, nogil=True)
@@ -66,6 +64,7 @@ def through_cutouts_kernel(fns, key, S, d32, prim, b1, b2, t32, geo, cut, tab, e
     rec_i = rec.view(np.int32)
     traced = 0
     tri_mat = geo[4]
+    stv = np.empty(geo[3].shape[2])
     for r in range(prim.shape[0]):
         k = prim[r]
         if k < 0 or not cut[tri_mat[k]]:
@@ -75,7 +74,8 @@ def through_cutouts_kernel(fns, key, S, d32, prim, b1, b2, t32, geo, cut, tab, e
         t_hit = float(t32[r])
         dx, dy, dz = S[r, D], S[r, D + 1], S[r, D + 2]
         for q in range(CUTOUT_PASSES):
-            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, splitmix_u01(key, r * CUTOUT_PASSES + q + 1))):
+            u = splitmix_u01(key, r * CUTOUT_PASSES + q + 1)
+            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, u, stv)):
                 break
             ox, oy, oz = _behind(geo, eps, k, w1, w2, dx, dy, dz)
             t0 = (ox - S[r, O]) * dx + (oy - S[r, O + 1]) * dy + (oz - S[r, O + 2]) * dz
@@ -110,6 +110,7 @@ def shadow_cutouts_kernel(fns, key, sh_o, sh_d, sh_t, geo, cut, tab, eps, blocke
     shadow_i = shadow.view(np.int32)
     traced = 0
     tri_mat = geo[4]
+    stv = np.empty(geo[3].shape[2])
     for i in range(sh_o.shape[0]):
         ox, oy, oz = float(sh_o[i, 0]), float(sh_o[i, 1]), float(sh_o[i, 2])
         dx, dy, dz = float(sh_d[i, 0]), float(sh_d[i, 1]), float(sh_d[i, 2])
@@ -128,7 +129,8 @@ def shadow_cutouts_kernel(fns, key, sh_o, sh_d, sh_t, geo, cut, tab, eps, blocke
             k = rec_i[HIT_PRIM]
             w1 = float(rec[HIT_U])
             w2 = float(rec[HIT_V])
-            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, splitmix_u01(key, i * CUTOUT_PASSES + q + 1))):
+            u = splitmix_u01(key, i * CUTOUT_PASSES + q + 1)
+            if not (cut[tri_mat[k]] and _absent(geo, tab, k, w1, w2, u, stv)):
                 break  # a present surface
             nx, ny, nz = _behind(geo, eps, k, w1, w2, dx, dy, dz)
             t_left -= (nx - ox) * dx + (ny - oy) * dy + (nz - oz) * dz
@@ -142,5 +144,4 @@ def shadow_cutouts_kernel(fns, key, sh_o, sh_d, sh_t, geo, cut, tab, eps, blocke
 
 
 guard_cache(__name__, module_dispatchers(globals()),
-            ["renderer/accel.py", "renderer/geometry.py", "renderer/materials.py", "renderer/textures.py",
-             "renderer/integrators/_vertex_kernels.py"])
+            ["renderer/accel.py", *guarded_sources("renderer.materials", "renderer.integrators._vertex_kernels")])

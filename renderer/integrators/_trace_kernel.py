@@ -11,11 +11,9 @@ Python loop calls too, and the visible kernels), not copies of them. So a chunk'
 last bit, and the call holds no GIL from the camera rays to the last bounce: render threads
 running chunks side by side scale (PathIntegrator.render_pass).
 
-Scenes whose bounce still needs numpy work between the calls (per-hit textured rows, emission
-or normal maps: FastPath._surfaces; the control variate's and ratio's F: FastPath._estimators)
-keep the Python loop; FastPath.kernel_reason says which. The kernel receives ``surf`` and the
-estimators' F arrays as the vertex kernel does, so such a scene joins once its per-bounce work
-is compiled.
+Scenes whose bounce still needs numpy work between the calls keep the Python loop;
+FastPath.kernel_reason says which. Per-hit surfaces (textured inputs, emission, normal maps) are
+evaluated inside the vertex kernel (its ``tex`` record, the last of ``tables``).
 """
 
 from __future__ import annotations

@@ -69,6 +69,7 @@ from renderer.kernels.mesh_light import (
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.portal import portal_dome_pdf_row, portal_dome_sample_row
 from renderer.kernels.shaping import shaping_factor_row
+from renderer.materials import surface_hits
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
 from renderer.preconvolve import packed_row
 from renderer.kernels.lights import (
@@ -246,7 +247,7 @@ def _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, U, depth, Pm, mat_row, be
         gx, gy, gz = gg
         sx, sy, sz = ss
         if bent:
-            # Normal maps: the shading normal FastPath._surfaces bent (geometry.perturb_normals).
+            # Normal maps: the shading normal materials.surface_hits bent (geometry.perturb_row).
             q = max(mat_row[r], 0)
             sx, sy, sz = bent_ns[q, 0], bent_ns[q, 1], bent_ns[q, 2]
         # ---- shading frame (geometry._frame_kernel) and wo in it ---------------------------
@@ -1012,7 +1013,7 @@ def vertex_kernel(
     im_texels, im_offset, im_height, im_width, im_weight, im_total, im_row_cdf, im_row_cdf_start, im_col_cdf,
     im_col_cdf_start,
     power, min_sa, graz, rr_depth, eps_rel, eps_floor, eps_add, fast_of, sp, lux, fcalc, mult, cyl, mesh,
-    portal, texrect,
+    portal, texrect, tex,
     L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path, sh_c, counts, est, est_out,
 ):
     """One bounce for n live rays (see the module docstring). The arguments from ``vertices``
@@ -1025,7 +1026,7 @@ def vertex_kernel(
     a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights, or 4 + 3
     with a picking service: the pick's u, then the light sample's two): the
     rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
-    (Pm, mat_row, emission, bent_ns) of FastPath._surfaces: Pm (materials, K) packed BSDF rows,
+    (Pm, mat_row, emission, bent_ns) (materials.surface_hits' with tex): Pm (materials, K) packed BSDF rows,
     or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
     (if not empty; (materials, 3) by the hit's material where mat_row is empty: constant
     emission) the radiance its surface emits (added in full: emitting surfaces are reached
@@ -1052,7 +1053,11 @@ def vertex_kernel(
     portal: the domes' portals (DomeLight.portal_record's PP and PT, kernels/portal.py; each
     dome's first row and count: a dome with portals samples and weighs through them,
     _portal_sample and _portal_pdf); texrect: (rects,) int64 each rect's image in the im_* set
-    (after the domes'), -1 untextured (_texrect_*). L (m, 3) receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
+    (after the domes'), -1 untextured (_texrect_*); tex: the per-hit surfaces' record
+    (MaterialTable.hit_record: textured inputs, emission, normal maps), or None where one packed
+    row per material serves: with it, surf's rows are materials.surface_hits' at this bounce's
+    hits (the general path's evaluate, make_bsdf and bent normals, one compiled row a hit). L (m, 3)
+    receives emission in place. Next rays go to n_path, n_depth, n_S and, in embree's float32
     format, n_o32, n_d32, n_t32 (capacity n); shadow rays to sh_o, sh_d, sh_t (float32), sh_path,
     sh_c (capacity n * the shadow rays a vertex may write: FastPath._estimators' cap), sh_c (k, 3)
     being the radiance each adds if unblocked. counts[0], counts[1]: how many of each; counts[2]:
@@ -1082,6 +1087,9 @@ def vertex_kernel(
     # index of each, and per scene triangle its mesh light (global, -1: none), its triangle in the
     # record (-1: unknown) and whether it absorbs (materialSyncMode noMaterialResponse).
     MS, mesh_light, prim_light, prim_tri, prim_absorb = mesh
+    if tex is not None:
+        Pm, mat_row, emission, bent_ns = surface_hits(tex, vertices, face_normal, normals, tri_mat, hit_prim, hit_b1,
+                                                      hit_b2, S, D)
     n_rect = center.shape[0]
     n_rs = n_rect + s_center.shape[0]  # rect, sphere, disk, cylinder, mesh, then infinite lights
     n_fin = n_rs + d_center.shape[0] + cy_packed.shape[0] + mesh_light.shape[0]
@@ -1498,4 +1506,4 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
              "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/cylinder.py",
              "renderer/kernels/mesh_light.py",
-             "renderer/kernels/portal.py"])
+             "renderer/kernels/portal.py", "renderer/materials.py", "renderer/textures.py"])

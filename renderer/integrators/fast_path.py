@@ -43,9 +43,10 @@ A scene qualifies when it has
   in the kernel for each (vertex, light) pair whose estimate uses it (_vertex_kernels._light_F:
   lights/irradiance.py's rule by the same compiled rows, about the bent shading normal);
 * UsdPreviewSurface materials: one packed BSDF row per material, or, where inputs are textured,
-  surfaces emit, normals are mapped or surfaces are cut out, rows evaluated per hit before the
-  kernel runs (``FastPath._surfaces``: the BSDF row, the emission and the bent shading normal of
-  each hit); any maximum depth. With K emitter samples the K - 1
+  surfaces emit or normals are mapped, rows evaluated per hit by the vertex kernel itself
+  (materials.surface_hits on FastPath.tex: the BSDF row, the emission and the bent shading normal
+  of each hit, by the compiled rows MaterialTable.evaluate also runs); any maximum depth. With K
+  emitter samples the K - 1
   extra camera rays are traced at depth 0, and the path-carrying ray's directly seen emission is
   weighted 1/K by PathIntegrator._trace_camera.
 
@@ -59,8 +60,8 @@ compiled (_cutout_kernels.py, Embree called from the kernel) where accel.py has 
 else numpy loops.
 ``PathIntegrator.fast_path_reason`` says why a scene does not qualify (stats "fast_path").
 
-Where no bounce needs numpy work (no per-hit surface rows: ``kernel_reason``; shadow groups are
-traced in compiled code, _trace_kernel.shadow_visibility_kernel),
+Where no bounce needs numpy work (``kernel_reason``: shadow groups are traced in compiled code,
+_trace_kernel.shadow_visibility_kernel, and per-hit surfaces evaluated by the vertex kernel),
 the whole bounce loop of a chunk of camera rays is one compiled call that traces Embree from
 inside (renderer/integrators/_trace_kernel.py, packets of TRACE_WIDTH rays) and releases the GIL,
 so render threads running chunks side by side scale; it makes the Python loop's calls with the
@@ -117,8 +118,6 @@ def fast_path_reason(integ) -> str:
     mats = scene.materials
     if not mats.params_needed and mats.packed_bsdf() is None:
         return "no packed UsdPreviewSurface rows"
-    if mats.has_cutout and not mats.presence_compiled:
-        return "cut-outs fed by a primvar reader or a second st set"
     return ""
 
 
@@ -177,6 +176,9 @@ class FastPath:
                                              if mats.has_emission and not self.per_hit else self.no_emission),
                      self.no_normals)
         g = scene.geometry
+        # Per-hit surfaces: the record the vertex kernel evaluates each hit's row, emission and
+        # bent normal from (materials.surface_hits; vertex_kernel's tex), else None.
+        self.tex = mats.hit_record(g) if self.per_hit else None
         f64 = np.float64
         self.geo = (np.ascontiguousarray(g.vertices, dtype=f64), np.ascontiguousarray(g.face_normal, dtype=f64),
                     np.ascontiguousarray(g.normals, dtype=f64), np.ascontiguousarray(g.material, dtype=np.int64),
@@ -250,7 +252,7 @@ class FastPath:
             dl.center, dl.n, dl.u1, dl.u2, dl.e1, dl.e2, dl.s1, dl.s2, dl.area, dl.L, self.disk_light,
             DISK_CLOSE_RATIO, *self.inf, *self.images,
             power, MIN_SOLID_ANGLE, GRAZING_NZ2, integ.opt.rr_depth, *scene.accel.epsilon_terms(), fast_of, self.sp,
-            self.lux, self.fcalc, self.mult, self.cyl, self.mesh, self.portal, self.texrect)
+            self.lux, self.fcalc, self.mult, self.cyl, self.mesh, self.portal, self.texrect, self.tex)
         # The per-light estimators by vertex depth (first, deeper), for both bounce loops.
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
@@ -289,8 +291,6 @@ class FastPath:
     def kernel_reason(self) -> str:
         """'' when trace runs as one compiled call (_trace_kernel.trace_kernel), else why this
         scene keeps the Python bounce loop (numpy work between the compiled calls)."""
-        if self.per_hit:
-            return "per-hit surfaces (textured inputs, emission or normal maps) are evaluated in numpy"
         if self.integ.scene.accel.backend != "native":
             return "no native Embree"
         if self.cutouts and self.walk is None:
@@ -455,7 +455,7 @@ class FastPath:
             prim, b1, b2 = accel.intersect_prepared(o32, d32, t32)
             if self.cutouts:
                 self._through_cutouts(prim, b1, b2, t32, d32, S, rng, ckeys[bounce, 0])
-            surf = self._surfaces(prim, b1, b2, S) if self.per_hit else self.surf
+            surf = self.surf
             # The kernel draws its uniforms from this key (a counter-based stream, _uniform_pass).
             key = np.uint64(keys[bounce])
             n_path = np.empty(n, dtype=np.int64)
@@ -557,33 +557,6 @@ class FastPath:
                    np.empty((n_groups, 6)), np.empty(n * cap, dtype=np.int64))
         return est, est_out, cap
 
-    def _surfaces(self, prim, b1, b2, S):
-        """The kernel's per-hit surface record (vertex_kernel's surf) for textured, emissive,
-        normal-mapped or cut-out materials: (P (h, K) packed UsdPreviewSurface rows of the h
-        hits, row (n,) int64 index into P per ray (-1: missed), emission (h, 3) radiance or (0, 3)
-        when no material emits, bent_ns (h, 3) the hits' shading normals or (0, 3) when no
-        material is normal-mapped)."""
-        integ = self.integ
-        scene = integ.scene
-        g = scene.geometry
-        mats = scene.materials
-        row = np.full(prim.shape[0], -1, dtype=np.int64)
-        hit = np.nonzero(prim >= 0)[0]
-        row[hit] = np.arange(hit.size)
-        k = prim[hit].astype(np.int64)
-        # st, and the normals where maps bend them; the kernel recomputes p and the normals
-        # itself (~18 ns a hit), which keeps its per-row state small.
-        d = np.ascontiguousarray(S[hit, vk.D:vk.D + 3])
-        _, ng, ns, st = surface_interaction(g.vertices, g.face_normal, g.normals, g.st, k, b1[hit], b2[hit], d)
-        mat = g.material[k]
-        params = mats.evaluate(mat, st)
-        P = np.ascontiguousarray(mats.bsdf(mat, params).packed)
-        emission = (np.ascontiguousarray(params.emission, dtype=np.float64) if mats.has_emission
-                    else self.no_emission)
-        bent_ns = (np.ascontiguousarray(integ.bent_normals(k, mat, ns, ng, -d, params)) if mats.has_normal_map
-                   else self.no_normals)
-        return P, row, emission, bent_ns
-
     def _cutout_walk(self):
         """The compiled cut-out walks' scene record (_cutout_kernels: fns, geo, cut, tab, eps),
         or None where accel.py traces through embreex only (the numpy loops serve then)."""
@@ -597,7 +570,7 @@ class FastPath:
         return ((h.scene, h.intersect1, h.occluded1),
                 (vertices, face_normal, normals, np.ascontiguousarray(scene.geometry.st, dtype=np.float64), tri_mat,
                  tri_mag),
-                np.ascontiguousarray(mats.cutout_materials), mats.presence_table(), scene.accel.epsilon_terms())
+                np.ascontiguousarray(mats.cutout_materials), mats.surface_record(), scene.accel.epsilon_terms())
 
     def _through_cutouts(self, prim, b1, b2, t32, d32, S, rng, key) -> None:
         """Camera and extension rays pass through absent cut-out surfaces, as in the general

@@ -16,6 +16,7 @@ import pytest
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from renderer.integrators import fast_path as fp_mod
+from renderer.materials import MaterialTable
 from tests.integrators.test_fast_path import Z_BLOCK, Z_MAX, _block_z, _pair
 from tests.materials.test_normal_map import _add_normal_map, _floor
 from tests.stage_builders import add_camera, add_floor, add_settings, bind, new_stage, preview_material
@@ -57,9 +58,10 @@ def _bumpy_floor_stage(path, tmp_path):
     return str(path)
 
 
-def _card_stage(path, tmp_path, textured):
+def _card_stage(path, tmp_path, textured, primvar=False):
     """A floor lit by a rect light and a dim sky through a 2 x 2 m card at y = 1: its alpha (a
-    4 x 4 checker, threshold 0.5) or a constant opacity 0.4 (threshold 0, stochastic) cuts it."""
+    4 x 4 checker, threshold 0.5), a constant opacity 0.4 (threshold 0, stochastic) or (primvar)
+    a UsdPrimvarReader_float's per-vertex opacity from 0.1 to 0.9 across it cuts it."""
     stage = new_stage(path)
     add_camera(stage, pos=(0, 2.5, 4.0), tilt_x=-30)
     add_settings(stage, (32, 24))
@@ -92,6 +94,14 @@ def _card_stage(path, tmp_path, textured):
         tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
         pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "a")
         pbr.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    elif primvar:
+        UsdGeom.PrimvarsAPI(card).CreatePrimvar("cut", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+            [0.1, 0.9, 0.9, 0.1])
+        reader = UsdShade.Shader.Define(stage, "/World/Looks/Card/Cut")
+        reader.CreateIdAttr("UsdPrimvarReader_float")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("cut")
+        pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(
+            reader.CreateOutput("result", Sdf.ValueTypeNames.Float))
     else:
         pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(0.4)
     bind(card.GetPrim(), look)
@@ -128,6 +138,12 @@ def test_cutout_card_matches_general_path(tmp_path, textured):
     _check(*_pair(stage, 4, spp=256, rr_depth=1))
 
 
+def test_primvar_fed_cutout_matches_general_path(tmp_path):
+    """Opacity from a primvar reader: the compiled walks read it per hit (materials.presence_hit)."""
+    stage = _card_stage(tmp_path / "card.usda", tmp_path, False, primvar=True)
+    _check(*_pair(stage, 4, spp=256, rr_depth=1))
+
+
 def test_plant_stage_matches_general_path():
     # The stage at 40 x 30 (its own 320 x 240 would take minutes on the general path).
     _check(*_pair("stages/plant/plant.usda", 5, spp=128, rr_depth=2, resolution=(40, 30)))
@@ -138,11 +154,14 @@ def test_the_comparison_sees_a_missing_material_feature(tmp_path, monkeypatch, w
     """Unbent normals, or cut-outs left solid for camera and bounce rays, fail the same test."""
     if which == "normals":
         stage = _bumpy_floor_stage(tmp_path / "bumps.usda", tmp_path)
-        orig = fp_mod.FastPath._surfaces
-        monkeypatch.setattr(fp_mod.FastPath, "_surfaces",
-                            lambda self, *a: orig(self, *a)[:3] + (self.no_normals,))
+        # The fast path's hit record without the normal maps' tangent frames: normals unbent.
+        orig = MaterialTable.hit_record
+        monkeypatch.setattr(MaterialTable, "hit_record",
+                            lambda self, g: orig(self, g)[:2] + (np.zeros((0, 3)), np.zeros(0)) + orig(self, g)[4:])
     else:
         stage = _card_stage(tmp_path / "card.usda", tmp_path, True)
+        # (On the Python bounce loop, whose walk can be switched off.)
+        monkeypatch.setattr(fp_mod.FastPath, "kernel_reason", lambda self: "forced by the test")
         monkeypatch.setattr(fp_mod.FastPath, "_through_cutouts", lambda self, *a: None)
     z, zs = _block_z(*_pair(stage, 4, spp=256, rr_depth=1))
     assert max(abs(x) for x in zs) > Z_BLOCK, f"a missing {which} went unseen (blocks {np.round(zs, 2)})"

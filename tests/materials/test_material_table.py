@@ -9,7 +9,7 @@ import pytest
 from renderer.bsdfs.preview_surface import PreviewSurfaceBSDF
 from renderer.description import MaterialDesc, MaterialInput, TextureDesc
 from renderer.errors import StageError
-from renderer.materials import MaterialTable, SurfaceParams, make_bsdf, presence
+from renderer.materials import B_SLOT, C_METALLIC, C_ROUGHNESS, MaterialTable, SurfaceParams, make_bsdf, presence
 from renderer.textures import TextureCache
 
 
@@ -125,21 +125,16 @@ def test_textures_without_st_use_origin(rgba_exr):
     np.testing.assert_allclose(p.diffuse, [[0.1, 0.2, 0.3]] * 2, rtol=1e-6)  # clamp at (0, 0)
 
 
-def test_one_texture_feeding_two_inputs_is_looked_up_once(rgba_exr, monkeypatch):
+def test_one_texture_feeding_two_inputs_is_packed_once(rgba_exr):
+    """Two inputs fed by one texture share its slot (and its image) in the compiled record."""
     t = _tex(rgba_exr, "r")
     mats = [MaterialDesc("/M", metallic=MaterialInput(0.0, t), roughness=MaterialInput(0.0, t))]
-    cache = TextureCache()
-    table = MaterialTable.build(mats, cache)
-    calls = []
-    real = cache.lookup
-
-    def counting(tex, st):
-        calls.append(len(st))
-        return real(tex, st)
-
-    monkeypatch.setattr(cache, "lookup", counting)
+    table = MaterialTable.build(mats, TextureCache())
+    rec = table.surface_record()
+    MI, tx = rec[1], rec[3]
+    assert len(table.textures) == 1 and tx[1].shape[0] == 1 and tx[2].shape[0] == 1  # one image, one texture
+    assert MI[0, C_METALLIC, B_SLOT] == MI[0, C_ROUGHNESS, B_SLOT] == 0
     p = table.evaluate(np.zeros(5, dtype=np.int64), np.tile(RIGHT, (5, 1)))
-    assert calls == [5]
     np.testing.assert_allclose(p.metallic, 0.7, rtol=1e-6)
     np.testing.assert_allclose(p.roughness, 0.7, rtol=1e-6)
 
