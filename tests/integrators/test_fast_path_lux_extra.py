@@ -129,8 +129,8 @@ def test_the_comparison_sees_a_wrong_cylinder_emission(cylinder_room, monkeypatc
     def doubled(self, integ):
         orig(self, integ)
         packed, L, light = self.cyl
-        # (FastPath.tables ends with the cyl, mesh, portal and texrect records.)
-        self.tables = (*self.tables[:-4], (packed, 2.0 * L, light), *self.tables[-3:])
+        # (FastPath.tables ends with the cyl, mesh, portal, texrect and tex records.)
+        self.tables = (*self.tables[:-5], (packed, 2.0 * L, light), *self.tables[-4:])
     monkeypatch.setattr(fp_mod.FastPath, "__init__", doubled)
     fast, slow = _pair(cylinder_room, 3, spp=192, rr_depth=1)
     z, _ = _block_z(fast, slow)
