@@ -22,11 +22,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 
 import numpy as np
+
+from bench_throughput import run_probe  # bench/ is the script's own directory
 
 
 def probe(stage, res, spp, max_depth, estimator, light_samples, cv_alpha, vertex_kernel=False) -> dict:
@@ -101,11 +102,7 @@ def main(argv=None) -> int:
                     cmd += [flag, str(v)]
             if a.vertex_kernel:
                 cmd.append("--vertex-kernel")
-            env = dict(os.environ, PYTHONPATH=checkout, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-            out = subprocess.run(cmd, env=env, cwd=checkout, capture_output=True, text=True, check=False)
-            if out.returncode != 0:
-                raise SystemExit(f"probe failed in {checkout}:\n{out.stderr[-3000:]}")
-            r = json.loads(out.stdout.strip().splitlines()[-1])
+            r = run_probe(cmd, checkout)
             runs[name].append(r["samples_per_cpu_s"])
             kernel_s[name].append(r["vertex_kernel_s"])
             print(f"#{rep} {name}: {r['samples_per_cpu_s']:.0f} samples/CPU-s ({r['cpu_s']:.2f} s, vertex_kernel "

@@ -95,6 +95,12 @@ def _run_child(checkout: str, stage: str, a) -> dict:
            "--res", str(a.res[0]), str(a.res[1]), "--spp", str(a.spp), "--max-depth", str(a.max_depth)]
     if a.raw:
         cmd.append("--raw")
+    return run_probe(cmd, checkout)
+
+
+def run_probe(cmd: list, checkout: str) -> dict:
+    """Run a probe command in ``checkout`` (its own code on PYTHONPATH, one thread) and return the
+    JSON object its last output line holds; a failed probe ends the bench with its stderr."""
     env = dict(os.environ, PYTHONPATH=checkout, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     out = subprocess.run(cmd, env=env, cwd=checkout, capture_output=True, text=True, check=False)
     if out.returncode != 0:
