@@ -96,7 +96,8 @@ def _illum(*args, env):
 WARM_CASES = [
     ("cornell_box.usda", "--res", 64, 64, "--spp", 1),
     ("talk/dome.usda", "--res", 32, 32, "--spp", 1, "--estimator", "controlVariate"),
-    ("shaping/spotlights.usda", "--res", 32, 32, "--spp", 1, "--no-fast-path"),
+    ("shaping/spotlights.usda", "--res", 32, 32, "--spp", 1),
+    ("instanced.usda", "--res", 32, 32, "--spp", 1, "--no-fast-path", "--estimator", "*=ratio"),
     ("lux_extra/mesh_light_room.usda", "--res", 32, 32, "--spp", 1),
 ]
 
