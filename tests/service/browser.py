@@ -58,12 +58,18 @@ class Browser:
     def __init__(self):
         from websockets.sync.client import connect
 
+        binary = chromium_path()  # may skip the test: before anything is opened
         self.profile = tempfile.mkdtemp(prefix="illum-chromium-")
         self.log = open(os.path.join(self.profile, "chromium.log"), "wb")
-        self.proc = subprocess.Popen([chromium_path(), *FLAGS, f"--user-data-dir={self.profile}",
-                                      "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
-                                      "about:blank"], stdout=self.log, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, start_new_session=True)
+        try:
+            self.proc = subprocess.Popen([binary, *FLAGS, f"--user-data-dir={self.profile}",
+                                          "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
+                                          "about:blank"], stdout=self.log, stderr=subprocess.STDOUT,
+                                         stdin=subprocess.DEVNULL, start_new_session=True)
+        except BaseException:
+            self.log.close()
+            shutil.rmtree(self.profile, ignore_errors=True)
+            raise
         # /usr/bin/chromium is a wrapper script that forks the browser: its own process group
         # lets close() end the browser and all its helpers, and only those.
         self._stack = contextlib.ExitStack()
@@ -157,6 +163,16 @@ class Browser:
                 or (e.get("method") == "Log.entryAdded" and e["params"]["entry"].get("level") == "error")]
 
     def close(self) -> None:
+        if self.log.closed:
+            return  # closed already
+        try:
+            self._end()
+        finally:
+            self.log.close()
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+    def _end(self) -> None:
+        """Close the page's websocket and end the browser's process group."""
         try:
             if getattr(self, "ws", None) is not None:
                 self.call("Browser.close", timeout=5)
@@ -177,5 +193,3 @@ class Browser:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
-        self.log.close()
-        shutil.rmtree(self.profile, ignore_errors=True)
