@@ -19,6 +19,7 @@ from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
 from renderer.integrators import fast_path as fp_mod
 from renderer.render import RenderOptions, render
+from tests.stats import film_difference_z
 from tests.stage_builders import add_camera, add_settings, bind, new_stage, preview_material
 
 Z_MAX = 4.0
@@ -141,17 +142,9 @@ def _room(path, more_kinds: bool = False, infinite: bool = False, textured: bool
 
 
 def _block_z(a, b, blocks=4):
-    """z of the mean difference of a and b (films) over the whole image and per block."""
-    d = a.film.mean().sum(axis=-1).astype(np.float64) - b.film.mean().sum(axis=-1)
-    var = a.film.variance_of_mean().sum(axis=-1) + b.film.variance_of_mean().sum(axis=-1)
-    h, w = d.shape
-
-    def z(sl):
-        return float(d[sl].sum() / np.sqrt(var[sl].sum())) if var[sl].sum() > 0 else 0.0
-
-    zs = [z((slice(i * h // blocks, (i + 1) * h // blocks), slice(j * w // blocks, (j + 1) * w // blocks)))
-          for i in range(blocks) for j in range(blocks)]
-    return z((slice(None), slice(None))), zs
+    """z of the mean difference of a and b (renders) over the whole image and per block
+    (tests.stats.film_difference_z: per channel)."""
+    return film_difference_z(a.film, b.film, blocks)
 
 
 def _pair(stage, max_depth, spp, rr_depth=3, **opt):
@@ -253,10 +246,10 @@ def test_emitter_samples_weigh_the_carried_ray_once(tmp_path, monkeypatch):
 
     orig = PathIntegrator._trace_camera
 
-    def uncorrected(self, o, d, tmax, rng, K):
+    def uncorrected(self, o, d, tmax, rng, K, pixels=None):
         if self.fast is None:  # the general path's own render
-            return orig(self, o, d, tmax, rng, K)
-        return self.fast.trace(o, d, tmax, rng, self.opt.max_depth)
+            return orig(self, o, d, tmax, rng, K, pixels)
+        return self.fast.trace(o, d, tmax, rng, self.opt.max_depth, pixels)
 
     monkeypatch.setattr(PathIntegrator, "_trace_camera", uncorrected)
     fast, slow = _pair(stage, 4, spp=128, rr_depth=1, emitter_samples=3)

@@ -82,41 +82,11 @@ def test_cylinder_lights_under_each_lighting_service(cylinder_room, sampler):
     _check(fast, slow)
 
 
-def _check_spread(stage, fast, slow, estimator, samples, spp, res, seeds=range(2, 7)):
-    """_check for estimators whose block means are heavy-tailed here: BSDF samples that meet the
-    thin bright tubes, light samples of the line light. The per-pixel variance understates the
-    spread of such a block's mean: renders of the fast path alone at other seeds spread up to
-    1.7x wider than it says, and a fast-vs-fast pair reached 3.2 sigma in a block, so a block
-    at 4-5 sigma moved with the seeds (from -5.2 to +4.7 in the same block), which a bias does
-    not. Under the null hypothesis both routes run one estimator, so the fast path's own spread
-    over more seeds is either route's: each block's variance is the larger of the per-pixel one
-    and twice that spread."""
-    common = dict(max_depth=3, rr_depth=1, threads=1, estimator={"": estimator}, cv_alpha={"": "one"},
-                  light_samples={"": samples}, spp=spp, resolution=res, pixel_filter_mode="importance")
-    runs = [fast.film.mean().sum(axis=-1)]
-    runs += [render(str(stage), RenderOptions(seed=s, **common)).film.mean().sum(axis=-1) for s in seeds]
-    assert fast.stats["fast_path"] == "on" and slow.stats["fast_path"].startswith("disabled")
-    d = runs[0] - slow.film.mean().sum(axis=-1)
-    var = fast.film.variance_of_mean().sum(axis=-1) + slow.film.variance_of_mean().sum(axis=-1)
-    h, w = d.shape
-    sls = [(slice(None), slice(None))] + [(slice(i * h // 4, (i + 1) * h // 4), slice(j * w // 4, (j + 1) * w // 4))
-                                          for i in range(4) for j in range(4)]
-    zs = []
-    for sl in sls:
-        spread = np.var([r[sl].sum() for r in runs], ddof=1)
-        zs.append(float(d[sl].sum() / np.sqrt(max(var[sl].sum(), 2.0 * spread))))
-    assert abs(zs[0]) < Z_MAX, f"whole image: fast - general = {zs[0]:.2f} sigma"
-    assert max(abs(x) for x in zs[1:]) < Z_BLOCK, f"blocks: {np.round(zs[1:], 2)}"
-
-
 @pytest.mark.parametrize("estimator,samples", [("lightSampling", 2), ("bsdfSampling", 1), ("controlVariate", 3),
                                                ("mis", 3)])
 def test_cylinder_lights_with_each_estimator(cylinder_room, estimator, samples):
     fast, slow = _pair_est(cylinder_room, estimator, "one", samples, spp=192, res=(48, 36))
-    if estimator in ("lightSampling", "bsdfSampling"):
-        _check_spread(cylinder_room, fast, slow, estimator, samples, 192, (48, 36))
-    else:
-        _check(fast, slow)
+    _check(fast, slow)
 
 
 def test_the_comparison_sees_a_wrong_cylinder_emission(cylinder_room, monkeypatch):
