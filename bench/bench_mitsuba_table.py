@@ -171,7 +171,9 @@ def run_scene(a, label: str, stage: str, illum_ref_s: float) -> dict:
     ref_path = os.path.join(cdir, "illum_ref.npz")
     ref_i = None if a.fresh_illum_ref else _load(ref_path)
     if ref_i is None:
-        r, cpu = illum(next(iter(configs)), time_budget=illum_ref_s * a.ref_scale, seed=1000)
+        # Independent numbers: the floor (film.variance_of_mean) assumes independent passes; for
+        # the default sampler's stratified passes it would overstate the reference's own error.
+        r, cpu = illum(next(iter(configs)), time_budget=illum_ref_s * a.ref_scale, seed=1000, sampler="independent")
         img = r.film.mean().astype(np.float64)
         ref_i = {"image": img, "floor": floor(img, r.film.variance_of_mean()), "spp": r.stats["spp"],
                  "seconds": r.stats["seconds"]["render"], "cpu_s": cpu}

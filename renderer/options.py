@@ -214,6 +214,10 @@ OPTIONS: tuple[Option, ...] = (
     Option("fast_path", "bool", True, "the compiled path vertex where the scene qualifies; --no-fast-path always "
            "uses the general integrator (stats 'fast_path' says whether it ran and why not)",
            flags=("--fast-path",), example=False),
+    Option("sampler", "str", "sobol", "the numbers of each bounce: sobol (each pixel's own scrambled "
+           "low-discrepancy sequence: lower noise at equal samples) or independent (uncorrelated random numbers)",
+           flags=("--sampler",), metavar="NAME", choices=lambda: ("sobol", "independent"), max_length=64,
+           example="independent"),
     Option("estimator", "per_light", {}, "direct-lighting estimator: TOKEN is the default for lights whose "
            "illum:estimator is not authored (as --default-estimator), *=TOKEN forces every light, /Light=TOKEN "
            "one light (repeatable)", flags=("--estimator",), metavar="[/Light=|*=]TOKEN",

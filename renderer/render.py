@@ -195,7 +195,7 @@ def render(
         max_depth=opt.max_depth, rr_depth=opt.rr_depth, seed=opt.seed if stream_seed is None else int(stream_seed), threads=shading_threads,
         estimator=dict(opt.estimator), cv_alpha=dict(opt.cv_alpha), light_samples=dict(opt.light_samples),
         default_estimator=default_estimator,
-        emitter_samples=int(opt.emitter_samples), fast_path=bool(opt.fast_path)))
+        emitter_samples=int(opt.emitter_samples), fast_path=bool(opt.fast_path), sampler=str(opt.sampler)))
     aovs = _aov_setup(opt, desc, scene, camera, film, integrator)
     first_hit = aovs.passes
     target = opt.spp if opt.spp is not None else (None if opt.time_budget else DEFAULT_SPP)
@@ -284,6 +284,9 @@ def render(
         "light_sampler": getattr(scene.light_sampler, "name", str(scene.light_sampler)),
         "default_estimator": default_estimator,
         "emitter_samples": integrator.emitter_samples,
+        # The bounces' numbers: each pixel's low-discrepancy sequence on the compiled route,
+        # independent ones there on request and always on the general path.
+        "sampler": opt.sampler if integrator.fast is not None else "independent",
         "pixel_filter": {"name": pixel_filter.name, "radius": pixel_filter.radius, "mode": mode},
         # The compiled path vertex (integrators/fast_path.py): "on", or why the scene needs the
         # general path.

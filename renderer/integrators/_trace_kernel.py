@@ -55,7 +55,8 @@ _GROUP_STRIDE = np.uint64(1 << 40)
 
 
 @njit(cache=True, nogil=True)
-def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tables, plan, walk, L, tally, shadows):
+def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tables, plan, walk, L, tally, shadows,
+                 lds):
     """Radiance along m camera rays, every bounce, added to L (m, 3) in place.
 
     emb: (scene, intersect, occluded, width): the Embree scene and the addresses of
@@ -76,7 +77,10 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
     T_* added in place, then each shadow group's BVH queries (shadow_visibility_kernel).
     shadows: FastPath._shadow_record (shadowLink, ShadowAPI, shadow colours: the shadow rays go
     through shadow_visibility_kernel and add their visibility with the colour), or None for plain
-    shadows (numba prunes that branch then)."""
+    shadows (numba prunes that branch then). lds: (pix (m,) uint64, sidx uint64, roles (n_u, 2)
+    int64), the camera rays' pixel keys, pass and the uniforms' dimension pairs (FastPath.trace:
+    the vertex kernel draws each pixel's low-discrepancy numbers, _sobol_pass), or pix empty
+    for the keys' independent streams."""
     scene, fn_i, fn_o, width = emb
     tok, alpha, N_at, cont_at, cap_at, grp_at, cv, fallback, emits = plan
     nl = tok.shape[0]
@@ -138,7 +142,7 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
         est_out = (sh_x[:n * c], sh_cov[:n * c], g_int[:n * g], g_f[:n * g], sh_l[:n * c])
         counts[:] = 0
         vertex_kernel(path[:n], depth[:n], unsampled[:n], S[:n], t32[:n], prim[:n], b1[:n], b2[:n],
-                      np.uint64(keys[bounce]), n_u, surf, max_depth, *tables, L, n_path[:n], n_depth[:n], n_S[:n],
+                      np.uint64(keys[bounce]), (lds[0], lds[1], np.uint64(bounce * n_u), lds[2]), n_u, surf, max_depth, *tables, L, n_path[:n], n_depth[:n], n_S[:n],
                       n_o32[:n], n_d32[:n], n_t32[:n], sh_o[:n * c], sh_d[:n * c], sh_t[:n * c], sh_path[:n * c],
                       sh_c[:n * c], counts, est, est_out)
         k_next, k_sh, k_grp = counts[0], counts[1], counts[3]

@@ -69,6 +69,7 @@ from renderer.kernels.mesh_light import (
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.portal import portal_dome_pdf_row, portal_dome_sample_row
 from renderer.kernels.shaping import shaping_factor_row
+from renderer.kernels.sobol import sobol_u01
 from renderer.materials import surface_hits
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
 from renderer.preconvolve import packed_row
@@ -364,6 +365,21 @@ def _uniform_pass(key, lo, hi, UB):
     for c in range(n_u):
         for r in range(lo, hi):
             UB[c, r - lo] = splitmix_u01(key, r * n_u + c + 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", pipeline_class=_NoAliasCompiler)
+def _sobol_pass(lo, hi, UB, path, pix, sidx, dim0, roles):
+    """The uniforms of rows lo..hi into UB (n_u, BLK) from each row's pixel's low-discrepancy
+    sequence (kernels/sobol.py): row r's pixel key pix[path[r]] (uint64), sample index sidx
+    (uint64, the pass), column c's dimension pair dim0 + roles[c, 0] (dim0: the bounce's first,
+    bounce * n_u) and coordinate roles[c, 1] (FastPath.sobol_roles: the BSDF's direction and
+    each light's point are pairs, the lobe, the roulette and the pick 1D)."""
+    n_u = UB.shape[0]
+    for c in range(n_u):
+        dim = dim0 + np.uint64(roles[c, 0])
+        coord = roles[c, 1]
+        for r in range(lo, hi):
+            UB[c, r - lo] = sobol_u01(pix[path[r]], sidx, dim, coord)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -899,16 +915,32 @@ def _record(smp, i, wi, dist, p_l, p_b, fd, fs, usable):
     smp[i, ec.S_TR] = 1.0 if (usable and pos) else 0.0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _est_u(key, c, lq, i, pair, coord):
+    """Number c of an estimator's stream (splitmix_u01(key, c)), or with lq = (on, pixel key,
+    pass, first pair) on: coordinate coord of the pixel's low-discrepancy pair
+    ``first + 3 i + pair`` at the pass (kernels/sobol.py). Sample i of the N has pairs of its
+    own: the N samples of one pass stay independent of each other, as the estimators' formulas
+    assume (the 1/(N - 1) control variate, the talk's bias of alpha = v_bar), and each is
+    stratified over the passes."""
+    on, pk, sidx, dim0 = lq
+    if on:
+        return sobol_u01(pk, sidx, dim0 + np.uint64(3 * i + pair), coord)
+    return splitmix_u01(key, c)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls, bs, SHP):
+def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, lq, LP, IMG, lcon, sd, ss, ls, bs, SHP):
     """Light g's N light samples into ls and N BSDF samples into bs (those its estimator needs)
     at the vertex V, as estimators.base.light_samples and bsdf_samples draw them: uniforms
-    splitmix_u01(key, ctr + 1 ...), five per sample; sd, ss: the light's diffuse and specular
-    multipliers (_split_at). SHP: the ShapingAPI record (_shaped)."""
+    splitmix_u01(key, ctr + 1 ...), five per sample, or the pixel's sequence (lq, _est_u: the
+    light's point a pair, the lobe 1D, the direction a pair); sd, ss: the light's diffuse and
+    specular multipliers (_split_at). SHP: the ShapingAPI record (_shaped)."""
     p, ng, sf, tf, ns, wo, ao, bo, p_d, eps, m = V
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
-        wi, dist, pdf, Le, delta = _light_sample(LP, g, p, splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1)),
+        wi, dist, pdf, Le, delta = _light_sample(LP, g, p, _est_u(key, c, lq, i, 0, 0),
+                                                 _est_u(key, c + np.uint64(1), lq, i, 0, 1),
                                                  IMG, lcon[0], lcon[1], lcon[2], ns)
         if LP[g, LP_SHAPE] >= 0.0:
             Le = _shaped(LP, g, SHP, wi, Le)
@@ -923,8 +955,8 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
     for i in range(N if need_b else 0):
         c = ctr + np.uint64(5 * i + 3)
         # The BSDF's own sample (_preview_kernels.sample_kernel), to world.
-        wl = _sample_dir_i(wo[0], wo[1], wo[2], a, splitmix_u01(key, c) < p_d, splitmix_u01(key, c + np.uint64(1)),
-                           splitmix_u01(key, c + np.uint64(2)))
+        wl = _sample_dir_i(wo[0], wo[1], wo[2], a, _est_u(key, c, lq, i, 1, 0) < p_d,
+                           _est_u(key, c + np.uint64(1), lq, i, 2, 0), _est_u(key, c + np.uint64(2), lq, i, 2, 1))
         wx = wl[0] * sf[0] + wl[1] * tf[0] + wl[2] * ns[0]
         wy = wl[0] * sf[1] + wl[1] * tf[1] + wl[2] * ns[1]
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]
@@ -941,7 +973,7 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _direct_pair(g, tok, alpha, N, power_g, exact, E, sd, ss, V, Pm, beta, pr_path, key, ctr, LP, IMG, lcon, SH,
+def _direct_pair(g, tok, alpha, N, power_g, exact, E, sd, ss, V, Pm, beta, pr_path, key, ctr, lq, LP, IMG, lcon, SH,
                  GR, k_sh, k_grp, scratch, SHP):
     """Light g's whole direct contribution at the vertex V (not on continuation MIS there) by its
     estimator (token index tok, α index alpha, N samples, heuristic power_g; exact, E: whether
@@ -957,7 +989,7 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, E, sd, ss, V, Pm, beta, pr_pa
     here), so records it does not need (F's tables, the multipliers) stay with the caller."""
     ls, bs, cl, cb = scratch
     need_l, need_b = ec.needs(tok)
-    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, LP, IMG, lcon, sd, ss, ls, bs, SHP)
+    _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, lq, LP, IMG, lcon, sd, ss, ls, bs, SHP)
     mode = ec.estimate(tok, N, ls, bs, power_g, exact, alpha, cl, cb)
     sh_o, sh_d, sh_t, sh_path, sh_c, sh_x, sh_cov = SH
     p, ng, eps = V[0], V[1], V[9]
@@ -1004,7 +1036,7 @@ def _direct_pair(g, tok, alpha, N, power_g, exact, E, sd, ss, V, Pm, beta, pr_pa
 
 @njit(cache=True, nogil=True)
 def vertex_kernel(
-    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, key, n_u, surf, max_depth,
+    path, depth, unsampled, S, hit_t, hit_prim, hit_b1, hit_b2, key, lds, n_u, surf, max_depth,
     vertices, face_normal, normals, tri_mat, tri_mag,
     center, ex, ey, x_hat, y_hat, edge_len, nrm, area, radiance, is_rect, exd, eyd, rect_light,
     s_center, s_radius, s_radiance, s_delta, sphere_light,
@@ -1025,7 +1057,9 @@ def vertex_kernel(
     embree's closest hits as Accel.intersect_prepared gives them (float32 t, u, v; int32 prim, -1 on
     a miss, where t is meaningless); key: uint64, n_u: uniforms per row (4 + 2 lights, or 4 + 3
     with a picking service: the pick's u, then the light sample's two): the
-    rows' uniforms are _uniform_pass's stream for key, drawn block by block; surf: the record
+    rows' uniforms are _uniform_pass's stream for key, drawn block by block, or with lds =
+    (pix, sidx, dim0, roles) and pix (paths,) uint64 not empty, each path's pixel's
+    low-discrepancy numbers (_sobol_pass; FastPath.trace's record); surf: the record
     (Pm, mat_row, emission, bent_ns) (materials.surface_hits' with tex): Pm (materials, K) packed BSDF rows,
     or with mat_row (n,) non-empty, per-hit rows: ray r's row is mat_row[r], emission (hits, 3)
     (if not empty; (materials, 3) by the hit's material where mat_row is empty: constant
@@ -1168,9 +1202,17 @@ def vertex_kernel(
     tbuf = np.empty(f_pk[-1])
     m_d, m_s = mult
     k_grp = 0
+    lds_pix, lds_sidx, lds_dim0, lds_roles = lds
+    sobol = lds_pix.shape[0] > 0
+    # The per-light estimators' pairs (3 a sample: its point, the lobe, the direction; up to
+    # 2^20 samples a light), apart from the rows' columns.
+    est_dim0 = np.uint64(1 << 62) + lds_dim0 * np.uint64(3 << 40)
     for lo in range(0, n, BLK):
         hi = min(n, lo + BLK)
-        _uniform_pass(key, lo, hi, UB)
+        if sobol:
+            _sobol_pass(lo, hi, UB, path, lds_pix, lds_sidx, lds_dim0, lds_roles)
+        else:
+            _uniform_pass(key, lo, hi, UB)
         if surfaces:
             _surface_pass(lo, hi, hit_prim, hit_b1, hit_b2, S, UB, depth, Pm, mat_row, bent_ns, vertices,
                           face_normal, normals, tri_mat, tri_mag, rr_depth, eps_rel, eps_floor, eps_add, W)
@@ -1353,7 +1395,10 @@ def vertex_kernel(
                     first = k_sh
                     k_sh, k_grp = _direct_pair(g, tok, e_alpha[gl], e_N[gl], power[gl], exact, E, m_d[g], m_s[g], V,
                                                Pm, (b0 / pmf, b1 / pmf, b2 / pmf), pr_path, e_key,
-                                               np.uint64((r * nl + g) * 5 * 4096), LP, IMG, lcon, SH, GR, k_sh, k_grp,
+                                               np.uint64((r * nl + g) * 5 * 4096),
+                                               (sobol, lds_pix[pr_path] if sobol else np.uint64(0), lds_sidx,
+                                                est_dim0 + np.uint64(3 << 20) * np.uint64(g)), LP, IMG, lcon, SH,
+                                               GR, k_sh, k_grp,
                                                scratch, SHP)
                     for s_ in range(first, k_sh):
                         sh_l[s_] = g
@@ -1506,4 +1551,5 @@ guard_cache(__name__, module_dispatchers(globals()),
              "renderer/kernels/light_pick.py", "renderer/kernels/light_bvh.py", "renderer/kernels/shaping.py",
              "renderer/lights/analytic.py", "renderer/preconvolve.py", "renderer/kernels/cylinder.py",
              "renderer/kernels/mesh_light.py",
-             "renderer/kernels/portal.py", "renderer/materials.py", "renderer/textures.py"])
+             "renderer/kernels/portal.py", "renderer/materials.py", "renderer/textures.py",
+             "renderer/kernels/sobol.py"])

@@ -257,6 +257,7 @@ class FastPath:
         self.cont_at = [integ.cont_ok & integ.samples_one, integ.cont_ok.copy()]
         self.plan = self._plan()
         self._kernel = None  # trace_kernel's fixed arguments (_kernel_args), made on first use
+        self._roles = self.sobol_roles()
 
     def _bounce_plan(self, bounce: int):
         """The estimators at the vertices of a bounce whose rows have depth ``bounce``: N (lights,)
@@ -392,26 +393,58 @@ class FastPath:
                   else np.zeros(T, bool))
         return ml.compiled_record(), self.mesh_light, prim_light, prim_tri, absorb
 
+    def sobol_roles(self) -> np.ndarray:
+        """(n_u, 2) int64: each uniform column's dimension pair (its first column) and coordinate
+        in it, for the low-discrepancy numbers (kernels/sobol.py): the BSDF direction's two
+        columns and each light sample's two are pairs; the lobe, the roulette and a picking
+        service's pick are 1D."""
+        n_u = self.n_u
+        roles = np.zeros((n_u, 2), dtype=np.int64)
+        roles[:, 0] = np.arange(n_u)
+        first = vk.U_LIGHT + (1 if self.picks else 0)
+        for a in (vk.U_DIR, *range(first, n_u - 1, 2)):
+            roles[a + 1] = (a, 1)
+        return roles
+
+    @property
+    def n_u(self) -> int:
+        """Uniforms per row: the lobe's, the direction's two, the roulette's, then two per light,
+        or the pick's and one light sample's two."""
+        return vk.U_LIGHT + (3 if self.picks else 2 * self.integ.lights.count)
+
+    def _lds(self, pixels, m: int):
+        """trace_kernel's lds record for m rows: pixels = (pixel keys (m,) uint64, pass index)
+        from PathIntegrator.trace_paths, or None for independent streams."""
+        if pixels is None:
+            return np.zeros(0, dtype=np.uint64), np.uint64(0), self._roles
+        pix, index = pixels
+        if pix.shape[0] != m:
+            raise ValueError(f"{pix.shape[0]} pixel keys for {m} rays")
+        return np.ascontiguousarray(pix, dtype=np.uint64), np.uint64(index), self._roles
+
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
-              max_depth: int) -> np.ndarray:
+              max_depth: int, pixels=None) -> np.ndarray:
         """Radiance (m, 3) arriving at the origins o (m, 3) along -d: PathIntegrator.trace for a
         qualifying scene, with emit0 = 1. One compiled call (_trace_kernel) where kernel_reason
-        finds none, else the bounce loop in Python; both give the same image."""
+        finds none, else the bounce loop in Python; both give the same image. pixels: (keys (m,)
+        uint64, pass index) of the rays' pixels (kernels/sobol.pixel_keys): the bounces draw
+        those pixels' low-discrepancy numbers; None: independent numbers from rng."""
         keys = self._keys(rng, max_depth)
+        lds = self._lds(pixels, o.shape[0])
         if self.kernel_reason():
-            return self.trace_loop(o, d, tmax, rng, max_depth, *keys)
-        return self.trace_compiled(o, d, tmax, max_depth, *keys)
+            return self.trace_loop(o, d, tmax, rng, max_depth, *keys, lds=lds)
+        return self.trace_compiled(o, d, tmax, max_depth, *keys, lds=lds)
 
-    def trace_compiled(self, o, d, tmax, max_depth, keys, keys2, ckeys) -> np.ndarray:
+    def trace_compiled(self, o, d, tmax, max_depth, keys, keys2, ckeys, lds=None) -> np.ndarray:
         """trace as one call of _trace_kernel.trace_kernel (GIL released), with the keys of _keys."""
         integ = self.integ
         emb, surf, tables, plan, walk, shadows = self._kernel_args()
-        n_u = vk.U_LIGHT + (3 if self.picks else 2 * integ.lights.count)
+        n_u = self.n_u
         L = np.zeros((o.shape[0], 3))
         tally = np.zeros(tk.N_TALLY + 2 * len(integ.scene.shadow_accels), dtype=np.int64)
         tk.trace_kernel(emb, np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64),
                         np.ascontiguousarray(tmax, dtype=np.float64), keys, keys2, ckeys, n_u, max_depth, surf, tables,
-                        plan, walk, L, tally, shadows)
+                        plan, walk, L, tally, shadows, self._lds(None, 0) if lds is None else lds)
         integ.rays.add(shadow=tally[tk.T_SHADOW], extension=tally[tk.T_EXTENSION])
         with integ.rays.lock:
             for name, t in (("continuation_mis", tk.T_CONTINUATION), ("own_samples", tk.T_OWN_SAMPLES),
@@ -420,14 +453,14 @@ class FastPath:
         self._count_traced(tally)
         return L
 
-    def trace_loop(self, o, d, tmax, rng, max_depth, keys, keys2, ckeys) -> np.ndarray:
+    def trace_loop(self, o, d, tmax, rng, max_depth, keys, keys2, ckeys, lds=None) -> np.ndarray:
         """trace with the bounce loop in Python, each bounce's compiled calls and numpy work in
         turn, with the keys of _keys (rng: the numpy cut-out walks' draws)."""
         integ = self.integ
         accel = integ.scene.accel
         nl = integ.lights.count
-        # The uniforms per row: two per light, or the pick's and one light sample's.
-        n_u = vk.U_LIGHT + (3 if self.picks else 2 * nl)
+        n_u = self.n_u
+        lds = self._lds(None, 0) if lds is None else lds
         m = o.shape[0]
         L = np.zeros((m, 3))
         path = np.arange(m, dtype=np.int64)
@@ -471,7 +504,8 @@ class FastPath:
             sh_path = np.empty(n * cap, dtype=np.int64)
             sh_c = np.empty((n * cap, 3))
             counts[:] = 0
-            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key, n_u, surf, max_depth,
+            vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key,
+                             (lds[0], lds[1], np.uint64(bounce * n_u), lds[2]), n_u, surf, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
                              sh_c, counts, est, est_out)
             k_next, k_sh, k_grp = int(counts[0]), int(counts[1]), int(counts[3])

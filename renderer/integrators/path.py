@@ -54,6 +54,7 @@ from ..errors import SettingsError
 from ..estimators import ALPHAS, HEURISTICS, REGISTRY, TOKENS, DirectQuery, DirectRandom
 from ..estimators.mis import mis_light_half
 from ..kernels.rows import add_rows, take_rows as _t
+from ..kernels.sobol import pixel_keys
 from ..sampling import balance_heuristic, pixel_sequence, power_heuristic, safe_div
 from .shadow_api import visibility as shadow_visibility
 
@@ -95,6 +96,7 @@ class IntegratorOptions:
     default_estimator: str = ""
     emitter_samples: int = 0  # camera samples per pass for emitters seen directly; 0 = auto
     fast_path: bool = True  # the compiled path vertex where the scene qualifies (fast_path.py)
+    sampler: str = "sobol"  # the bounces' numbers: "sobol" (per pixel, kernels/sobol.py) or "independent"
 
 
 # `auto` emitter samples: K = EMITTER_SAMPLES_AUTO when lights smaller than a pixel on screen
@@ -374,7 +376,11 @@ class PathIntegrator:
         self.rays.add(camera=m)
         # Near clip: start the ray at the near plane.
         o, tmax = rays.at_near_plane()
-        L = self._trace_camera(o, rays.d, tmax, rng, K)
+        # The bounces' numbers: each pixel's low-discrepancy sequence at this pass (kernels/sobol.py),
+        # on the compiled route; independent numbers without a pass or with --sampler independent.
+        pixels = ((pixel_keys(seed, pixel), pass_index) if pass_index is not None and self.opt.sampler == "sobol"
+                  else None)
+        L = self._trace_camera(o, rays.d, tmax, rng, K, pixels)
         parts = [(u_filter, L)] if split else None
         for k in range(1, K):
             u_k = pixel_sequence(seed, pixel, pass_index * K + k)
@@ -389,31 +395,33 @@ class PathIntegrator:
         return parts if split else L
 
     def _trace_camera(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
-                      K: int) -> np.ndarray:
+                      K: int, pixels=None) -> np.ndarray:
         """trace for the path-carrying camera ray of trace_paths: the emission it sees directly
         weighted 1 / K. The compiled path weighs a camera ray's emission fully, so there
         (1 - 1/K) of it is taken off again, traced a second time at depth 0. That is the same
         emission (depth 0 draws no random number), except behind a stochastic cut-out, where the
         two presence draws are independent and each term stays unbiased."""
         if K == 1 or self.fast is None:
-            return self.trace(o, d, tmax, rng, emit0=1.0 / K)
-        L = self.fast.trace(o, d, tmax, rng, self.opt.max_depth)
+            return self.trace(o, d, tmax, rng, emit0=1.0 / K, pixels=pixels)
+        L = self.fast.trace(o, d, tmax, rng, self.opt.max_depth, pixels)
         L -= (1.0 - 1.0 / K) * self.fast.trace(o, d, tmax, rng, 0)
         return L
 
     def trace(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rng: np.random.Generator,
-              emit0: float = 1.0, max_depth: int | None = None) -> np.ndarray:
+              emit0: float = 1.0, max_depth: int | None = None, pixels=None) -> np.ndarray:
         """Radiance (m, 3) arriving at the origins o (m, 3) along -d (unsampled primary rays).
 
         emit0: weight of the emission the unsampled rays see directly (see trace_paths);
-        max_depth: override of the options' maximum depth (0: emitters seen directly only).
+        max_depth: override of the options' maximum depth (0: emitters seen directly only);
+        pixels: (pixel keys (m,) uint64, pass index) for the compiled route's low-discrepancy
+        numbers (FastPath.trace), None for independent ones (the general path's always are).
         """
         scene = self.scene
         opt = self.opt
         max_depth = opt.max_depth if max_depth is None else max_depth
         if self.fast is not None and (emit0 == 1.0 or max_depth == 0):
             # At depth 0 every contribution is emission seen directly: scaling by emit0 is exact.
-            L = self.fast.trace(o, d, tmax, rng, max_depth)
+            L = self.fast.trace(o, d, tmax, rng, max_depth, pixels)
             return L if emit0 == 1.0 else L * emit0
         m = o.shape[0]
 

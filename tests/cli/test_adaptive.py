@@ -57,9 +57,10 @@ def _exr(path) -> dict:
     return {name: data[:, :, k] for k, name in enumerate(spec.channelnames)}, spec
 
 
-def test_adaptive_image_is_unbiased_and_the_sample_count_shows_where_samples_went(room, reference, tmp_path):
+@pytest.mark.parametrize("sampler", ["sobol", "independent"])
+def test_adaptive_image_is_unbiased_and_the_sample_count_shows_where_samples_went(room, reference, tmp_path, sampler):
     result = render(str(room), RenderOptions(spp=CAP, seed=1, noise_threshold=T, adaptive_min_spp=MIN_SPP,
-                                             aov=("sampleCount",)))
+                                             aov=("sampleCount",), sampler=sampler))
     out = tmp_path / "a.exr"
     write_outputs(result, exr=str(out))
     ch, spec = _exr(out)
@@ -86,8 +87,11 @@ def test_adaptive_image_is_unbiased_and_the_sample_count_shows_where_samples_wen
         p = _p(_z(result.film, reference, pixels))
         assert np.all(p > SIGNIFICANCE), p
     # The samples the rule decided from, as the textbook rule would keep them: a pixel stops
-    # when its relative error happens to be small, i.e. its mean high -- biased, and seen.
-    assert np.all(_p(_z(ad.decision, reference, early)) < SIGNIFICANCE)
+    # when its relative error happens to be small, i.e. its mean high -- biased, and seen with
+    # independent numbers (the default sampler's stratified passes vary less, and so does that
+    # selection bias: too little to see at this size).
+    if sampler == "independent":
+        assert np.all(_p(_z(ad.decision, reference, early)) < SIGNIFICANCE)
 
 
 def test_a_pass_traces_only_the_active_pixels_on_both_routes(room):

@@ -26,13 +26,13 @@ def _render(stage, loop: bool, monkeypatch, **opt):
     calls = {"compiled": 0, "loop": 0}
     orig_c, orig_l = fp_mod.FastPath.trace_compiled, fp_mod.FastPath.trace_loop
 
-    def compiled(self, *a):
+    def compiled(self, *a, **kw):
         calls["compiled"] += 1
-        return orig_c(self, *a)
+        return orig_c(self, *a, **kw)
 
-    def looped(self, *a):
+    def looped(self, *a, **kw):
         calls["loop"] += 1
-        return orig_l(self, *a)
+        return orig_l(self, *a, **kw)
 
     with monkeypatch.context() as mp:
         mp.setattr(fp_mod.FastPath, "trace_compiled", compiled)
@@ -102,16 +102,15 @@ def test_the_image_does_not_depend_on_the_thread_count(tmp_path, monkeypatch, na
 
 
 def test_the_comparison_sees_a_changed_key(tmp_path, monkeypatch):
-    """The exact comparison above can fail: one bounce's vertex key changed in the compiled
-    route alone gives another image."""
+    """The exact comparison above can fail: the pixels' sequences one pass ahead in the compiled
+    route alone give another image."""
     make, opt = STAGES["cornell"]
     stage = make(tmp_path)
     orig = fp_mod.FastPath.trace_compiled
 
-    def shifted(self, o, d, tmax, max_depth, keys, keys2, ckeys):
-        keys = keys.copy()
-        keys[1] ^= 1
-        return orig(self, o, d, tmax, max_depth, keys, keys2, ckeys)
+    def shifted(self, o, d, tmax, max_depth, keys, keys2, ckeys, lds=None):
+        pix, index, roles = lds
+        return orig(self, o, d, tmax, max_depth, keys, keys2, ckeys, lds=(pix, index + np.uint64(1), roles))
 
     loop = _render(stage, True, monkeypatch, threads=2, **opt)
     monkeypatch.setattr(fp_mod.FastPath, "trace_compiled", shifted)
