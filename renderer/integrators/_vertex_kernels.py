@@ -69,7 +69,7 @@ from renderer.kernels.mesh_light import (
 from renderer.kernels.light_pick import EXHAUSTIVE, crossed_row, pick_pmf_row, pick_row
 from renderer.kernels.portal import portal_dome_pdf_row, portal_dome_sample_row
 from renderer.kernels.shaping import shaping_factor_row
-from renderer.kernels.sobol import sobol_u01
+from renderer.kernels.sobol import sobol_pair, sobol_u01
 from renderer.materials import surface_hits
 from renderer.lights.analytic import disk_F, distant_F, dome_constant_F, rect_F, sphere_F
 from renderer.preconvolve import packed_row
@@ -376,10 +376,17 @@ def _sobol_pass(lo, hi, UB, path, pix, sidx, dim0, roles):
     each light's point are pairs, the lobe, the roulette and the pick 1D)."""
     n_u = UB.shape[0]
     for c in range(n_u):
+        if roles[c, 1] == 1:
+            continue  # written with the pair's first column
         dim = dim0 + np.uint64(roles[c, 0])
-        coord = roles[c, 1]
-        for r in range(lo, hi):
-            UB[c, r - lo] = sobol_u01(pix[path[r]], sidx, dim, coord)
+        if c + 1 < n_u and roles[c + 1, 1] == 1:
+            for r in range(lo, hi):
+                x, y = sobol_pair(pix[path[r]], sidx, dim)
+                UB[c, r - lo] = x
+                UB[c + 1, r - lo] = y
+        else:
+            for r in range(lo, hi):
+                UB[c, r - lo] = sobol_pair(pix[path[r]], sidx, dim)[0]
 
 
 @njit(cache=True, nogil=True, inline="always")

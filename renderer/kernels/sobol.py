@@ -80,14 +80,26 @@ def shuffle_index32(i, seed):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _superset_xor32(i):
+    """Bit m of the result: the XOR of the bits k of i (32 bits) whose positions contain m's
+    (k & m == m): the subset-sum transform on the five-bit positions, one shift-mask step per
+    position bit."""
+    i = i ^ ((i >> np.uint64(1)) & np.uint64(0x55555555))
+    i = i ^ ((i >> np.uint64(2)) & np.uint64(0x33333333))
+    i = i ^ ((i >> np.uint64(4)) & np.uint64(0x0F0F0F0F))
+    i = i ^ ((i >> np.uint64(8)) & np.uint64(0x00FF00FF))
+    i = i ^ ((i >> np.uint64(16)) & np.uint64(0x0000FFFF))
+    return i
+
+
+@njit(cache=True, nogil=True, inline="always")
 def sobol_second32(i):
-    """Sobol's second dimension of index i (32 bits): the XOR of direction numbers v_(k+1) over
-    the set bits k of i, v_1 = 2^31, v_(k+1) = v_k ^ (v_k >> 1), by Horner's rule from the top
-    bit (branch-free: 32 shift-xor steps)."""
-    acc = np.uint64(0)
-    for k in range(31, -1, -1):
-        acc = (acc ^ (acc >> np.uint64(1))) ^ (((i >> np.uint64(k)) & np.uint64(1)) << np.uint64(31))
-    return acc
+    """Sobol's second dimension of index i (32 bits): the XOR of the direction numbers v_(k+1)
+    over the set bits k of i, with v_1 = 2^31 and v_(k+1) = v_k ^ (v_k >> 1). Then
+    v_(k+1) = sum_m C(k, m) 2^(31 - m), and C(k, m) is odd when m's bits are a subset of k's
+    (Lucas): bit 31 - m of the result is the XOR of i's bits at the supersets of m, the
+    reversed _superset_xor32."""
+    return reverse_bits32(_superset_xor32(i & _M32))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -99,19 +111,27 @@ def mix64(z):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def sobol_u01(pixel_key, index, dim, coord):
-    """Coordinate coord (0 or 1; 0 for a 1D decision) of sample ``index`` (uint64, the pixel's
-    pass number) of dimension pair ``dim`` (uint64, unique per bounce and decision) in the pixel
-    whose key is pixel_key (uint64, pixel_keys' hash of the pixel and the render seed): a double
-    in [0, 1)."""
+def sobol_pair(pixel_key, index, dim):
+    """The point (x, y), doubles in [0, 1), of sample ``index`` (uint64, the pixel's pass
+    number) of dimension pair ``dim`` (uint64, unique per bounce and decision) in the pixel whose
+    key is pixel_key (uint64, pixel_keys' hash of the pixel and the render seed); a 1D decision
+    takes x. Branch-free, so loops over rows vectorise."""
     h = mix64(pixel_key + (dim + np.uint64(1)) * _GAMMA)
     j = shuffle_index32(index, h & _M32)
-    if coord == 0:
-        v = reverse_bits32(j)
-    else:
-        v = sobol_second32(j)
-    s = mix64(h + np.uint64(coord + 1) * _GAMMA)
-    return float(owen_scramble32(v, s >> np.uint64(32))) * _INV32
+    s0 = mix64(h + _GAMMA) >> np.uint64(32)
+    s1 = mix64(h + np.uint64(2) * _GAMMA) >> np.uint64(32)
+    # owen_scramble32 of the point's coordinates, whose reversals are j itself (the radical
+    # inverse) and _superset_xor32(j) (sobol_second32): the outer reversals cancel.
+    x = float(reverse_bits32(_lk_permute(j, s0))) * _INV32
+    y = float(reverse_bits32(_lk_permute(_superset_xor32(j), s1))) * _INV32
+    return x, y
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sobol_u01(pixel_key, index, dim, coord):
+    """Coordinate coord (0 or 1; 0 for a 1D decision) of sobol_pair's point."""
+    x, y = sobol_pair(pixel_key, index, dim)
+    return x if coord == 0 else y
 
 
 def pixel_keys(seed: int, pixel: np.ndarray) -> np.ndarray:

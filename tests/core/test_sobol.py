@@ -22,44 +22,31 @@ def _points(key, dim, n, start=0):
 
 
 @njit(cache=False)
-def _rev(xs):
+def _apply(f, xs, seed):
+    """f(x, seed) for each uint64 x of xs, compiled."""
     out = np.empty(xs.shape[0], dtype=np.uint64)
     for i in range(xs.shape[0]):
-        out[i] = reverse_bits32(xs[i])
+        out[i] = f(xs[i], seed)
     return out
 
 
 @njit(cache=False)
-def _second(xs):
-    out = np.empty(xs.shape[0], dtype=np.uint64)
-    for i in range(xs.shape[0]):
-        out[i] = sobol_second32(xs[i])
-    return out
+def _reverse(x, seed):
+    return reverse_bits32(x)
 
 
 @njit(cache=False)
-def _owen(xs, seed):
-    out = np.empty(xs.shape[0], dtype=np.uint64)
-    for i in range(xs.shape[0]):
-        out[i] = owen_scramble32(xs[i], seed)
-    return out
-
-
-@njit(cache=False)
-def _shuffle(xs, seed):
-    out = np.empty(xs.shape[0], dtype=np.uint64)
-    for i in range(xs.shape[0]):
-        out[i] = shuffle_index32(xs[i], seed)
-    return out
+def _second(x, seed):
+    return sobol_second32(x)
 
 
 def test_the_unscrambled_points_are_sobols():
     k = np.arange(4096, dtype=np.uint64)
     ref = np.array([_sobol2(int(i)) for i in k], dtype=np.uint64)
-    np.testing.assert_array_equal(_rev(k), ref[:, 0])
-    np.testing.assert_array_equal(_second(k), ref[:, 1])
+    np.testing.assert_array_equal(_apply(_reverse, k, 0), ref[:, 0])
+    np.testing.assert_array_equal(_apply(_second, k, 0), ref[:, 1])
     top = np.array([0xFFFFFFFF, 0x80000000, 0x12345678], dtype=np.uint64)
-    np.testing.assert_array_equal(_second(top), [_sobol2(int(i))[1] for i in top])
+    np.testing.assert_array_equal(_apply(_second, top, 0), [_sobol2(int(i))[1] for i in top])
 
 
 def test_scrambles_are_nested_permutations():
@@ -69,7 +56,7 @@ def test_scrambles_are_nested_permutations():
     rng = np.random.default_rng(3)
     for seed in rng.integers(0, 2 ** 32, size=4, dtype=np.uint64):
         x = np.arange(1 << 16, dtype=np.uint64) << np.uint64(16)
-        y = _owen(x, seed)
+        y = _apply(owen_scramble32, x, seed)
         assert np.unique(y >> np.uint64(16)).size == 1 << 16
         for b in (1, 4, 9):
             top_x = x >> np.uint64(32 - b)
@@ -77,7 +64,7 @@ def test_scrambles_are_nested_permutations():
             for t in range(1 << b):
                 assert np.unique(top_y[top_x == t]).size == 1
         i = np.arange(1 << 12, dtype=np.uint64)
-        j = _shuffle(i, seed)
+        j = _apply(shuffle_index32, i, seed)
         for k in (1, 5, 12):
             for s in range(0, 1 << 12, 1 << k):
                 block = j[s:s + (1 << k)]
