@@ -293,12 +293,19 @@ def main(argv=None) -> int:
             res = run_stage(a, stage, ref_spp[min(i, len(ref_spp) - 1)], work)
         res["summary"] = summarise(res, a.budgets)
         results.append(res)
-        with open(os.path.join(a.out, "mitsuba.json"), "w") as fh:
-            json.dump({"command": cmd, "results": results}, fh, indent=1)
-        with open(os.path.join(a.out, "mitsuba_table.md"), "w") as fh:
-            fh.write(write_md(a, results, cmd))
+        write_results(a.out, "mitsuba.json", "mitsuba_table.md", cmd, results, write_md(a, results, cmd))
     print(write_md(a, results, cmd))
     return 0
+
+
+def write_results(out: str, json_name: str, md_name: str, cmd: str, results: list, md: str) -> None:
+    """A benchmark's outputs in the folder out: json_name ({"command", "results"}) and the
+    markdown table md_name."""
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, json_name), "w") as fh:
+        json.dump({"command": cmd, "results": results}, fh, indent=1)
+    with open(os.path.join(out, md_name), "w") as fh:
+        fh.write(md)
 
 
 if __name__ == "__main__":

@@ -265,10 +265,17 @@ def _ratio(per: dict, who: str, key: str) -> str:
 
 def write_md(a, results: list[dict], cmd: str, versions: dict) -> str:
     B = a.budgets
-    md = ["# illum against Mitsuba 3 at equal time (issue 23, 'Measure and report')", "",
-          "**Measured on a loaded machine**: 2 cores shared with the lead and other helpers' jobs (load averages "
-          "below, often 5-7x the core count). Both renderers ran with 2 threads, alternated run by run, but their "
-          "wall-clock times include waiting for the CPU; the CPU-seconds tables divide that out.", "",
+    loads = [r.get("load", 0.0) for res in results for r in res.get("runs", [])]
+    peak = max(loads, default=0.0)
+    if peak <= a.threads + 0.75:
+        machine = (f"**Measured on a quiet machine**: the load average stayed at or below {peak:.1f} on "
+                   f"{os.cpu_count()} cores, i.e. the renderer under test and little else. Both renderers ran with "
+                   f"{a.threads} threads, alternated run by run.")
+    else:
+        machine = (f"**Measured on a loaded machine**: load averages up to {peak:.1f} on {os.cpu_count()} cores "
+                   "(below). Both renderers ran with the same threads, alternated run by run, but their wall-clock "
+                   "times include waiting for the CPU; the CPU-seconds tables divide that out.")
+    md = ["# illum against Mitsuba 3 at equal time (issue 23, 'Measure and report')", "", machine, "",
           f"    {cmd}", "",
           f"Date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.platform()}, {_cpu()}, "
           f"{os.cpu_count()} CPUs. Versions: " + ", ".join(f"{k} {v}" for k, v in versions.items()) + ".", "",

@@ -17,7 +17,6 @@ Writes ``--out``/sampler.md and sampler.json.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -28,7 +27,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_film_mitsuba import floor  # noqa: E402
+from bench_film_mitsuba import floor, write_results  # noqa: E402
 from bench_mitsuba import _cpu, git_state, relmse  # noqa: E402
 
 from renderer.render import RenderOptions, render  # noqa: E402
@@ -114,12 +113,9 @@ def main(argv=None) -> int:
     cmd = "PYTHONPATH=. .venv/bin/python bench/bench_sampler.py " + " ".join(argv if argv is not None else sys.argv[1:])
     stages = [(s, s) for s in a.stages] if a.stages else list(STAGES)
     results = [run_stage(a, label, stage) for label, stage in stages]
-    os.makedirs(a.out, exist_ok=True)
-    with open(os.path.join(a.out, "sampler.json"), "w") as fh:
-        json.dump({"command": cmd, "results": results}, fh, indent=1)
-    with open(os.path.join(a.out, "sampler.md"), "w") as fh:
-        fh.write(table(a, results, cmd))
-    print(table(a, results, cmd))
+    md = table(a, results, cmd)
+    write_results(a.out, "sampler.json", "sampler.md", cmd, results, md)
+    print(md)
     return 0
 
 
