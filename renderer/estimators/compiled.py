@@ -151,7 +151,7 @@ def ratio(N, ls, bs, power, exact, alpha, cl, cb):
     return RATIO
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def estimate(tok, N, ls, bs, power, exact, alpha, cl, cb):
     """The estimator of token index ``tok`` (TOKENS) on the pair's N light samples ls and N BSDF
     samples bs (records as in the module docstring; the ones it does not need are ignored):
