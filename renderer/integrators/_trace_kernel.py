@@ -23,7 +23,7 @@ from numba import njit
 
 from renderer.accel import _intersect_rows, _occluded_rows
 from renderer.integrators._cutout_kernels import shadow_cutouts_kernel, through_cutouts_kernel
-from renderer.integrators._vertex_kernels import (_GAMMA, NS, add_unblocked_kernel, add_visible_kernel,
+from renderer.integrators._vertex_kernels import (_GAMMA, NS, add_unblocked_kernel, add_visible_kernel, lds_at,
                                                   resolve_groups_kernel, resolve_groups_visible_kernel, start_kernel,
                                                   vertex_kernel)
 from renderer.integrators.shadow_api import shadow_strength
@@ -142,7 +142,8 @@ def trace_kernel(emb, o, d, tmax, keys, keys2, ckeys, n_u, max_depth, surf, tabl
         est_out = (sh_x[:n * c], sh_cov[:n * c], g_int[:n * g], g_f[:n * g], sh_l[:n * c])
         counts[:] = 0
         vertex_kernel(path[:n], depth[:n], unsampled[:n], S[:n], t32[:n], prim[:n], b1[:n], b2[:n],
-                      np.uint64(keys[bounce]), (lds[0], lds[1], np.uint64(bounce * n_u), lds[2]), n_u, surf, max_depth, *tables, L, n_path[:n], n_depth[:n], n_S[:n],
+                      np.uint64(keys[bounce]), lds_at(lds, bounce, n_u), n_u, surf, max_depth, *tables, L,
+                      n_path[:n], n_depth[:n], n_S[:n],
                       n_o32[:n], n_d32[:n], n_t32[:n], sh_o[:n * c], sh_d[:n * c], sh_t[:n * c], sh_path[:n * c],
                       sh_c[:n * c], counts, est, est_out)
         k_next, k_sh, k_grp = counts[0], counts[1], counts[3]

@@ -936,6 +936,23 @@ def _est_u(key, c, lq, i, pair, coord):
     return splitmix_u01(key, c)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _est_u2(key, c, lq, i, pair):
+    """_est_u's numbers c and c + 1 as one pair's two coordinates (one sobol_pair)."""
+    on, pk, sidx, dim0 = lq
+    if on:
+        return sobol_pair(pk, sidx, dim0 + np.uint64(3 * i + pair))
+    return splitmix_u01(key, c), splitmix_u01(key, c + np.uint64(1))
+
+
+@njit(cache=True, nogil=True)
+def lds_at(lds, bounce, n_u):
+    """The vertex kernel's lds record at a bounce from trace_kernel's (pix, sidx, roles): the
+    bounce's first dimension pair is bounce * n_u. For compiled callers (FastPath.trace_loop
+    builds the same tuple in Python, keeping the uint64s)."""
+    return lds[0], lds[1], np.uint64(bounce * n_u), lds[2]
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, lq, LP, IMG, lcon, sd, ss, ls, bs, SHP):
     """Light g's N light samples into ls and N BSDF samples into bs (those its estimator needs)
@@ -946,9 +963,8 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, lq, LP, IMG, lcon, sd, ss,
     p, ng, sf, tf, ns, wo, ao, bo, p_d, eps, m = V
     for i in range(N if need_l else 0):
         c = ctr + np.uint64(5 * i + 1)
-        wi, dist, pdf, Le, delta = _light_sample(LP, g, p, _est_u(key, c, lq, i, 0, 0),
-                                                 _est_u(key, c + np.uint64(1), lq, i, 0, 1),
-                                                 IMG, lcon[0], lcon[1], lcon[2], ns)
+        u0, u1 = _est_u2(key, c, lq, i, 0)
+        wi, dist, pdf, Le, delta = _light_sample(LP, g, p, u0, u1, IMG, lcon[0], lcon[1], lcon[2], ns)
         if LP[g, LP_SHAPE] >= 0.0:
             Le = _shaped(LP, g, SHP, wi, Le)
         fd, fs, p_b, lz, cos_g = _split_at(V, Pm, wi[0], wi[1], wi[2], Le, sd, ss)
@@ -962,8 +978,8 @@ def _draw_pair(g, N, need_l, need_b, V, Pm, key, ctr, lq, LP, IMG, lcon, sd, ss,
     for i in range(N if need_b else 0):
         c = ctr + np.uint64(5 * i + 3)
         # The BSDF's own sample (_preview_kernels.sample_kernel), to world.
-        wl = _sample_dir_i(wo[0], wo[1], wo[2], a, _est_u(key, c, lq, i, 1, 0) < p_d,
-                           _est_u(key, c + np.uint64(1), lq, i, 2, 0), _est_u(key, c + np.uint64(2), lq, i, 2, 1))
+        u1, u2 = _est_u2(key, c + np.uint64(1), lq, i, 2)
+        wl = _sample_dir_i(wo[0], wo[1], wo[2], a, _est_u(key, c, lq, i, 1, 0) < p_d, u1, u2)
         wx = wl[0] * sf[0] + wl[1] * tf[0] + wl[2] * ns[0]
         wy = wl[0] * sf[1] + wl[1] * tf[1] + wl[2] * ns[1]
         wz = wl[0] * sf[2] + wl[1] * tf[2] + wl[2] * ns[2]

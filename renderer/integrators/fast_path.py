@@ -504,6 +504,8 @@ class FastPath:
             sh_path = np.empty(n * cap, dtype=np.int64)
             sh_c = np.empty((n * cap, 3))
             counts[:] = 0
+            # _vertex_kernels.lds_at's record, built here: numba would hand its uint64s back to
+            # Python as ints, which the kernel would then type as int64.
             vk.vertex_kernel(path, depth, unsampled, S, t32, prim, b1, b2, key,
                              (lds[0], lds[1], np.uint64(bounce * n_u), lds[2]), n_u, surf, max_depth,
                              *self.tables, L, n_path, n_depth, n_S, n_o32, n_d32, n_t32, sh_o, sh_d, sh_t, sh_path,
